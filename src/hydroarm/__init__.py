@@ -1,0 +1,44 @@
+"""hydroarm: simulation and control of underwater robot manipulators.
+
+Quick tour::
+
+    import hydroarm
+    arm = hydroarm.load_arm("paper")          # Liu et al. 2023's arm; also "ur5" or a file
+    water = hydroarm.Water()                  # rho=1000, cd=1.0, cm=2.0
+    w = hydroarm.hydrodynamic_torques(arm, water, q, v, a)
+    plant = hydroarm.UnderwaterPlant(arm, water)
+"""
+
+from hydroarm.arm import Arm, ArmSpec, WettedCylinder, load_arm
+from hydroarm.config import ConfigError
+from hydroarm.plant import NominalModel, PlantConfig, StepInfo, UnderwaterPlant
+from hydroarm.task import SinusoidReference, paper_reference
+from hydroarm.water import (
+    CurrentConfig,
+    HydroTorques,
+    Water,
+    WaterModel,
+    added_mass_matrix,
+    hydrodynamic_torques,
+)
+
+__all__ = [
+    "Arm",
+    "ArmSpec",
+    "ConfigError",
+    "CurrentConfig",
+    "HydroTorques",
+    "NominalModel",
+    "PlantConfig",
+    "SinusoidReference",
+    "StepInfo",
+    "UnderwaterPlant",
+    "Water",
+    "WaterModel",
+    "WettedCylinder",
+    "added_mass_matrix",
+    "hydrodynamic_torques",
+    "load_arm",
+    "paper_reference",
+]
+__version__ = "0.1.0"

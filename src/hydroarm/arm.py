@@ -1,0 +1,369 @@
+"""The arm: a validated arm file -> a Pinocchio model plus its wetted cylinders.
+
+An arm file (TOML or YAML, see ``hydroarm/arms/paper.toml``) lists one row per
+link: standard (distal) Denavit-Hartenberg parameters, dry mass, centre of
+gravity and inertia, and the diameter of the link's wetted cylinder.
+
+Frames. Pinocchio joint ``i`` (1-based) rotates about the z axis of DH frame
+``i-1``; its body frame is DH frame ``i-1`` turned by ``q_i``. The constant
+transform from body frame ``i`` to DH frame ``i`` is
+``X_i = Tz(d_i) Tx(a_i) Rx(alpha_i)``, which is also the placement of joint
+``i+1`` in body frame ``i``. Link ``i``'s wetted cylinder runs in body frame
+``i`` from the origin to ``X_i``'s translation ``(a_i, 0, d_i)``.
+
+Units: SI throughout (m, kg, kg m^2, rad, N m). Base fixed, gravity along -z of
+the base frame.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Annotated, Self
+
+import numpy as np
+import pinocchio as pin
+import pydantic
+
+from hydroarm.config import ConfigError, FrozenModel, load_model
+
+REFERENCE_WATER_DENSITY = 1000.0
+"""kg/m^3: the density at which arm files state ``buoyancy_kg`` (Table A1's)."""
+
+Vector3 = Annotated[list[float], pydantic.Field(min_length=3, max_length=3)]
+PositiveFloat = Annotated[float, pydantic.Field(gt=0.0)]
+NonNegativeFloat = Annotated[float, pydantic.Field(ge=0.0)]
+
+
+class LinkSpec(FrozenModel):
+    """One DH row with the link's dry inertial data and wetted cylinder."""
+
+    name: str
+    a: float = pydantic.Field(description="DH a_i (m)")
+    alpha_deg: float = pydantic.Field(ge=-360.0, le=360.0, description="DH alpha_i (deg)")
+    d: float = pydantic.Field(description="DH d_i (m)")
+    theta_offset_deg: float = pydantic.Field(0.0, ge=-360.0, le=360.0)
+    mass: PositiveFloat = pydantic.Field(description="dry mass (kg)")
+    com: Vector3 = pydantic.Field(description="centre of gravity in DH frame i (m)")
+    inertia_axial: PositiveFloat | None = pydantic.Field(
+        None, description="moment of inertia about the cylinder axis through the CoG (kg m^2)"
+    )
+    inertia_transverse: PositiveFloat | None = pydantic.Field(
+        None, description="moment of inertia about any perpendicular axis through the CoG"
+    )
+    inertia: list[Vector3] | None = pydantic.Field(
+        None,
+        min_length=3,
+        max_length=3,
+        description="full inertia tensor about the CoG in DH frame i (kg m^2)",
+    )
+    cylinder_diameter: PositiveFloat = pydantic.Field(description="wetted cylinder diameter (m)")
+    buoyancy_kg: NonNegativeFloat | None = pydantic.Field(
+        None, description="displaced water mass at 1000 kg/m^3; default: the cylinder's volume"
+    )
+
+    @pydantic.model_validator(mode="after")
+    def _check(self) -> Self:
+        if math.hypot(self.a, self.d) <= 1e-9:
+            raise ValueError("a and d are both zero: the link's cylinder has no length")
+        axisym = self.inertia_axial is not None or self.inertia_transverse is not None
+        if axisym and self.inertia is not None:
+            raise ValueError("give either inertia_axial/inertia_transverse or inertia, not both")
+        if axisym:
+            if self.inertia_axial is None or self.inertia_transverse is None:
+                raise ValueError("inertia_axial and inertia_transverse go together")
+            if self.inertia_axial > 2.0 * self.inertia_transverse:
+                raise ValueError(
+                    "inertia_axial must be <= 2 * inertia_transverse (triangle inequality)"
+                )
+        elif self.inertia is None:
+            raise ValueError("missing inertia: give inertia_axial and inertia_transverse, or inertia")
+        else:
+            tensor = np.asarray(self.inertia)
+            if not np.allclose(tensor, tensor.T, rtol=0.0, atol=1e-12):
+                raise ValueError("inertia must be symmetric")
+            eig = np.linalg.eigvalsh(tensor)
+            if eig[0] <= 0.0:
+                raise ValueError(f"inertia must be positive definite (eigenvalues {eig})")
+            if eig[2] > eig[0] + eig[1] + 1e-12:
+                raise ValueError("inertia violates the triangle inequality (not a rigid body)")
+        return self
+
+    @property
+    def cylinder_end(self) -> np.ndarray:
+        """End of the wetted cylinder in the link's body frame (m), shape (3,)."""
+        return self.dh_transform().translation.copy()
+
+    @property
+    def cylinder_length(self) -> float:
+        return float(math.hypot(self.a, self.d))
+
+    def dh_transform(self) -> pin.SE3:
+        """X_i = Rz(theta_offset) Tz(d) Tx(a) Rx(alpha): body frame i -> DH frame i."""
+        rz = pin.utils.rotate("z", math.radians(self.theta_offset_deg))
+        rot = rz @ pin.utils.rotate("x", math.radians(self.alpha_deg))
+        return pin.SE3(rot, rz @ np.array([self.a, 0.0, self.d]))
+
+    def inertia_in_body_frame(self) -> tuple[np.ndarray, np.ndarray]:
+        """(CoG (3,), inertia about CoG (3, 3)) in the link's body frame."""
+        transform = self.dh_transform()
+        com = transform.act(np.asarray(self.com, dtype=float))
+        if self.inertia is not None:
+            rot = transform.rotation
+            tensor = rot @ np.asarray(self.inertia, dtype=float) @ rot.T
+        else:
+            axis = self.cylinder_end / self.cylinder_length
+            outer = np.outer(axis, axis)
+            tensor = self.inertia_axial * outer + self.inertia_transverse * (np.eye(3) - outer)
+        return com, tensor
+
+
+class ArmSpec(FrozenModel):
+    """A whole arm file."""
+
+    name: str
+    description: str = ""
+    source: str = ""
+    gravity: PositiveFloat = pydantic.Field(9.81, description="m/s^2 along -z of the base")
+    torque_limit: list[PositiveFloat] | PositiveFloat = pydantic.Field(
+        description="|tau_i| <= limit (N m): one value or one per joint"
+    )
+    links: list[LinkSpec] = pydantic.Field(min_length=1, max_length=12)
+
+    @pydantic.model_validator(mode="after")
+    def _check(self) -> Self:
+        if isinstance(self.torque_limit, list) and len(self.torque_limit) != len(self.links):
+            raise ValueError(
+                f"torque_limit has {len(self.torque_limit)} values for {len(self.links)} links"
+            )
+        return self
+
+
+@dataclass(frozen=True)
+class WettedCylinder:
+    """A cylinder of the arm that the water acts on, fixed to one moving link.
+
+    ``start`` and ``end`` are in the body frame of Pinocchio joint ``joint_id``
+    (m); ``diameter`` in m; ``displaced_volume`` in m^3 (buoyancy acts at the
+    midpoint); ``cd``/``cm`` override the water's coefficients when not None.
+    """
+
+    name: str
+    joint_id: int
+    start: np.ndarray
+    end: np.ndarray
+    diameter: float
+    displaced_volume: float
+    cd: float | None = None
+    cm: float | None = None
+
+    @property
+    def length(self) -> float:
+        return float(np.linalg.norm(self.end - self.start))
+
+    @property
+    def axis(self) -> np.ndarray:
+        """Unit axis in the body frame, shape (3,)."""
+        return (self.end - self.start) / self.length
+
+    @property
+    def area(self) -> float:
+        """Cross-section area pi D^2 / 4 (m^2)."""
+        return math.pi * self.diameter**2 / 4.0
+
+
+@dataclass
+class Arm:
+    """A fixed-base arm of revolute joints: Pinocchio model + data + wetted cylinders.
+
+    Follows Pinocchio's model/data split: ``model`` holds constants, ``data`` is
+    the workspace every method below reuses (one ``Arm`` per thread).
+    All dynamics here are the *dry* rigid body; the water is in
+    :mod:`hydroarm.water`.
+    """
+
+    name: str
+    model: pin.Model
+    cylinders: tuple[WettedCylinder, ...]
+    torque_limit: np.ndarray
+    spec: ArmSpec | None = None
+    data: pin.Data = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        if self.model.nq != self.model.nv:
+            raise ConfigError("only revolute/prismatic 1-DOF joints are supported (nq == nv)")
+        self.torque_limit = np.broadcast_to(
+            np.asarray(self.torque_limit, dtype=float), (self.model.nv,)
+        ).copy()
+        self.data = self.model.createData()
+        # support[c, j] = 1 if joint j moves cylinder c (joint j on the path to its link).
+        support = np.zeros((len(self.cylinders), self.model.nv))
+        for row, cylinder in enumerate(self.cylinders):
+            for joint in self.model.supports[cylinder.joint_id]:
+                if joint > 0:
+                    support[row, self.model.joints[joint].idx_v] = 1.0
+        self.cylinder_support = support
+
+    # --- sizes -----------------------------------------------------------------
+    @property
+    def n_joints(self) -> int:
+        return int(self.model.nv)
+
+    @property
+    def gravity_acceleration(self) -> float:
+        return float(np.linalg.norm(self.model.gravity.linear))
+
+    # --- dry rigid-body dynamics ---------------------------------------------
+    def mass_matrix(self, q: np.ndarray) -> np.ndarray:
+        """Joint-space inertia M(q), shape (n, n), symmetric (CRBA)."""
+        mass = pin.crba(self.model, self.data, _vec(q, self.n_joints, "q"))
+        return np.triu(mass) + np.triu(mass, 1).T
+
+    def coriolis_matrix(self, q: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """C(q, v), shape (n, n), with M' - 2C skew-symmetric."""
+        return pin.computeCoriolisMatrix(
+            self.model, self.data, _vec(q, self.n_joints, "q"), _vec(v, self.n_joints, "v")
+        ).copy()
+
+    def gravity(self, q: np.ndarray) -> np.ndarray:
+        """G(q) (N m), shape (n,): the torque that holds the dry arm still."""
+        return pin.computeGeneralizedGravity(
+            self.model, self.data, _vec(q, self.n_joints, "q")
+        ).copy()
+
+    def nonlinear_effects(self, q: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """C(q, v) v + G(q) (N m), shape (n,)."""
+        return pin.nonLinearEffects(self.model, self.data, q, v).copy()
+
+    def inverse_dynamics(self, q: np.ndarray, v: np.ndarray, a: np.ndarray) -> np.ndarray:
+        """tau = M a + C v + G (RNEA), shape (n,)."""
+        n = self.n_joints
+        return pin.rnea(self.model, self.data, _vec(q, n, "q"), _vec(v, n, "v"), _vec(a, n, "a")).copy()
+
+    def forward_dynamics(self, q: np.ndarray, v: np.ndarray, tau: np.ndarray) -> np.ndarray:
+        """q'' = M^-1 (tau - C v - G) (ABA), shape (n,)."""
+        n = self.n_joints
+        return pin.aba(self.model, self.data, _vec(q, n, "q"), _vec(v, n, "v"), _vec(tau, n, "tau")).copy()
+
+    def forward_dynamics_derivatives(
+        self, q: np.ndarray, v: np.ndarray, tau: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Analytical derivatives of ABA (Carpentier & Mansard 2018).
+
+        Returns ``(qdd, dqdd_dq, dqdd_dv, dqdd_dtau)``: the acceleration (n,) and
+        its Jacobians (n, n) each; ``dqdd_dtau`` is M(q)^-1.
+        """
+        pin.computeABADerivatives(self.model, self.data, q, v, tau)
+        minv = np.triu(self.data.Minv) + np.triu(self.data.Minv, 1).T
+        return self.data.ddq.copy(), self.data.ddq_dq.copy(), self.data.ddq_dv.copy(), minv
+
+    def inverse_dynamics_derivatives(
+        self, q: np.ndarray, v: np.ndarray, a: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Analytical derivatives of RNEA: ``(dtau_dq, dtau_dv, M)``, each (n, n)."""
+        pin.computeRNEADerivatives(self.model, self.data, q, v, a)
+        mass = np.triu(self.data.M) + np.triu(self.data.M, 1).T
+        return self.data.dtau_dq.copy(), self.data.dtau_dv.copy(), mass
+
+    def kinetic_energy(self, q: np.ndarray, v: np.ndarray) -> float:
+        """1/2 v^T M v (J)."""
+        return float(pin.computeKineticEnergy(self.model, self.data, q, v))
+
+    def potential_energy(self, q: np.ndarray) -> float:
+        """Gravity potential of the dry arm (J), zero at the base height."""
+        return float(pin.computePotentialEnergy(self.model, self.data, q))
+
+    def joint_placements(self, q: np.ndarray) -> list[pin.SE3]:
+        """World placement of every joint's body frame (Pinocchio ``oMi``), n items."""
+        pin.forwardKinematics(self.model, self.data, _vec(q, self.n_joints, "q"))
+        return [self.data.oMi[i].copy() for i in range(1, self.model.njoints)]
+
+    def cylinder_endpoints(self, q: np.ndarray) -> np.ndarray:
+        """World coordinates of every cylinder's ends, shape (n_cylinders, 2, 3) (m)."""
+        pin.forwardKinematics(self.model, self.data, _vec(q, self.n_joints, "q"))
+        out = np.empty((len(self.cylinders), 2, 3))
+        for row, cylinder in enumerate(self.cylinders):
+            placement = self.data.oMi[cylinder.joint_id]
+            out[row, 0] = placement.act(cylinder.start)
+            out[row, 1] = placement.act(cylinder.end)
+        return out
+
+    # --- export ---------------------------------------------------------------
+    def to_urdf(self) -> str:
+        """URDF of the dry arm: links, revolute joints, inertials, cylinder geometry."""
+        from hydroarm.urdf import arm_to_urdf
+
+        return arm_to_urdf(self)
+
+
+def _vec(x: np.ndarray, n: int, name: str) -> np.ndarray:
+    arr = np.asarray(x, dtype=float)
+    if arr.shape != (n,):
+        raise ValueError(f"{name} must have shape ({n},), got {arr.shape}")
+    return arr
+
+
+def build_arm(spec: ArmSpec) -> Arm:
+    """Build the Pinocchio model and wetted cylinders of an :class:`ArmSpec`."""
+    model = pin.Model()
+    model.name = spec.name
+    model.gravity = pin.Motion(np.array([0.0, 0.0, -spec.gravity]), np.zeros(3))
+    parent = 0
+    placement = pin.SE3.Identity()
+    cylinders = []
+    for index, link in enumerate(spec.links):
+        joint_id = model.addJoint(parent, pin.JointModelRZ(), placement, f"joint{index + 1}")
+        com, tensor = link.inertia_in_body_frame()
+        model.appendBodyToJoint(joint_id, pin.Inertia(link.mass, com, tensor), pin.SE3.Identity())
+        model.addFrame(pin.Frame(link.name, joint_id, pin.SE3.Identity(), pin.FrameType.BODY))
+        length = link.cylinder_length
+        area = math.pi * link.cylinder_diameter**2 / 4.0
+        volume = (
+            link.buoyancy_kg / REFERENCE_WATER_DENSITY
+            if link.buoyancy_kg is not None
+            else area * length
+        )
+        cylinders.append(
+            WettedCylinder(
+                name=link.name,
+                joint_id=joint_id,
+                start=np.zeros(3),
+                end=link.cylinder_end,
+                diameter=link.cylinder_diameter,
+                displaced_volume=volume,
+            )
+        )
+        placement = link.dh_transform()  # joint i+1 sits at DH frame i
+        parent = joint_id
+    model.addFrame(
+        pin.Frame("flange", parent, placement, pin.FrameType.OP_FRAME)
+    )
+    limit = spec.torque_limit
+    return Arm(name=spec.name, model=model, cylinders=tuple(cylinders), torque_limit=np.asarray(limit), spec=spec)
+
+
+BUILTIN_ARMS = ("paper", "ur5")
+
+
+def builtin_arm_path(name: str) -> Path:
+    """Path of a built-in arm file (``paper``, ``ur5``)."""
+    return Path(str(resources.files("hydroarm") / "arms" / f"{name}.toml"))
+
+
+def load_arm_spec(source: str | Path) -> ArmSpec:
+    """Read and validate an arm file, or a built-in arm by name."""
+    if isinstance(source, str) and source in BUILTIN_ARMS:
+        return load_model(ArmSpec, builtin_arm_path(source))
+    path = Path(source)
+    if not path.exists():
+        raise ConfigError(
+            f"arm '{source}': neither a built-in arm ({', '.join(BUILTIN_ARMS)}) nor an existing file"
+        )
+    return load_model(ArmSpec, path)
+
+
+def load_arm(source: str | Path = "paper") -> Arm:
+    """Load an arm: ``"paper"`` (Liu et al. 2023), ``"ur5"``, or a path to an arm file."""
+    return build_arm(load_arm_spec(source))

@@ -1,0 +1,156 @@
+"""The true underwater plant and the nominal (dry) model, with one interface.
+
+State x = [q, v] (rad, rad/s), shape (2n,); input tau (N m), shape (n,),
+held constant over a control period (zero-order hold).
+
+* :class:`UnderwaterPlant`: rigid body + water (drag, added mass, buoyancy),
+  the current, optional joint viscous friction, integrated by RK4 with inner
+  steps of at most ``PlantConfig.inner_step``. The measured state adds seeded
+  Gaussian noise to q and v only; the true state is never touched.
+* :class:`NominalModel`: the dry rigid body (what the controllers know: the
+  arm "tuned once on land"), same interface.
+
+Both expose ``acceleration(t, q, v, tau)``, ``derivative(t, x, tau)`` and
+``step(t, x, tau, dt) -> (x_next, StepInfo)``. ``StepInfo.disturbance`` is the
+generalised force the nominal model lacks, ``M(q) q'' + C v + G - tau`` (zero
+for the nominal model).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pinocchio as pin
+import pydantic
+
+from hydroarm.arm import Arm
+from hydroarm.config import FrozenModel
+from hydroarm.integrator import rk4_step
+from hydroarm.water import Water, WaterModel
+
+
+class PlantConfig(FrozenModel):
+    """Integration and sensing of the true plant.
+
+    ``inner_step`` (s): the RK4 step (the control period is divided into equal
+    steps no longer than this); ``friction`` (N m s/rad): joint viscous friction,
+    0 = off (SPEC default); ``noise_variance`` (rad^2 and (rad/s)^2): variance of
+    the zero-mean Gaussian measurement noise on q and v (0.001 in the paper's
+    Table 2).
+    """
+
+    inner_step: float = pydantic.Field(1e-3, gt=0.0, le=0.1)
+    friction: float = pydantic.Field(0.0, ge=0.0, le=1e4)
+    noise_variance: float = pydantic.Field(0.0, ge=0.0, le=10.0)
+
+
+@dataclass(frozen=True)
+class StepInfo:
+    """What happened inside one plant step.
+
+    ``disturbance`` (N m, (n,)): the generalised force beyond the dry model,
+    averaged over the step with the RK4 weights (what a one-step residual can
+    see); ``disturbance_start``: its value at the start of the step.
+    """
+
+    disturbance: np.ndarray
+    disturbance_start: np.ndarray
+
+
+class _RK4Model:
+    """Shared stepping: subclasses define ``_dynamics(t, q, v, tau) -> (q'', disturbance)``."""
+
+    arm: Arm
+    inner_step: float
+    n: int
+
+    def _dynamics(self, t: float, q: np.ndarray, v: np.ndarray, tau: np.ndarray):
+        raise NotImplementedError
+
+    def acceleration(self, t: float, q: np.ndarray, v: np.ndarray, tau: np.ndarray) -> np.ndarray:
+        """q'' (rad/s^2), shape (n,)."""
+        return self._dynamics(t, q, v, tau)[0]
+
+    def disturbance(self, t: float, q: np.ndarray, v: np.ndarray, tau: np.ndarray) -> np.ndarray:
+        """Generalised force (N m) beyond the dry model at (t, q, v, tau), shape (n,)."""
+        return self._dynamics(t, q, v, tau)[1]
+
+    def derivative(self, t: float, x: np.ndarray, tau: np.ndarray) -> np.ndarray:
+        """x' = [v, q''], shape (2n,)."""
+        n = self.n
+        return np.concatenate([x[n:], self._dynamics(t, x[:n], x[n:], tau)[0]])
+
+    def step(self, t: float, x: np.ndarray, tau: np.ndarray, dt: float) -> tuple[np.ndarray, StepInfo]:
+        """Integrate from (t, x) over dt (s) under constant tau: ``(x_next (2n,), StepInfo)``.
+
+        Classic RK4 with ``ceil(dt / inner_step)`` equal steps.
+        """
+        n = self.n
+        steps = max(1, int(np.ceil(dt / self.inner_step - 1e-9)))
+        h = dt / steps
+        x = np.asarray(x, dtype=float)
+        average = np.zeros(n)
+        start = None
+        time = t
+        stages: list[np.ndarray] = []
+
+        def f(s: float, y: np.ndarray) -> np.ndarray:
+            acc, dist = self._dynamics(s, y[:n], y[n:], tau)
+            stages.append(dist)
+            return np.concatenate([y[n:], acc])
+
+        for _ in range(steps):
+            stages.clear()
+            x = rk4_step(f, time, x, h)
+            if start is None:
+                start = stages[0]
+            average += stages[0] + 2.0 * stages[1] + 2.0 * stages[2] + stages[3]
+            time += h
+        average /= 6.0 * steps
+        return x, StepInfo(disturbance=average, disturbance_start=start)
+
+
+class NominalModel(_RK4Model):
+    """The dry rigid-body model: q'' = M^-1 (tau - C v - G) (Pinocchio ABA)."""
+
+    def __init__(self, arm: Arm, inner_step: float = 1e-3):
+        self.arm = arm
+        self.inner_step = inner_step
+        self.n = arm.n_joints
+        self._zero = np.zeros(self.n)
+
+    def _dynamics(self, t: float, q: np.ndarray, v: np.ndarray, tau: np.ndarray):
+        return pin.aba(self.arm.model, self.arm.data, q, v, tau).copy(), self._zero
+
+
+class UnderwaterPlant(_RK4Model):
+    """The true plant: rigid body + water + current (+ friction).
+
+    ``(M + M_A) (q'' - d_c(t)) = tau - C v - G - h_A + drag + buoyancy - b v``,
+    with d_c the paper current's joint acceleration (zero for other current
+    models; the uniform current acts through the drag instead).
+    """
+
+    def __init__(self, arm: Arm, water: Water | None = None, config: PlantConfig | None = None):
+        self.arm = arm
+        self.water = water if water is not None else Water()
+        self.config = config if config is not None else PlantConfig()
+        self.water_model = WaterModel(arm, self.water)
+        self.inner_step = self.config.inner_step
+        self.n = arm.n_joints
+
+    def _dynamics(self, t: float, q: np.ndarray, v: np.ndarray, tau: np.ndarray):
+        return self.water_model.dynamics(q, v, tau, t, self.config.friction)
+
+    def measure(self, x: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """Measured state: x plus N(0, noise_variance) on every entry (q and v)."""
+        variance = self.config.noise_variance
+        if variance == 0.0:
+            return np.array(x, dtype=float)
+        return x + rng.normal(0.0, np.sqrt(variance), size=x.shape)
+
+    def energy(self, x: np.ndarray) -> float:
+        """Dry kinetic + gravity potential energy (J) of state x."""
+        n = self.n
+        return self.arm.kinetic_energy(x[:n], x[n:]) + self.arm.potential_energy(x[:n])
