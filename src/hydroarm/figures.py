@@ -1,0 +1,109 @@
+"""Figures of a run or a comparison, one panel per joint (the paper's Figures 4-15).
+
+Every function takes trajectories (:class:`hydroarm.simulate.Trajectory`) and a
+path, writes a PNG and returns the path. Headless (Agg backend).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from hydroarm.simulate import Trajectory  # noqa: E402
+
+COLOURS = {"SMC": "tab:green", "MPC": "tab:blue", "GP-MPC": "tab:red", "reference": "black"}
+
+
+def _panels(n: int, title: str, sharex: bool = True):
+    rows = (n + 1) // 2
+    fig, axes = plt.subplots(rows, 2, figsize=(11, 2.4 * rows + 0.8), sharex=sharex, squeeze=False)
+    fig.suptitle(title, fontsize=12)
+    flat = axes.ravel()
+    for ax in flat[n:]:
+        ax.set_visible(False)
+    return fig, flat[:n]
+
+
+def _finish(fig, axes, path: Path, xlabel: str = "time (s)") -> Path:
+    for ax in axes[-2:]:
+        ax.set_xlabel(xlabel)
+    for ax in axes:
+        ax.grid(True, alpha=0.3)
+    axes[0].legend(loc="best", fontsize=8)
+    fig.tight_layout()
+    path = Path(path)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def plot_disturbance(traj: Trajectory, path: Path, title: str) -> Path:
+    """True generalised disturbance vs the controller's estimate per joint (paper Figs. 4, 6)."""
+    fig, axes = _panels(traj.n_joints, title)
+    for j, ax in enumerate(axes):
+        ax.plot(traj.t, traj.disturbance[:, j], color="black", lw=1.2, label="true")
+        ax.plot(traj.t, traj.disturbance_estimate[:, j], color="tab:red", lw=1.0, ls="--", label="GP estimate")
+        ax.set_ylabel(f"joint {j + 1} (N m)")
+    return _finish(fig, axes, path)
+
+
+def plot_disturbance_error(traj: Trajectory, path: Path, title: str) -> Path:
+    """Estimate minus truth per joint (paper Figs. 5, 7), with the GP's 2-sigma band."""
+    fig, axes = _panels(traj.n_joints, title)
+    error = traj.disturbance_estimate - traj.disturbance
+    sigma = np.sqrt(np.maximum(traj.disturbance_var, 0.0))
+    for j, ax in enumerate(axes):
+        ax.plot(traj.t, error[:, j], color="tab:red", lw=1.0, label="estimate - true")
+        if np.isfinite(sigma[:, j]).any():
+            ax.fill_between(traj.t, -2 * sigma[:, j], 2 * sigma[:, j], color="tab:gray", alpha=0.25, label="GP 2 sigma")
+        after = traj.t > 1.0
+        if after.any():
+            rms = float(np.sqrt(np.nanmean(error[after, j] ** 2)))
+            ax.set_title(f"RMS after 1 s: {rms:.3g} N m", fontsize=8)
+        ax.set_ylabel(f"joint {j + 1} (N m)")
+    return _finish(fig, axes, path)
+
+
+def plot_tracking(traj: Trajectory, path: Path, title: str, quantity: str = "position") -> Path:
+    """Reference vs true joint positions (``quantity="position"``, rad; paper Figs. 8, 12)
+    or velocities (``"velocity"``, rad/s; Figs. 10, 13)."""
+    fig, axes = _panels(traj.n_joints, title)
+    actual, ref, unit = (traj.q, traj.q_ref, "rad") if quantity == "position" else (traj.v, traj.v_ref, "rad/s")
+    name = traj.meta.get("controller", "actual")
+    for j, ax in enumerate(axes):
+        ax.plot(traj.t, ref[:, j], color="black", lw=1.2, ls="--", label="reference")
+        ax.plot(traj.t, actual[:, j], color=COLOURS.get(name, "tab:red"), lw=1.0, label=name)
+        ax.set_ylabel(f"joint {j + 1} ({unit})")
+    return _finish(fig, axes, path)
+
+
+def plot_torque(traj: Trajectory, path: Path, title: str, limit: np.ndarray | None = None) -> Path:
+    """Applied joint torques (paper Figs. 11, 14), with the limits dotted."""
+    fig, axes = _panels(traj.n_joints, title)
+    name = traj.meta.get("controller", "")
+    for j, ax in enumerate(axes):
+        ax.plot(traj.t, traj.u[:, j], color=COLOURS.get(name, "tab:red"), lw=1.0, label=name)
+        if limit is not None:
+            ax.axhline(limit[j], color="gray", ls=":", lw=0.8, label="limit")
+            ax.axhline(-limit[j], color="gray", ls=":", lw=0.8)
+        ax.set_ylabel(f"joint {j + 1} (N m)")
+    return _finish(fig, axes, path)
+
+
+def plot_error_comparison(trajs: dict[str, Trajectory], path: Path, title: str) -> Path:
+    """Tracking error q_r - q per joint for several controllers (paper Figs. 9, 15)."""
+    first = next(iter(trajs.values()))
+    fig, axes = _panels(first.n_joints, title)
+    for name, traj in trajs.items():
+        error = traj.q_ref - traj.q
+        for j, ax in enumerate(axes):
+            ax.plot(traj.t, error[:, j], color=COLOURS.get(name), lw=1.0, label=name)
+    for j, ax in enumerate(axes):
+        ax.set_ylabel(f"joint {j + 1} error (rad)")
+        ax.axhline(0.0, color="black", lw=0.5)
+    return _finish(fig, axes, path)
