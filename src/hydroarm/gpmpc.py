@@ -1,0 +1,153 @@
+"""Adaptive GP-MPC (Liu et al. 2023, Algorithm 2): an MPC and a sliding-window GP, composed.
+
+Each control step k:
+
+1. ``observe`` (after the plant moved): the nominal (dry) model predicts the
+   state reached from the measured ``y_{k-1}`` under ``u_{k-1}`` (one RK4 step of
+   the control period); the residual of the measured velocity, mapped to a
+   generalised force, ``w_{k-1} = M(q_{k-1}) (v_k - v_nominal) / T`` (N m), is
+   the disturbance the dry model missed. The GP window gets
+   ``(features_{k-1}, w_{k-1})``.
+2. ``compute``: a bounded number of hyperparameter steps, then the GP predicts
+   the disturbance ``w_hat`` at the current features; it enters the MPC's
+   prediction model as the joint acceleration ``M(q_k)^-1 w_hat`` (the affine
+   term of the linearised model, so the QP still enforces the torque limits).
+
+GP input features (``GPMPCConfig.features``):
+
+* ``"state"``: the measured state [q, v] (the paper's 12 inputs, 14 hyperparameters);
+* ``"state+nominal"``: [q, v] and the nominal prediction of the current state
+  from the previous step (the paper's text also names it);
+* ``"state+torque"``: [q, v] and the previous torque (scaled by ``torque_scale``).
+
+``variance_aware`` (off by default, as in the paper): the feed-forward of each
+joint is scaled by ``w^2 / (w^2 + var)``, so estimates the GP is unsure of are
+trusted less.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Literal
+
+import numpy as np
+import pinocchio as pin
+import pydantic
+
+from hydroarm.arm import Arm
+from hydroarm.config import FrozenModel
+from hydroarm.control import ControlOutput, Reference
+from hydroarm.gp import GPConfig, SlidingWindowGP
+from hydroarm.integrator import rk4_step
+from hydroarm.mpc import LinearMPC
+
+Features = Literal["state", "state+nominal", "state+torque"]
+
+
+class GPMPCConfig(FrozenModel):
+    """How the GP is wired into the MPC (the GP's own settings are a :class:`GPConfig`)."""
+
+    features: Features = "state"
+    feedforward: Literal["acceleration", "torque"] = pydantic.Field(
+        "torque",
+        description="where the estimate enters the MPC: the model's affine term (paper) or the input reference",
+    )
+    torque_scale: float = pydantic.Field(100.0, gt=0.0, description="N m per feature unit for torque inputs")
+    min_samples: int = pydantic.Field(2, ge=1, le=10_000, description="window samples before feeding forward")
+    variance_aware: bool = False
+
+
+def feature_size(features: Features, n: int) -> int:
+    """Length of the GP input vector for ``features`` on an n-joint arm."""
+    return {"state": 2 * n, "state+nominal": 4 * n, "state+torque": 3 * n}[features]
+
+
+class GPMPC:
+    """Adaptive MPC with a sliding-window GP disturbance model (see the module docstring).
+
+    Holds a :class:`LinearMPC` and a :class:`SlidingWindowGP`; no inheritance.
+    """
+
+    name = "GP-MPC"
+
+    def __init__(
+        self,
+        arm: Arm,
+        mpc: LinearMPC,
+        gp_config: GPConfig | None = None,
+        config: GPMPCConfig | None = None,
+    ):
+        self.arm = arm
+        self.mpc = mpc
+        self.config = config if config is not None else GPMPCConfig()
+        self.n = arm.n_joints
+        self.gp = SlidingWindowGP(feature_size(self.config.features, self.n), self.n, gp_config)
+        self.control_period = mpc.control_period
+        self._data = arm.model.createData()  # own workspace: the MPC uses arm.data
+        self.reset()
+
+    def reset(self) -> None:
+        self.mpc.reset()
+        self.gp.reset()
+        self._last_u = np.zeros(self.n)
+        self._nominal_now = None  # nominal prediction of the current state
+        self._features_now = None
+
+    # --- model pieces -----------------------------------------------------------------
+    def _nominal_step(self, y: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """The dry model's state after one control period from y under u (one RK4 step)."""
+        n, model, data = self.n, self.arm.model, self._data
+
+        def f(_t: float, x: np.ndarray) -> np.ndarray:
+            return np.concatenate([x[n:], pin.aba(model, data, x[:n], x[n:], u)])
+
+        return rk4_step(f, 0.0, y, self.control_period)
+
+    def _features(self, y: np.ndarray, u_prev: np.ndarray, nominal: np.ndarray | None) -> np.ndarray:
+        kind = self.config.features
+        if kind == "state":
+            return y.copy()
+        if kind == "state+torque":
+            return np.concatenate([y, u_prev / self.config.torque_scale])
+        return np.concatenate([y, y if nominal is None else nominal])
+
+    # --- the controller interface ---------------------------------------------------------
+    def compute(self, t: float, y: np.ndarray, reference: Reference) -> ControlOutput:
+        start = time.perf_counter()
+        n = self.n
+        features = self._features(y, self._last_u, self._nominal_now)
+        self._features_now = features
+        mean = np.zeros(n)
+        var = np.full(n, np.nan)
+        feedforward = None
+        if self.gp.n_samples >= self.config.min_samples:
+            self.gp.update_hyperparameters()
+            mean, var = self.gp.predict(features)
+            scaled = mean
+            if self.config.variance_aware:
+                scaled = mean * mean**2 / (mean**2 + var + 1e-12)
+            if self.config.feedforward == "acceleration":
+                mass = pin.crba(self.arm.model, self._data, y[:n])
+                mass = np.triu(mass) + np.triu(mass, 1).T
+                feedforward = {"feedforward_acceleration": np.linalg.solve(mass, scaled)}
+            else:
+                feedforward = {"feedforward_torque": scaled}
+        gp_time = time.perf_counter() - start
+        out = self.mpc.compute(t, y, reference, **(feedforward or {}))
+        out.disturbance_mean = mean
+        out.disturbance_var = var
+        out.timings["gp"] = gp_time
+        out.timings["total"] = time.perf_counter() - start
+        self._last_u = out.tau.copy()
+        return out
+
+    def observe(self, t: float, y: np.ndarray, u: np.ndarray, y_next: np.ndarray) -> None:
+        """Add the disturbance seen over the last step to the GP window."""
+        n = self.n
+        nominal = self._nominal_step(y, u)
+        mass = pin.crba(self.arm.model, self._data, y[:n])
+        mass = np.triu(mass) + np.triu(mass, 1).T
+        residual = mass @ (y_next[n:] - nominal[n:]) / self.control_period
+        features = self._features_now if self._features_now is not None else self._features(y, u, None)
+        self.gp.add(features, residual)
+        self._nominal_now = nominal
