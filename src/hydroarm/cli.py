@@ -1,0 +1,222 @@
+"""The ``hydroarm`` command line: reproduce the paper, run one experiment, list arms, export URDF.
+
+Exit codes: 0 success, 1 a run failed, 2 bad input (a clear message naming the
+field, no traceback), 130 interrupted (finished runs are kept on disk).
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.table import Table
+
+from hydroarm.config import ConfigError, load_model
+
+app = typer.Typer(
+    add_completion=False,
+    no_args_is_help=True,
+    help="Simulate and control underwater robot arms (Liu et al. 2023 reproduced and beaten).",
+)
+console = Console(stderr=True)
+
+
+def _fail(message: str, code: int = 2) -> None:
+    console.print(f"[bold red]error:[/] {message}")
+    raise typer.Exit(code)
+
+
+def _parse_value(text: str) -> Any:
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError:
+        return text
+
+
+def _experiment_config(config_file: Path | None, overrides: list[str]):
+    from hydroarm.experiments import ExperimentConfig, with_overrides
+
+    config = load_model(ExperimentConfig, config_file) if config_file else ExperimentConfig()
+    pairs = {}
+    for item in overrides:
+        if "=" not in item:
+            raise ConfigError(f"--set '{item}': expected key=value, e.g. mpc.r=0.001")
+        key, value = item.split("=", 1)
+        pairs[key.strip()] = _parse_value(value.strip())
+    return with_overrides(config, pairs) if pairs else config
+
+
+ConfigOption = Annotated[
+    Path | None, typer.Option("--config", help="TOML/YAML experiment settings (see docs/tutorial.md).")
+]
+SetOption = Annotated[
+    list[str] | None,
+    typer.Option("--set", help="Override one setting, e.g. --set mpc.r=0.001 --set gp.window=20 (repeatable)."),
+]
+
+
+@app.command()
+def reproduce(
+    out: Annotated[Path, typer.Option("--out", help="Output folder (created).")] = Path("results"),
+    quick: Annotated[bool, typer.Option("--quick", help="3 s task, 2 noisy seeds, no ablation (CI).")] = False,
+    seeds: Annotated[int | None, typer.Option("--seeds", min=1, max=100, help="Noisy seeds (default 5; quick 2).")] = None,
+    ablation: Annotated[bool | None, typer.Option("--ablation/--no-ablation", help="Run the ablation (default: on unless --quick).")] = None,
+    workers: Annotated[int, typer.Option("--workers", min=1, max=64, help="Parallel processes.")] = 2,
+    config_file: ConfigOption = None,
+    overrides: SetOption = None,
+    as_json: Annotated[bool, typer.Option("--json", help="Print metrics.json's tables to stdout.")] = False,
+) -> None:
+    """Reproduce the paper's Tables 1-2 and Figures 4-15 into OUT.
+
+    Example: hydroarm reproduce --out results
+    """
+    from hydroarm.reproduce import reproduce as run
+
+    try:
+        config = _experiment_config(config_file, overrides or [])
+    except ConfigError as error:
+        _fail(str(error))
+    with Progress(
+        TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(), console=console,
+        transient=False,
+    ) as progress:  # fmt: skip
+        tasks: dict[str, int] = {}
+
+        def hook(key: str, k: int, total: int) -> None:
+            if key not in tasks:
+                tasks[key] = progress.add_task(key, total=total)
+            task = tasks[key]
+            if k == 1 and total == 1:
+                progress.update(task, completed=progress.tasks[task].total)
+            else:
+                progress.update(task, completed=k, total=total)
+
+        try:
+            metrics = run(out, quick=quick, noisy_seeds=seeds, ablation=ablation, workers=workers, config=config, on_progress=hook)
+        except KeyboardInterrupt:
+            console.print("[yellow]interrupted:[/] finished runs are kept in " f"{out / 'runs'}; run the same command to resume")
+            raise typer.Exit(130) from None
+        except ConfigError as error:
+            _fail(str(error))
+    if as_json:
+        print(json.dumps({case: metrics[case] for case in ("clean", "noisy")}, indent=1))
+        return
+    table = Table(title=f"E_p mean over joints (rad^2) — full tables in {out}/table1.md, table2.md")
+    table.add_column("controller")
+    table.add_column("clean")
+    table.add_column("noisy")
+    for name in ("SMC", "MPC", "GP-MPC"):
+        table.add_row(name, f"{metrics['clean'][name]['Ep_mean']:.4g}", f"{metrics['noisy'][name]['Ep_mean']:.4g}")
+    for case in ("clean", "noisy"):
+        gain = metrics[case]["gain_gp_mpc_over_mpc_percent"]
+        table.add_row(
+            f"gain {case} (%)", f"{gain['mean_of_joints']:.1f} (paper {gain['paper_mean_of_joints']})", ""
+        )
+    Console().print(table)
+    console.print(f"report: {out / 'report.md'}  ({metrics['wall_time_s']['total']:.1f} s)")
+
+
+@app.command()
+def run(
+    controller: Annotated[str, typer.Option("--controller", help="smc, mpc or gp-mpc.")] = "gp-mpc",
+    arm: Annotated[str, typer.Option("--arm", help="Built-in arm name or arm file.")] = "paper",
+    noise: Annotated[float, typer.Option("--noise", min=0.0, max=10.0, help="Measurement noise variance.")] = 0.0,
+    seed: Annotated[int, typer.Option("--seed", min=0, help="Noise seed.")] = 0,
+    out: Annotated[Path, typer.Option("--out", help="Output folder.")] = Path("run"),
+    config_file: ConfigOption = None,
+    overrides: SetOption = None,
+    as_json: Annotated[bool, typer.Option("--json", help="Print the metrics as JSON.")] = False,
+) -> None:
+    """Run one experiment and write its trajectory, metrics and figures.
+
+    Example: hydroarm run --controller gp-mpc --arm paper --noise 0.001 --seed 3 --out DIR
+    """
+    from hydroarm import figures
+    from hydroarm.arm import load_arm
+    from hydroarm.experiments import CONTROLLERS, run_experiment, with_overrides
+    from hydroarm.simulate import tracking_metrics
+
+    names = {c.lower(): c for c in CONTROLLERS}
+    if controller.lower() not in names:
+        _fail(f"--controller '{controller}': must be one of {', '.join(names)}")
+    try:
+        config = _experiment_config(config_file, overrides or [])
+        config = with_overrides(config, {"arm": arm, "plant.noise_variance": noise})
+        arm_model = load_arm(config.arm)
+    except ConfigError as error:
+        _fail(str(error))
+    name = names[controller.lower()]
+    out.mkdir(parents=True, exist_ok=True)
+    with Progress(TextColumn(name), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(), console=console) as progress:
+        task = progress.add_task(name, total=int(round(config.duration / config.control_period)))
+        traj = run_experiment(config, name, seed, progress=lambda k, total: progress.update(task, completed=k))
+    traj.save(out / "trajectory.npz")
+    metrics = tracking_metrics(traj)
+    (out / "metrics.json").write_text(json.dumps(metrics, indent=1))
+    figures.plot_tracking(traj, out / "position.png", f"{name}: position tracking", "position")
+    figures.plot_tracking(traj, out / "velocity.png", f"{name}: velocity tracking", "velocity")
+    figures.plot_torque(traj, out / "torque.png", f"{name}: joint torques", arm_model.torque_limit)
+    if name == "GP-MPC":
+        figures.plot_disturbance(traj, out / "disturbance.png", "true vs GP-estimated disturbance")
+    if as_json:
+        print(json.dumps(metrics))
+    else:
+        console.print(f"E_p per joint (rad^2): {[round(x, 5) for x in metrics['Ep']]}; files in {out}")
+    if traj.diverged:
+        raise typer.Exit(1)
+
+
+@app.command()
+def arms(as_json: Annotated[bool, typer.Option("--json")] = False) -> None:
+    """List the built-in arms."""
+    from hydroarm.arm import BUILTIN_ARMS, load_arm
+
+    rows = []
+    for name in BUILTIN_ARMS:
+        arm = load_arm(name)
+        spec = arm.spec
+        rows.append({"name": name, "joints": arm.n_joints, "description": getattr(spec, "description", ""), "torque_limit": arm.torque_limit.tolist()})
+    if as_json:
+        print(json.dumps(rows))
+        return
+    table = Table(title="built-in arms")
+    for column in ("name", "joints", "description", "torque limit (N m)"):
+        table.add_column(column)
+    for row in rows:
+        table.add_row(row["name"], str(row["joints"]), row["description"], ", ".join(f"{x:g}" for x in row["torque_limit"]))
+    Console().print(table)
+
+
+@app.command("export-urdf")
+def export_urdf(
+    arm: Annotated[str, typer.Argument(help="Built-in arm name or arm file.")] = "paper",
+    out: Annotated[Path | None, typer.Option("--out", help="File to write (default: stdout).")] = None,
+) -> None:
+    """Write the dry arm as URDF (links, revolute joints, inertials, cylinders).
+
+    Example: hydroarm export-urdf paper --out paper.urdf
+    """
+    from hydroarm.arm import load_arm
+
+    try:
+        text = load_arm(arm).to_urdf()
+    except ConfigError as error:
+        _fail(str(error))
+    if out is None:
+        sys.stdout.write(text)
+    else:
+        out.write_text(text)
+        console.print(f"wrote {out}")
+
+
+def main() -> None:  # pragma: no cover - entry point
+    app()
+
+
+if __name__ == "__main__":  # pragma: no cover
+    main()

@@ -1,0 +1,412 @@
+"""Reproduce Liu et al. 2023: Tables 1-2, Figures 4-15, an ablation, a report.
+
+``reproduce(out_dir)`` runs SMC, MPC and GP-MPC on the true underwater plant
+along the paper task, without noise (Table 1) and with measurement noise of
+variance 0.001 over several seeds (Table 2), plus an ablation of the GP-MPC's
+settings, and writes into ``out_dir``:
+
+* ``runs/*.npz``: every trajectory (re-plot without re-running);
+* ``metrics.json``: ``{"clean": {"SMC": {"Ep": [...]}, ...}, "noisy": {...}}`` (E_p per
+  joint, rad^2, and more per controller), ``summary.json``: that plus the
+  ablation, the settings, wall times and the machine;
+* ``table1.md``/``.csv``, ``table2.md``/``.csv``, ``ablation.md``/``.csv``;
+* ``fig04_...png`` to ``fig15_...png``: the paper's figures;
+* ``report.md``: settings, tables, figures, and where and why we differ.
+
+Each run is saved atomically as soon as it finishes; a later call with the same
+settings loads the finished runs (their settings digest, controller and seed
+must match, and a file that cannot be read is recomputed) and runs only the
+rest, so an interrupted reproduction loses nothing.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import multiprocessing
+import os
+import platform
+import time
+from collections.abc import Callable
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from hydroarm import figures
+from hydroarm.arm import load_arm
+from hydroarm.experiments import ExperimentConfig, run_experiment, with_overrides
+from hydroarm.simulate import Trajectory, tracking_metrics
+
+CONTROLLERS = ("SMC", "MPC", "GP-MPC")
+NOISE_VARIANCE = 0.001
+
+PAPER_EP = {
+    "clean": {
+        "SMC": [1.5872, 2.9348, 2.3282, 9.1378, 1.9941, 2.8227],
+        "MPC": [0.09138, 0.1068, 0.2648, 0.3525, 0.2296, 0.2039],
+        "GP-MPC": [0.0504, 0.0986, 0.1963, 0.1552, 0.1351, 0.1452],
+    },
+    "noisy": {
+        "SMC": [3.2783, 5.391, 2.3581, 5.2402, 4.7431, 5.1747],
+        "MPC": [0.1996, 0.2092, 0.4074, 0.5832, 2.3808, 0.3379],
+        "GP-MPC": [0.1226, 0.1333, 0.1591, 0.3152, 0.2011, 0.2017],
+    },
+}
+PAPER_GAIN = {"clean": 34.05, "noisy": 52.27}
+"""The paper's "average control accuracy" gain: the mean of the per-joint gains (%)."""
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    """One closed-loop run of the study: a case label, a controller, a seed, its settings."""
+
+    case: str
+    controller: str
+    seed: int
+    config: ExperimentConfig
+
+    @property
+    def key(self) -> str:
+        return f"{self.case}__{self.controller}__seed{self.seed}".replace("/", "-").replace("+", "p")
+
+
+def ablation_cases(base: ExperimentConfig) -> list[tuple[str, str, dict]]:
+    """(group, label, overrides) of the GP-MPC ablation (issue 4's list)."""
+    cases: list[tuple[str, str, dict]] = []
+    for window in (5, 10, 20, 40):
+        cases.append(("GP window N_train", str(window), {"gp.window": window}))
+    for steps in (0, 1, 5, 20):
+        cases.append(("hyperparameter steps per control step", str(steps), {"gp.hyper_steps": steps}))
+    for features in ("state", "state+nominal", "state+torque"):
+        cases.append(("GP input features", features, {"gpmpc.features": features}))
+    for feedforward in ("acceleration", "torque"):
+        cases.append(("where the estimate enters", feedforward, {"gpmpc.feedforward": feedforward}))
+    for horizon in (5, 10, 20):
+        cases.append(("MPC horizon N", str(horizon), {"mpc.horizon": horizon}))
+    for r in (0.1, 1e-3):
+        cases.append(("R", f"{r:g}", {"mpc.r": r}))
+    for period in (0.005, 0.01, 0.02):
+        cases.append(("control period T (s)", f"{period:g}", {"control_period": period}))
+    uniform = {"water.current.model": "uniform", "water.current.mean": [0.3, 0.2, 0.0],
+               "water.current.amplitude": [0.2, 0.0, 0.0], "water.current.frequency_hz": 0.2}  # fmt: skip
+    cases.append(("current model", "paper", {"water.current.model": "paper"}))
+    cases.append(("current model", "uniform", uniform))
+    return cases
+
+
+DRY = {"water.drag": False, "water.added_mass": False, "water.buoyancy": False, "water.current.model": "none"}
+"""The plant without water: MPC on it bounds what any disturbance compensation can reach."""
+
+
+def plan_runs(base: ExperimentConfig, noisy_seeds: int, ablation: bool) -> list[RunSpec]:
+    """Every run of the study: clean (seed 0), noisy (seeds 0..noisy_seeds-1), the
+    dry-arm bound (MPC with the water removed: perfect disturbance knowledge), ablation."""
+    noisy = with_overrides(base, {"plant.noise_variance": NOISE_VARIANCE})
+    runs = [RunSpec("clean", name, 0, base) for name in CONTROLLERS]
+    runs += [RunSpec("noisy", name, seed, noisy) for seed in range(noisy_seeds) for name in CONTROLLERS]
+    runs.append(RunSpec("bound-clean", "MPC", 0, with_overrides(base, DRY)))
+    runs += [RunSpec("bound-noisy", "MPC", seed, with_overrides(noisy, DRY)) for seed in range(noisy_seeds)]
+    if ablation:
+        for group, label, overrides in ablation_cases(base):
+            config = with_overrides(base, overrides)
+            for name in ("MPC", "GP-MPC"):
+                runs.append(RunSpec(f"ablation/{group}={label}", name, 0, config))
+    return runs
+
+
+def load_finished(path: Path, spec: RunSpec) -> Trajectory | None:
+    """The saved run if it is readable and was made with these settings; else None."""
+    if not path.exists():
+        return None
+    try:
+        traj = Trajectory.load(path)
+    except Exception:  # corrupt or partial file: recompute it
+        return None
+    meta = traj.meta
+    if meta.get("digest") != spec.config.digest() or meta.get("controller") != spec.controller or meta.get("seed") != spec.seed:
+        return None
+    return traj
+
+
+def _run_one(spec: RunSpec, path: str, queue) -> str:
+    """Worker: run, save atomically, report progress through ``queue``."""
+
+    def progress(k: int, total: int) -> None:
+        if queue is not None and (k % 50 == 0 or k == total):
+            queue.put((spec.key, k, total))
+
+    traj = run_experiment(spec.config, spec.controller, spec.seed, progress=progress)
+    traj.meta["case"] = spec.case
+    traj.save(path)
+    return spec.key
+
+
+ProgressHook = Callable[[str, int, int], None]
+
+
+def execute(runs: list[RunSpec], run_dir: Path, workers: int, on_progress: ProgressHook | None = None) -> dict[str, Trajectory]:
+    """Run what is not finished yet (in ``workers`` processes), return every trajectory by key."""
+    run_dir.mkdir(parents=True, exist_ok=True)
+    results: dict[str, Trajectory] = {}
+    todo = []
+    for spec in runs:
+        finished = load_finished(run_dir / f"{spec.key}.npz", spec)
+        if finished is None:
+            todo.append(spec)
+        else:
+            results[spec.key] = finished
+            if on_progress:
+                on_progress(spec.key, 1, 1)
+    if not todo:
+        return results
+    context = multiprocessing.get_context("spawn")
+    with context.Manager() as manager:
+        queue = manager.Queue()
+        with ProcessPoolExecutor(max_workers=max(1, workers), mp_context=context) as pool:
+            futures = {pool.submit(_run_one, spec, str(run_dir / f"{spec.key}.npz"), queue): spec for spec in todo}
+            pending = set(futures)
+            try:
+                while pending:
+                    done, pending = wait(pending, timeout=0.2, return_when=FIRST_COMPLETED)
+                    while not queue.empty():
+                        key, k, total = queue.get()
+                        if on_progress:
+                            on_progress(key, k, total)
+                    for future in done:
+                        spec = futures[future]
+                        future.result()  # a failed run raises here; finished ones are on disk
+                        results[spec.key] = Trajectory.load(run_dir / f"{spec.key}.npz")
+                        if on_progress:
+                            on_progress(spec.key, 1, 1)
+            except BaseException:
+                for future in pending:
+                    future.cancel()
+                raise
+    return results
+
+
+# --- summaries ---------------------------------------------------------------------
+
+
+def gain_percent(baseline: list[float], improved: list[float]) -> list[float]:
+    """Per-joint improvement (%) of ``improved`` over ``baseline`` E_p (paper's definition)."""
+    return [100.0 * (b - i) / b if b > 0 else 0.0 for b, i in zip(baseline, improved)]
+
+
+def summarise(runs: list[RunSpec], results: dict[str, Trajectory]) -> dict:
+    """metrics.json: per case and controller, E_p per joint (mean over seeds) and more."""
+    metrics: dict = {}
+    for case in ("clean", "noisy"):
+        metrics[case] = {}
+        for name in CONTROLLERS:
+            trajs = [results[s.key] for s in runs if s.case == case and s.controller == name]
+            per_seed = [tracking_metrics(t) for t in trajs]
+            ep = np.array([m["Ep"] for m in per_seed])
+            steady = np.array([m["Ep_steady"] for m in per_seed])
+            after = [t.t > 1.0 for t in trajs]
+            entry = {
+                "Ep": ep.mean(axis=0).tolist(),
+                "Ep_std": ep.std(axis=0).tolist(),
+                "Ep_mean": float(ep.mean()),
+                "Ep_steady": steady.mean(axis=0).tolist(),
+                "Ep_per_seed": ep.tolist(),
+                "rms": np.mean([m["rms"] for m in per_seed], axis=0).tolist(),
+                "max": np.max([m["max"] for m in per_seed], axis=0).tolist(),
+                "torque_rms": np.mean([m["torque_rms"] for m in per_seed], axis=0).tolist(),
+                "time_to_band": np.mean([m["time_to_band"] for m in per_seed], axis=0).tolist(),
+                "seeds": [s.seed for s in runs if s.case == case and s.controller == name],
+                "diverged": any(m["diverged"] for m in per_seed),
+                "step_ms_median": float(np.median(np.concatenate([t.timings["total"] for t in trajs])) * 1e3),
+                "step_ms_p99": float(np.percentile(np.concatenate([t.timings["total"] for t in trajs]), 99) * 1e3),
+            }
+            if name == "GP-MPC":
+                errors = np.concatenate([t.disturbance_estimate[a] - t.disturbance[a] for t, a in zip(trajs, after)])
+                truth = np.concatenate([t.disturbance[a] for t, a in zip(trajs, after)])
+                entry["disturbance_estimate_rms_after_1s"] = np.sqrt(np.mean(errors**2, axis=0)).tolist()
+                entry["disturbance_rms_after_1s"] = np.sqrt(np.mean(truth**2, axis=0)).tolist()
+            metrics[case][name] = entry
+        bound = [tracking_metrics(results[s.key]) for s in runs if s.case == f"bound-{case}"]
+        bound_ep = np.mean([m["Ep"] for m in bound], axis=0).tolist()
+        bound_gain = gain_percent(metrics[case]["MPC"]["Ep"], bound_ep)
+        metrics[case]["MPC_dry_arm_bound"] = {
+            "Ep": bound_ep,
+            "gain_over_MPC_percent": bound_gain,
+            "gain_mean_of_joints": float(np.mean(bound_gain)),
+            "note": "MPC on the arm without water: what perfect disturbance compensation could reach",
+        }
+        gains = gain_percent(metrics[case]["MPC"]["Ep"], metrics[case]["GP-MPC"]["Ep"])
+        metrics[case]["gain_gp_mpc_over_mpc_percent"] = {
+            "per_joint": gains,
+            "mean_of_joints": float(np.mean(gains)),
+            "of_mean_Ep": 100.0 * (1 - metrics[case]["GP-MPC"]["Ep_mean"] / metrics[case]["MPC"]["Ep_mean"]),
+            "steady_per_joint": gain_percent(metrics[case]["MPC"]["Ep_steady"], metrics[case]["GP-MPC"]["Ep_steady"]),
+            "paper_mean_of_joints": PAPER_GAIN[case],
+        }
+    ablation: dict = {}
+    for spec in runs:
+        if not spec.case.startswith("ablation/"):
+            continue
+        group, label = spec.case.removeprefix("ablation/").split("=", 1)
+        traj = results[spec.key]
+        m = tracking_metrics(traj)
+        row = ablation.setdefault(group, {}).setdefault(label, {})
+        row[spec.controller] = {
+            "Ep_mean": float(np.mean(m["Ep"])),
+            "Ep": m["Ep"],
+            "Ep_steady_mean": float(np.mean(m["Ep_steady"])),
+            "step_ms_median": float(np.median(traj.timings["total"]) * 1e3),
+            "diverged": m["diverged"],
+        }
+    for rows in ablation.values():
+        for row in rows.values():
+            if "MPC" in row and "GP-MPC" in row:
+                gains = gain_percent(row["MPC"]["Ep"], row["GP-MPC"]["Ep"])
+                row["gain_mean_of_joints"] = float(np.mean(gains))
+    metrics["ablation"] = ablation
+    return metrics
+
+
+def _fmt(x: float) -> str:
+    return f"{x:.4g}"
+
+
+def write_tables(metrics: dict, out: Path) -> None:
+    """table1/2 (.md and .csv): ours beside the paper's, steady state, gains; ablation table."""
+    for number, case in ((1, "clean"), (2, "noisy")):
+        block = metrics[case]
+        n = len(block["MPC"]["Ep"])
+        header = ["row"] + [f"joint {j + 1}" for j in range(n)] + ["mean"]
+        rows = []
+        for name in CONTROLLERS:
+            ep = block[name]["Ep"]
+            label = f"{name} (ours" + (f", mean of {len(block[name]['seeds'])} seeds)" if case == "noisy" else ")")
+            rows.append([label] + [_fmt(x) for x in ep] + [_fmt(np.mean(ep))])
+            if case == "noisy":
+                rows.append([f"{name} (ours, std over seeds)"] + [_fmt(x) for x in block[name]["Ep_std"]] + [""])
+            paper = PAPER_EP[case][name][:n]
+            rows.append([f"{name} (paper)"] + [_fmt(x) for x in paper] + [_fmt(np.mean(paper))])
+        bound = block["MPC_dry_arm_bound"]["Ep"]
+        rows.append(["MPC on the arm without water (bound)"] + [_fmt(x) for x in bound] + [_fmt(np.mean(bound))])
+        for name in CONTROLLERS:
+            steady = block[name]["Ep_steady"]
+            rows.append([f"{name} (ours, t > 2 s)"] + [_fmt(x) for x in steady] + [_fmt(np.mean(steady))])
+        gain = block["gain_gp_mpc_over_mpc_percent"]
+        rows.append(["GP-MPC gain over MPC, % (ours)"] + [f"{g:.1f}" for g in gain["per_joint"]] + [f"{gain['mean_of_joints']:.1f}"])
+        paper_gain = gain_percent(PAPER_EP[case]["MPC"][:n], PAPER_EP[case]["GP-MPC"][:n])
+        rows.append(["GP-MPC gain over MPC, % (paper)"] + [f"{g:.1f}" for g in paper_gain] + [f"{PAPER_GAIN[case]:.2f}"])
+        bound_gain = block["MPC_dry_arm_bound"]["gain_over_MPC_percent"]
+        rows.append(["bound: gain of perfect compensation, %"] + [f"{g:.1f}" for g in bound_gain] + [f"{np.mean(bound_gain):.1f}"])
+        rows.append(["GP-MPC gain, t > 2 s, % (ours)"] + [f"{g:.1f}" for g in gain["steady_per_joint"]] + [f"{np.mean(gain['steady_per_joint']):.1f}"])
+        title = "Table 1: E_p (rad^2), no measurement noise" if case == "clean" else "Table 2: E_p (rad^2), measurement noise of variance 0.001"
+        _write_table(out / f"table{number}", title, header, rows)
+    header = ["setting", "value", "MPC E_p mean", "GP-MPC E_p mean", "gain, mean of joints (%)", "GP-MPC t>2 s E_p mean", "MPC step median (ms)", "GP-MPC step median (ms)"]
+    rows = []
+    for group, values in metrics["ablation"].items():
+        for label, row in values.items():
+            mpc, gp = row.get("MPC", {}), row.get("GP-MPC", {})
+            rows.append([
+                group, label, _fmt(mpc.get("Ep_mean", math.nan)), _fmt(gp.get("Ep_mean", math.nan)),
+                f"{row.get('gain_mean_of_joints', math.nan):.1f}", _fmt(gp.get("Ep_steady_mean", math.nan)),
+                f"{mpc.get('step_ms_median', math.nan):.3f}", f"{gp.get('step_ms_median', math.nan):.3f}",
+            ])  # fmt: skip
+    if rows:
+        _write_table(out / "ablation", "Ablation of the GP-MPC (clean, seed 0; one setting changed at a time)", header, rows)
+
+
+def _write_table(stem: Path, title: str, header: list[str], rows: list[list[str]]) -> None:
+    with stem.with_suffix(".csv").open("w", newline="") as handle:
+        writer = csv.writer(handle)
+        writer.writerow(header)
+        writer.writerows(rows)
+    lines = [f"### {title}", "", "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    lines += ["| " + " | ".join(row) + " |" for row in rows]
+    stem.with_suffix(".md").write_text("\n".join(lines) + "\n")
+
+
+FIGURES = {
+    "fig04_disturbance.png": "Fig. 4: true vs GP-estimated disturbance (no noise)",
+    "fig05_disturbance_error.png": "Fig. 5: disturbance estimate error (no noise)",
+    "fig06_disturbance_noisy.png": "Fig. 6: true vs GP-estimated disturbance (noise)",
+    "fig07_disturbance_error_noisy.png": "Fig. 7: disturbance estimate error (noise)",
+    "fig08_position.png": "Fig. 8: position tracking, GP-MPC (no noise)",
+    "fig09_error_comparison.png": "Fig. 9: tracking error of SMC, MPC, GP-MPC (no noise)",
+    "fig10_velocity.png": "Fig. 10: velocity tracking, GP-MPC (no noise)",
+    "fig11_torque.png": "Fig. 11: joint torques, GP-MPC (no noise)",
+    "fig12_position_noisy.png": "Fig. 12: position tracking, GP-MPC (noise)",
+    "fig13_velocity_noisy.png": "Fig. 13: velocity tracking, GP-MPC (noise)",
+    "fig14_torque_noisy.png": "Fig. 14: joint torques, GP-MPC (noise)",
+    "fig15_error_comparison_noisy.png": "Fig. 15: tracking error of SMC, MPC, GP-MPC (noise)",
+}
+
+
+def write_figures(runs: list[RunSpec], results: dict[str, Trajectory], out: Path, torque_limit: np.ndarray) -> None:
+    """The paper's Figures 4-15 from the clean run and the noisy seed-0 run."""
+    pick = {(s.case, s.controller): results[s.key] for s in runs if s.seed == 0 and s.case in ("clean", "noisy")}
+    titles = FIGURES
+    for case, suffix in (("clean", ""), ("noisy", "_noisy")):
+        gp = pick[(case, "GP-MPC")]
+        names = list(titles)
+        if case == "clean":
+            dist, derr, pos, comp, vel, tor = names[0], names[1], names[4], names[5], names[6], names[7]
+        else:
+            dist, derr, pos, vel, tor, comp = names[2], names[3], names[8], names[9], names[10], names[11]
+        figures.plot_disturbance(gp, out / dist, titles[dist])
+        figures.plot_disturbance_error(gp, out / derr, titles[derr])
+        figures.plot_tracking(gp, out / pos, titles[pos], "position")
+        figures.plot_tracking(gp, out / vel, titles[vel], "velocity")
+        figures.plot_torque(gp, out / tor, titles[tor], torque_limit)
+        figures.plot_error_comparison({name: pick[(case, name)] for name in CONTROLLERS}, out / comp, titles[comp])
+
+
+def reproduce(
+    out: Path,
+    quick: bool = False,
+    noisy_seeds: int | None = None,
+    ablation: bool | None = None,
+    workers: int = 2,
+    config: ExperimentConfig | None = None,
+    on_progress: ProgressHook | None = None,
+) -> dict:
+    """Run the whole study into ``out`` (see the module docstring); returns metrics.json's content.
+
+    ``quick``: a 3 s task, 2 noisy seeds and no ablation (for CI); defaults:
+    10 s, 5 noisy seeds, ablation on.
+    """
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    base = config if config is not None else ExperimentConfig()
+    if quick:
+        base = with_overrides(base, {"duration": 3.0})
+    seeds = noisy_seeds if noisy_seeds is not None else (2 if quick else 5)
+    do_ablation = ablation if ablation is not None else not quick
+    runs = plan_runs(base, seeds, do_ablation)
+    start = time.perf_counter()
+    results = execute(runs, out / "runs", workers, on_progress)
+    run_wall = time.perf_counter() - start
+    metrics = summarise(runs, results)
+    metrics["settings"] = {
+        "experiment": base.model_dump(mode="json"),
+        "noise_variance": NOISE_VARIANCE,
+        "noisy_seeds": seeds,
+        "quick": quick,
+        "ablation": do_ablation,
+        "workers": workers,
+    }
+    write_tables(metrics, out)
+    write_figures(runs, results, out, load_arm(base.arm).torque_limit)
+    metrics["wall_time_s"] = {"runs": run_wall, "total": time.perf_counter() - start}
+    metrics["machine"] = {"python": platform.python_version(), "cpus": os.cpu_count(), "platform": platform.platform()}
+    (out / "metrics.json").write_text(json.dumps({case: metrics[case] for case in ("clean", "noisy")}, indent=1))
+    (out / "summary.json").write_text(json.dumps(metrics, indent=1))
+    write_report(metrics, out)
+    return metrics
+
+
+def write_report(metrics: dict, out: Path) -> None:
+    """report.md: settings, tables, figures, differences from the paper and why."""
+    from hydroarm.report import render_report
+
+    (out / "report.md").write_text(render_report(metrics, out))
