@@ -42,3 +42,12 @@ __all__ = [
     "paper_reference",
 ]
 __version__ = "0.1.0"
+
+try:  # Gymnasium is optional (pip install hydroarm[gym])
+    import gymnasium as _gymnasium  # noqa: F401
+except ImportError:  # pragma: no cover - depends on the environment
+    pass
+else:
+    from hydroarm.env import register as _register_env
+
+    _register_env()
