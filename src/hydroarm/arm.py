@@ -181,7 +181,8 @@ class Arm:
     Follows Pinocchio's model/data split: ``model`` holds constants, ``data`` is
     the workspace every method below reuses (one ``Arm`` per thread).
     All dynamics here are the *dry* rigid body; the water is in
-    :mod:`hydroarm.water`.
+    :mod:`hydroarm.water`. ``position_limit`` (n, 2) rad: [lower, upper] per
+    joint when the arm file states them (URDF joint limits), else None.
     """
 
     name: str
@@ -189,6 +190,7 @@ class Arm:
     cylinders: tuple[WettedCylinder, ...]
     torque_limit: np.ndarray
     spec: ArmSpec | None = None
+    position_limit: np.ndarray | None = None
     data: pin.Data = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
@@ -197,6 +199,13 @@ class Arm:
         self.torque_limit = np.broadcast_to(
             np.asarray(self.torque_limit, dtype=float), (self.model.nv,)
         ).copy()
+        if self.position_limit is not None:
+            limits = np.asarray(self.position_limit, dtype=float)
+            if limits.shape != (self.model.nv, 2) or np.any(limits[:, 0] > limits[:, 1]):
+                raise ConfigError(
+                    f"position_limit must be ({self.model.nv}, 2) with lower <= upper, got {limits.tolist()}"
+                )
+            self.position_limit = limits.copy()
         self.data = self.model.createData()
         # support[c, j] = 1 if joint j moves cylinder c (joint j on the path to its link).
         support = np.zeros((len(self.cylinders), self.model.nv))
@@ -344,16 +353,34 @@ def build_arm(spec: ArmSpec) -> Arm:
     return Arm(name=spec.name, model=model, cylinders=tuple(cylinders), torque_limit=np.asarray(limit), spec=spec)
 
 
-BUILTIN_ARMS = ("paper", "ur5")
+BUILTIN_ARMS = ("paper", "ur5", "alpha5")
+BUILTIN_URDF_ARMS = ("alpha5",)
+"""Built-in arms given as a URDF plus a hydrodynamics file (``arms/<name>.hydro.toml``)."""
+
+URDF_SUFFIXES = (".urdf", ".hydro.toml", ".hydro.yaml", ".hydro.yml")
+"""File names that :func:`load_arm` hands to :mod:`hydroarm.urdf_import`."""
 
 
 def builtin_arm_path(name: str) -> Path:
-    """Path of a built-in arm file (``paper``, ``ur5``)."""
-    return Path(str(resources.files("hydroarm") / "arms" / f"{name}.toml"))
+    """Path of a built-in arm file: ``arms/<name>.toml`` (DH arms ``paper``, ``ur5``)
+    or ``arms/<name>.hydro.toml`` (URDF arms, e.g. ``alpha5``; it names its URDF)."""
+    suffix = ".hydro.toml" if name in BUILTIN_URDF_ARMS else ".toml"
+    return Path(str(resources.files("hydroarm") / "arms" / f"{name}{suffix}"))
+
+
+def is_urdf_source(source: str | Path) -> bool:
+    """True for a built-in URDF arm name or a ``.urdf`` / ``.hydro.{toml,yaml,yml}`` path."""
+    if isinstance(source, str) and source in BUILTIN_URDF_ARMS:
+        return True
+    return str(source).lower().endswith(URDF_SUFFIXES)
 
 
 def load_arm_spec(source: str | Path) -> ArmSpec:
-    """Read and validate an arm file, or a built-in arm by name."""
+    """Read and validate a DH arm file, or a built-in DH arm by name."""
+    if is_urdf_source(source):
+        raise ConfigError(
+            f"arm '{source}' is a URDF arm: it has no DH arm file; load it with load_arm()"
+        )
     if isinstance(source, str) and source in BUILTIN_ARMS:
         return load_model(ArmSpec, builtin_arm_path(source))
     path = Path(source)
@@ -365,5 +392,13 @@ def load_arm_spec(source: str | Path) -> ArmSpec:
 
 
 def load_arm(source: str | Path = "paper") -> Arm:
-    """Load an arm: ``"paper"`` (Liu et al. 2023), ``"ur5"``, or a path to an arm file."""
+    """Load an arm: ``"paper"`` (Liu et al. 2023), ``"ur5"``, ``"alpha5"`` (Reach Alpha 5),
+    a DH arm file (TOML/YAML), a URDF (``.urdf``, with ``<stem>.hydro.toml`` beside it) or a
+    hydrodynamics file (``.hydro.toml``/``.yaml`` naming its URDF): see :mod:`hydroarm.urdf_import`."""
+    if is_urdf_source(source):
+        from hydroarm.urdf_import import load_urdf_arm
+
+        if isinstance(source, str) and source in BUILTIN_URDF_ARMS:
+            return load_urdf_arm(builtin_arm_path(source))
+        return load_urdf_arm(source)
     return build_arm(load_arm_spec(source))

@@ -1,0 +1,252 @@
+"""Show the arm moving: a saved trajectory rendered as a GIF (or MP4), headless.
+
+Each wetted cylinder of the arm is drawn as a solid tube at its true diameter
+(thin ones widened to stay visible) following the true joint angles ``q``;
+the reference pose ``q_r`` is drawn the same way, ghosted (grey,
+transparent). A corner shows the time and the tracking error ``|q_r - q|``
+(Euclidean norm over the joints, rad). The axes are fixed from the arm's
+reach, so the camera never moves. Matplotlib 3-D on the Agg backend, frames
+written with Pillow (GIF) or ffmpeg (MP4, when installed): no display needed.
+
+    from hydroarm.animate import animate
+    animate("run.npz", "arm.gif")                    # arm from the run's meta["arm"]
+    animate(traj, "arm.gif", arm="paper", fps=10, duration=4.0)
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import numpy as np  # noqa: E402
+from matplotlib import animation  # noqa: E402
+from matplotlib.backends.backend_agg import FigureCanvasAgg  # noqa: E402
+from matplotlib.figure import Figure  # noqa: E402
+from matplotlib.lines import Line2D  # noqa: E402
+from matplotlib.ticker import MaxNLocator  # noqa: E402
+from mpl_toolkits.mplot3d.art3d import Poly3DCollection  # noqa: E402
+
+from hydroarm.arm import Arm, load_arm  # noqa: E402
+from hydroarm.config import ConfigError  # noqa: E402
+from hydroarm.simulate import Trajectory  # noqa: E402
+
+SIDES = 10  # facets per tube
+LINK_COLOURS = ("tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple", "tab:brown", "tab:pink", "tab:olive")
+
+
+def _as_trajectory(trajectory: Trajectory | str | Path) -> Trajectory:
+    return trajectory if isinstance(trajectory, Trajectory) else Trajectory.load(trajectory)
+
+
+def _as_arm(arm: Arm | str | Path | None, traj: Trajectory) -> Arm:
+    if isinstance(arm, Arm):
+        found = arm
+    else:
+        found = load_arm(arm if arm is not None else traj.meta.get("arm", "paper"))
+    if found.n_joints != traj.n_joints:
+        raise ConfigError(
+            f"arm '{found.name}' has {found.n_joints} joints, the trajectory {traj.n_joints}: pass the run's arm"
+        )
+    return found
+
+
+def reach(arm: Arm, configurations: np.ndarray | None = None, samples: int = 200, seed: int = 0) -> float:
+    """Largest distance (m) of any cylinder end from the base over ``configurations`` (K, n)
+    and ``samples`` random ones within the joint limits (+-pi where unlimited), plus its radius."""
+    rng = np.random.default_rng(seed)
+    n = arm.n_joints
+    low, high = np.full(n, -math.pi), np.full(n, math.pi)
+    if arm.position_limit is not None:
+        finite = np.isfinite(arm.position_limit)
+        low = np.where(finite[:, 0], arm.position_limit[:, 0], low)
+        high = np.where(finite[:, 1], arm.position_limit[:, 1], high)
+    rows = [rng.uniform(low, high, size=(samples, n))]
+    if configurations is not None:
+        rows.append(np.asarray(configurations, dtype=float).reshape(-1, n))
+    radius = max((c.diameter / 2.0 for c in arm.cylinders), default=0.0)
+    best = 0.0
+    for q in np.concatenate(rows):
+        ends = arm.cylinder_endpoints(q)
+        best = max(best, float(np.max(np.linalg.norm(ends.reshape(-1, 3), axis=1))))
+    return best + radius
+
+
+def _tube(start: np.ndarray, end: np.ndarray, radius: float, ring: np.ndarray) -> list[np.ndarray]:
+    """Side facets (quads) of a tube from ``start`` to ``end``."""
+    axis = end - start
+    length = np.linalg.norm(axis)
+    if length <= 0.0:
+        return []
+    axis = axis / length
+    helper = np.array([1.0, 0.0, 0.0]) if abs(axis[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    u = np.cross(axis, helper)
+    u /= np.linalg.norm(u)
+    w = np.cross(axis, u)
+    circle = radius * (np.outer(ring[:, 0], u) + np.outer(ring[:, 1], w))  # (SIDES + 1, 3)
+    bottom, top = start + circle, end + circle
+    return [np.array([bottom[k], bottom[k + 1], top[k + 1], top[k]]) for k in range(SIDES)]
+
+
+class _Scene:
+    """The figure and the artists of one animation."""
+
+    def __init__(self, arm: Arm, traj: Trajectory, extent: float, size: tuple[float, float], title: str):
+        self.arm = arm
+        self.fig = Figure(figsize=size)
+        FigureCanvasAgg(self.fig)
+        self.ax = self.fig.add_axes((0.0, 0.0, 1.0, 0.93), projection="3d")
+        ax = self.ax
+        ax.set_xlim(-extent, extent)
+        ax.set_ylim(-extent, extent)
+        ax.set_zlim(-extent, extent)
+        ax.set_box_aspect((1.0, 1.0, 1.0), zoom=1.1)
+        ax.view_init(elev=22.0, azim=-55.0)
+        ax.set_xlabel("x (m)", fontsize=7, labelpad=-6)
+        ax.set_ylabel("y (m)", fontsize=7, labelpad=-6)
+        ax.set_zlabel("z (m)", fontsize=7, labelpad=-6)
+        ax.tick_params(labelsize=6, pad=-2)
+        for axis in (ax.xaxis, ax.yaxis, ax.zaxis):
+            axis.set_major_locator(MaxNLocator(4))
+        for axis in (ax.xaxis, ax.yaxis, ax.zaxis):
+            axis.set_pane_color((0.95, 0.97, 1.0, 1.0))
+        # base marker: a small cross on the base plane
+        ax.plot([-0.08 * extent, 0.08 * extent], [0, 0], [0, 0], color="black", lw=1.0)
+        ax.plot([0, 0], [-0.08 * extent, 0.08 * extent], [0, 0], color="black", lw=1.0)
+        self.ring = np.column_stack(
+            [np.cos(np.linspace(0.0, 2.0 * math.pi, SIDES + 1)), np.sin(np.linspace(0.0, 2.0 * math.pi, SIDES + 1))]
+        )
+        thinnest = 0.012 * extent
+        self.radii = [max(c.diameter / 2.0, thinnest) for c in arm.cylinders]
+        colours = [LINK_COLOURS[(c.joint_id - 1) % len(LINK_COLOURS)] if c.joint_id > 0 else "dimgray" for c in arm.cylinders]
+        self.ghost = Poly3DCollection(
+            [], facecolors=(0.5, 0.5, 0.5, 0.28), edgecolors=(0.35, 0.35, 0.35, 0.25), linewidths=0.3
+        )
+        self.solid = Poly3DCollection([], linewidths=0.2, edgecolors=(0.1, 0.1, 0.1, 0.35))
+        self.colours = colours
+        ax.add_collection3d(self.ghost)
+        ax.add_collection3d(self.solid)
+        (self.ghost_joints,) = ax.plot([], [], [], "o", color="gray", ms=2.5, alpha=0.4)
+        (self.joints,) = ax.plot([], [], [], "o", color="black", ms=3.0)
+        self.fig.text(0.5, 0.97, title, ha="center", va="center", fontsize=9)
+        self.clock = self.fig.text(0.02, 0.93, "", fontsize=8, family="monospace", va="top")
+        self.fig.legend(
+            handles=[
+                Line2D([], [], color="tab:blue", lw=5, label="arm, true q (colour: link)"),
+                Line2D([], [], color=(0.55, 0.55, 0.55, 0.5), lw=5, label="reference q_r"),
+            ],
+            loc="upper right",
+            bbox_to_anchor=(0.99, 0.95),
+            fontsize=7,
+            frameon=False,
+        )
+
+    def _polygons(self, q: np.ndarray) -> tuple[list[np.ndarray], list[str], np.ndarray]:
+        ends = self.arm.cylinder_endpoints(q)
+        polygons, colours = [], []
+        for (start, end), radius, colour in zip(ends, self.radii, self.colours, strict=True):
+            facets = _tube(start, end, radius, self.ring)
+            polygons += facets
+            colours += [colour] * len(facets)
+        joints = np.array([p.translation for p in self.arm.joint_placements(q)])
+        return polygons, colours, joints
+
+    def update(self, t: float, q: np.ndarray, q_ref: np.ndarray) -> None:
+        polygons, _, ghost_joints = self._polygons(q_ref)
+        self.ghost.set_verts(polygons)
+        polygons, colours, joints = self._polygons(q)
+        self.solid.set_verts(polygons)
+        self.solid.set_facecolor(colours)
+        self.joints.set_data_3d(joints[:, 0], joints[:, 1], joints[:, 2])
+        self.ghost_joints.set_data_3d(ghost_joints[:, 0], ghost_joints[:, 1], ghost_joints[:, 2])
+        error = float(np.linalg.norm(q_ref - q))
+        self.clock.set_text(f"t = {t:5.2f} s\n|q_r - q| = {error:6.3f} rad")
+
+
+def _frames(traj: Trajectory, fps: float, stride: int | None, start: float, duration: float | None) -> np.ndarray:
+    steps = len(traj.t)
+    if steps == 0:
+        raise ConfigError("the trajectory is empty")
+    period = float(traj.t[1] - traj.t[0]) if steps > 1 else 1.0 / fps
+    if stride is None:
+        stride = max(1, int(round(1.0 / (fps * period))))
+    if stride < 1:
+        raise ConfigError(f"stride must be >= 1, got {stride}")
+    end = traj.t[-1] + 0.5 * period if duration is None else start + duration
+    chosen = np.flatnonzero((traj.t >= start - 1e-12) & (traj.t < end - 1e-12))
+    return chosen[::stride]
+
+
+def _title(arm: Arm, traj: Trajectory, title: str | None) -> str:
+    if title is not None:
+        return title
+    controller = traj.meta.get("controller", "")
+    return f"{arm.name}: {controller}".rstrip(": ")
+
+
+def animate(
+    trajectory: Trajectory | str | Path,
+    out_path: str | Path,
+    arm: Arm | str | Path | None = None,
+    fps: float = 10.0,
+    stride: int | None = None,
+    start: float = 0.0,
+    duration: float | None = None,
+    dpi: int = 80,
+    size: tuple[float, float] = (5.0, 4.4),
+    title: str | None = None,
+) -> Path:
+    """Render ``trajectory`` (a :class:`Trajectory` or its ``.npz``) to ``out_path`` (.gif or .mp4).
+
+    ``arm``: the run's arm (an :class:`Arm`, a name or file; default the
+    trajectory's ``meta["arm"]``, else ``"paper"``). ``fps``: frames per second
+    of the movie; ``stride``: control steps per frame (default: real time at
+    ``fps``); ``start``/``duration`` (s) choose the window. Returns the path.
+    """
+    traj = _as_trajectory(trajectory)
+    the_arm = _as_arm(arm, traj)
+    out_path = Path(out_path)
+    suffix = out_path.suffix.lower()
+    if suffix == ".gif":
+        writer = animation.PillowWriter(fps=fps)
+    elif suffix == ".mp4":
+        if not animation.writers.is_available("ffmpeg"):
+            raise ConfigError(f"{out_path}: .mp4 needs ffmpeg on the PATH; write a .gif instead")
+        writer = animation.FFMpegWriter(fps=fps, codec="libx264", extra_args=["-pix_fmt", "yuv420p"])
+    else:
+        raise ConfigError(f"{out_path}: unknown movie format '{suffix}' (use .gif or .mp4)")
+    frames = _frames(traj, fps, stride, start, duration)
+    if frames.size == 0:
+        raise ConfigError(f"no trajectory samples in [{start}, {start + (duration or 0.0)}) s")
+    extent = reach(the_arm, np.concatenate([traj.q[frames], traj.q_ref[frames]]))
+    scene = _Scene(the_arm, traj, extent, size, _title(the_arm, traj, title))
+    tmp = out_path.with_name(out_path.stem + ".tmp" + out_path.suffix)
+    with writer.saving(scene.fig, str(tmp), dpi):
+        for k in frames:
+            scene.update(float(traj.t[k]), traj.q[k], traj.q_ref[k])
+            writer.grab_frame()
+    tmp.replace(out_path)
+    return out_path
+
+
+def render_frame(
+    trajectory: Trajectory | str | Path,
+    out_png: str | Path,
+    time: float = 0.0,
+    arm: Arm | str | Path | None = None,
+    dpi: int = 100,
+    size: tuple[float, float] = (5.0, 4.4),
+    title: str | None = None,
+) -> Path:
+    """One frame (the sample nearest ``time`` s) as a PNG, drawn exactly as :func:`animate` draws it."""
+    traj = _as_trajectory(trajectory)
+    the_arm = _as_arm(arm, traj)
+    k = int(np.argmin(np.abs(traj.t - time)))
+    extent = reach(the_arm, np.stack([traj.q[k], traj.q_ref[k]]))
+    scene = _Scene(the_arm, traj, extent, size, _title(the_arm, traj, title))
+    scene.update(float(traj.t[k]), traj.q[k], traj.q_ref[k])
+    out_png = Path(out_png)
+    scene.fig.savefig(out_png, dpi=dpi)
+    return out_png

@@ -1,0 +1,475 @@
+"""Bring your own arm: a URDF plus a small hydrodynamics file -> an :class:`~hydroarm.arm.Arm`.
+
+The URDF gives the dry rigid body (Pinocchio's own URDF parser builds the
+model: links attached by fixed joints are merged into their parent joint's
+body, as Pinocchio always does). The hydrodynamics file (TOML or YAML) says
+which parts of which links the water acts on::
+
+    name = "myarm"                      # default: the URDF's robot name
+    urdf = "myarm.urdf"                 # relative to this file (when loading the file itself)
+    gravity = 9.81                      # m/s^2 along -z of the URDF root link
+    torque_limit = [20.0, 20.0, 10.0]   # N m, optional: default the URDF <limit effort>
+    fixed_joints = { gripper = 0.0 }    # lock joints (e.g. a prismatic jaw) at a position
+    all_collision_cylinders = false     # true: every <collision> cylinder of every link is wet
+
+    [[links]]
+    link = "upper_arm"                  # a URDF link name
+    collision = true                    # its URDF <collision><cylinder>s (or a list of indices)
+    cd = 1.0                            # Morison drag coefficient (default: Water.cd)
+    cm = 2.0                            # added-mass coefficient (default: Water.cm)
+    displaced_volume = 1.2e-3           # m^3 for the whole link (default: the cylinders' volume)
+
+    [[links]]
+    link = "forearm"
+    [[links.cylinders]]                 # explicit cylinders, in the link frame (m)
+    diameter = 0.06
+    length = 0.3
+    axis = [1.0, 0.0, 0.0]              # direction of the cylinder's axis
+    offset = [0.15, 0.0, 0.0]           # centre of the cylinder (as a URDF <origin xyz>)
+    # or: start = [0, 0, 0] and end = [0.3, 0, 0]
+
+Only revolute (and continuous) joints may move: the water kernel handles
+revolute joints only, so any other joint (a prismatic jaw) must be listed in
+``fixed_joints``. A continuous joint becomes a revolute joint with no position
+limit (``position_limit`` = +-inf). A link's ``displaced_volume`` is split
+over its cylinders in proportion to their volumes.
+
+Every wetted cylinder ends up as a :class:`~hydroarm.arm.WettedCylinder` in
+the body frame of the Pinocchio joint that carries the link: a URDF link hung
+on a fixed joint is placed with Pinocchio's frame placement
+(``model.frames[fid].placement`` in joint ``parentJoint``). Cylinders on links
+fixed to the base (joint 0) exert no joint torque but are kept (drawn by
+:mod:`hydroarm.animate`, written to MJCF).
+"""
+
+from __future__ import annotations
+
+import math
+import xml.etree.ElementTree as ET
+from pathlib import Path
+from typing import Annotated, Any, Self
+
+import numpy as np
+import pinocchio as pin
+import pydantic
+
+from hydroarm.arm import Arm, WettedCylinder
+from hydroarm.config import ConfigError, FrozenModel, read_mapping, validate
+
+Vector3 = Annotated[list[float], pydantic.Field(min_length=3, max_length=3)]
+PositiveFloat = Annotated[float, pydantic.Field(gt=0.0)]
+Coefficient = Annotated[float, pydantic.Field(ge=0.0, le=10.0)]
+
+HYDRO_SUFFIXES = (".hydro.toml", ".hydro.yaml", ".hydro.yml")
+REVOLUTE_JOINTS = ("JointModelRX", "JointModelRY", "JointModelRZ", "JointModelRevoluteUnaligned")
+
+
+class CylinderSpec(FrozenModel):
+    """One explicit wetted cylinder in a URDF link's frame.
+
+    Give ``start`` and ``end`` (m), or ``length`` (m), ``axis`` (a direction,
+    normalised here) and ``offset`` (the centre, m; default the link origin).
+    ``cd``/``cm`` override the link's coefficients; ``displaced_volume`` (m^3)
+    its share of the link's.
+    """
+
+    diameter: PositiveFloat = pydantic.Field(description="m")
+    start: Vector3 | None = None
+    end: Vector3 | None = None
+    length: PositiveFloat | None = None
+    axis: Vector3 | None = None
+    offset: Vector3 | None = None
+    cd: Coefficient | None = None
+    cm: Coefficient | None = None
+    displaced_volume: Annotated[float, pydantic.Field(ge=0.0)] | None = pydantic.Field(
+        None, description="m^3; default: its share of the link's displaced_volume, or its own volume"
+    )
+
+    @pydantic.model_validator(mode="after")
+    def _check(self) -> Self:
+        ends = self.start is not None or self.end is not None
+        polar = self.length is not None or self.axis is not None or self.offset is not None
+        if ends and polar:
+            raise ValueError("give either start/end or length/axis/offset, not both")
+        if ends:
+            if self.start is None or self.end is None:
+                raise ValueError("start and end go together")
+            if np.linalg.norm(np.subtract(self.end, self.start)) <= 1e-9:
+                raise ValueError("start and end coincide: the cylinder has no length")
+        else:
+            if self.length is None or self.axis is None:
+                raise ValueError("missing geometry: give start and end, or length and axis (and offset)")
+            if np.linalg.norm(self.axis) <= 1e-9:
+                raise ValueError("axis must be a non-zero direction")
+        return self
+
+    def endpoints(self) -> tuple[np.ndarray, np.ndarray]:
+        """(start, end) in the link frame (m), shape (3,) each."""
+        if self.start is not None and self.end is not None:
+            return np.asarray(self.start, dtype=float), np.asarray(self.end, dtype=float)
+        axis = np.asarray(self.axis, dtype=float)
+        axis = axis / np.linalg.norm(axis)
+        centre = np.zeros(3) if self.offset is None else np.asarray(self.offset, dtype=float)
+        half = 0.5 * float(self.length) * axis
+        return centre - half, centre + half
+
+
+class LinkHydroSpec(FrozenModel):
+    """The wetted cylinders of one URDF link and their coefficients."""
+
+    link: str = pydantic.Field(min_length=1, description="URDF link name")
+    collision: bool | list[Annotated[int, pydantic.Field(ge=0)]] = pydantic.Field(
+        False, description="use the link's URDF <collision> cylinders: all (true) or these indices"
+    )
+    cylinders: list[CylinderSpec] = pydantic.Field(default_factory=list, max_length=64)
+    cd: Coefficient | None = None
+    cm: Coefficient | None = None
+    displaced_volume: Annotated[float, pydantic.Field(ge=0.0)] | None = pydantic.Field(
+        None, description="m^3 for the whole link; default: the cylinders' volume"
+    )
+
+    @pydantic.model_validator(mode="after")
+    def _check(self) -> Self:
+        if self.collision is False or self.collision == []:
+            if not self.cylinders:
+                raise ValueError("no cylinders: set collision = true or give cylinders")
+        return self
+
+
+class HydroSpec(FrozenModel):
+    """A whole hydrodynamics file (see the module docstring)."""
+
+    name: str | None = None
+    description: str = ""
+    source: str = ""
+    urdf: str | None = pydantic.Field(None, description="URDF path, relative to this file")
+    gravity: PositiveFloat = pydantic.Field(9.81, le=100.0, description="m/s^2 along -z of the root")
+    torque_limit: list[PositiveFloat] | PositiveFloat | None = None
+    fixed_joints: dict[str, float] = pydantic.Field(default_factory=dict)
+    all_collision_cylinders: bool = False
+    links: list[LinkHydroSpec] = pydantic.Field(default_factory=list, max_length=64)
+
+    @pydantic.model_validator(mode="after")
+    def _check(self) -> Self:
+        names = [link.link for link in self.links]
+        repeated = sorted({name for name in names if names.count(name) > 1})
+        if repeated:
+            raise ValueError(f"links listed twice: {repeated}")
+        return self
+
+
+# --- URDF reading ---------------------------------------------------------------
+
+
+def _floats(text: str | None, count: int, default: float = 0.0) -> np.ndarray:
+    if text is None or not text.strip():
+        return np.full(count, default)
+    values = np.asarray([float(x) for x in text.split()], dtype=float)
+    if values.shape != (count,):
+        raise ConfigError(f"URDF: expected {count} numbers, got '{text}'")
+    return values
+
+
+def _origin(element: ET.Element | None) -> pin.SE3:
+    if element is None:
+        return pin.SE3.Identity()
+    xyz = _floats(element.get("xyz"), 3)
+    rpy = _floats(element.get("rpy"), 3)
+    return pin.SE3(pin.rpy.rpyToMatrix(*rpy), xyz)
+
+
+def urdf_collision_cylinders(root: ET.Element) -> dict[str, list[tuple[int, pin.SE3, float, float] | None]]:
+    """Per link, every ``<collision>`` in order: ``(index, origin, radius, length)`` for a
+    cylinder, ``None`` for another shape. Origins are in the link frame."""
+    out: dict[str, list] = {}
+    for link in root.findall("link"):
+        rows = []
+        for index, collision in enumerate(link.findall("collision")):
+            cylinder = collision.find("geometry/cylinder")
+            if cylinder is None:
+                rows.append(None)
+                continue
+            rows.append(
+                (index, _origin(collision.find("origin")), float(cylinder.get("radius")), float(cylinder.get("length")))
+            )
+        out[link.get("name")] = rows
+    return out
+
+
+def _prepare_urdf(root: ET.Element, fixed: dict[str, float], source: str) -> tuple[str, set[str]]:
+    """Rewrite continuous joints as revolute (placeholder limits); check joint types.
+
+    Returns the URDF text for Pinocchio and the names of the continuous joints.
+    """
+    joints = {joint.get("name"): joint for joint in root.findall("joint")}
+    for name in fixed:
+        if name not in joints:
+            raise ConfigError(f"{source}: fixed_joints.{name}: no joint '{name}' in the URDF")
+    continuous = set()
+    for name, joint in joints.items():
+        kind = joint.get("type")
+        if kind == "continuous":
+            continuous.add(name)
+            joint.set("type", "revolute")
+            limit = joint.find("limit")
+            if limit is None:
+                limit = ET.SubElement(joint, "limit", effort="0", velocity="0")
+            limit.set("lower", repr(-math.pi))
+            limit.set("upper", repr(math.pi))
+        elif kind in ("revolute", "fixed"):
+            continue
+        elif name not in fixed:
+            raise ConfigError(
+                f"{source}: joint '{name}' is {kind}: the water model supports revolute joints only; "
+                f"lock it with fixed_joints = {{ {name} = 0.0 }} in the hydrodynamics file"
+            )
+    return ET.tostring(root, encoding="unicode"), continuous
+
+
+# --- building the arm -----------------------------------------------------------
+
+
+def arm_from_urdf(urdf_xml: str, hydro: HydroSpec | dict | None = None, source: str = "<hydro>") -> Arm:
+    """Build an :class:`Arm` from URDF text and a hydrodynamics spec (see the module docstring).
+
+    ``hydro`` None means every URDF collision cylinder is wet with the water's
+    default coefficients. ``source`` names the hydrodynamics file in errors.
+    """
+    if hydro is None:
+        hydro = HydroSpec(all_collision_cylinders=True)
+    elif not isinstance(hydro, HydroSpec):
+        hydro = validate(HydroSpec, hydro, source)
+    try:
+        root = ET.fromstring(urdf_xml)
+    except ET.ParseError as error:
+        raise ConfigError(f"URDF: cannot parse: {error}") from None
+    if root.tag != "robot":
+        raise ConfigError(f"URDF: the root element is <{root.tag}>, not <robot>")
+    collisions = urdf_collision_cylinders(root)
+    prepared, continuous = _prepare_urdf(root, hydro.fixed_joints, source)
+    try:
+        model = pin.buildModelFromXML(prepared)
+    except (RuntimeError, ValueError) as error:
+        raise ConfigError(f"URDF: Pinocchio cannot build a model: {error}") from None
+    if hydro.fixed_joints:
+        q_lock = pin.neutral(model)
+        locked = []
+        for name, value in hydro.fixed_joints.items():
+            if not model.existJointName(name):
+                continue  # a fixed joint in the URDF already
+            joint_id = model.getJointId(name)
+            if model.joints[joint_id].nq != 1:
+                raise ConfigError(f"{source}: fixed_joints.{name}: only 1-DOF joints can be locked")
+            q_lock[model.joints[joint_id].idx_q] = value
+            locked.append(joint_id)
+        if locked:
+            model = pin.buildReducedModel(model, sorted(locked), q_lock)
+    model.name = hydro.name or root.get("name") or "urdf_arm"
+    model.gravity = pin.Motion(np.array([0.0, 0.0, -hydro.gravity]), np.zeros(3))
+    if model.nv == 0:
+        raise ConfigError(f"URDF '{model.name}': no moving joint")
+    for joint_id in range(1, model.njoints):
+        kind = model.joints[joint_id].shortname()
+        if kind not in REVOLUTE_JOINTS:
+            raise ConfigError(
+                f"URDF: joint '{model.names[joint_id]}' ({kind}) is not revolute: lock it with fixed_joints"
+            )
+    cylinders = _wetted_cylinders(model, hydro, collisions, source)
+    torque_limit = _torque_limit(model, hydro, source)
+    lower = np.asarray(model.lowerPositionLimit, dtype=float).copy()
+    upper = np.asarray(model.upperPositionLimit, dtype=float).copy()
+    for joint_id in range(1, model.njoints):
+        if model.names[joint_id] in continuous:
+            index = model.joints[joint_id].idx_v
+            lower[index], upper[index] = -math.inf, math.inf
+    return Arm(
+        name=model.name,
+        model=model,
+        cylinders=tuple(cylinders),
+        torque_limit=torque_limit,
+        spec=None,
+        position_limit=np.column_stack([lower, upper]),
+    )
+
+
+def _torque_limit(model: pin.Model, hydro: HydroSpec, source: str) -> np.ndarray:
+    """The hydrodynamics file's ``torque_limit`` (one value or one per joint), else the URDF efforts."""
+    if hydro.torque_limit is not None:
+        limit = np.atleast_1d(np.asarray(hydro.torque_limit, dtype=float))
+        if limit.size == 1:
+            limit = np.full(model.nv, limit[0])
+        if limit.shape != (model.nv,):
+            raise ConfigError(f"{source}: torque_limit has {limit.size} values for {model.nv} joints")
+        return limit
+    effort = np.asarray(model.effortLimit, dtype=float).copy()
+    if np.any(~np.isfinite(effort)) or np.any(effort <= 0.0):
+        raise ConfigError(
+            f"{source}: the URDF gives no usable <limit effort> for every joint ({effort.tolist()}): "
+            "set torque_limit in the hydrodynamics file"
+        )
+    return effort
+
+
+def _link_frame(model: pin.Model, link: str) -> pin.Frame | None:
+    if not model.existBodyName(link):
+        return None
+    return model.frames[model.getBodyId(link)]
+
+
+def _wetted_cylinders(model: pin.Model, hydro: HydroSpec, collisions: dict, source: str) -> list[WettedCylinder]:
+    entries = list(enumerate(hydro.links))
+    listed = {spec.link for spec in hydro.links}
+    if hydro.all_collision_cylinders:
+        extra = [
+            LinkHydroSpec(link=name, collision=True)
+            for name, rows in collisions.items()
+            if name not in listed and any(row is not None for row in rows)
+        ]
+        entries += [(None, spec) for spec in extra]
+    out = []
+    for index, spec in entries:
+        where = f"{source}: links.{index}" if index is not None else f"{source}: link {spec.link}"
+        if spec.link not in collisions:
+            known = ", ".join(collisions)
+            raise ConfigError(f"{where}.link = '{spec.link}': no such link in the URDF (links: {known})")
+        frame = _link_frame(model, spec.link)
+        if frame is None:
+            raise ConfigError(f"{where}.link = '{spec.link}': Pinocchio has no body frame for this link")
+        pieces = []  # (start, end, diameter, cd, cm, own displaced volume or None) in the link frame
+        if spec.collision is not False:
+            rows = collisions[spec.link]
+            wanted = (
+                [row[0] for row in rows if row is not None] if spec.collision is True else list(spec.collision)
+            )
+            if spec.collision is True and not wanted:
+                raise ConfigError(f"{where}.collision: link '{spec.link}' has no <collision> cylinder")
+            for k in wanted:
+                if k >= len(rows) or rows[k] is None:
+                    raise ConfigError(
+                        f"{where}.collision: <collision> {k} of link '{spec.link}' is not a cylinder "
+                        f"({len(rows)} collision elements)"
+                    )
+                _, origin, radius, length = rows[k]
+                axis = origin.rotation[:, 2]
+                half = 0.5 * length * axis
+                pieces.append((origin.translation - half, origin.translation + half, 2.0 * radius, None, None, None))
+        for cylinder in spec.cylinders:
+            start, end = cylinder.endpoints()
+            pieces.append((start, end, cylinder.diameter, cylinder.cd, cylinder.cm, cylinder.displaced_volume))
+        volumes = _split_volumes(pieces, spec.displaced_volume, where)
+        placement = frame.placement
+        for k, ((start, end, diameter, cd, cm, _), volume) in enumerate(zip(pieces, volumes, strict=True)):
+            out.append(
+                WettedCylinder(
+                    name=spec.link if len(pieces) == 1 else f"{spec.link}_{k}",
+                    joint_id=int(frame.parentJoint),
+                    start=placement.act(np.asarray(start, dtype=float)),
+                    end=placement.act(np.asarray(end, dtype=float)),
+                    diameter=float(diameter),
+                    displaced_volume=float(volume),
+                    cd=cd if cd is not None else spec.cd,
+                    cm=cm if cm is not None else spec.cm,
+                )
+            )
+    return out
+
+
+def _split_volumes(pieces: list, link_volume: float | None, where: str) -> np.ndarray:
+    """Displaced volume per cylinder: its own if given; the rest share ``link_volume``
+    (what is left of it) in proportion to their geometric volumes, or keep those."""
+    geometric = np.asarray([math.pi / 4.0 * p[2] ** 2 * np.linalg.norm(p[1] - p[0]) for p in pieces])
+    own = np.asarray([np.nan if p[5] is None else p[5] for p in pieces])
+    free = np.isnan(own)
+    volumes = np.where(free, geometric, own)
+    if link_volume is not None:
+        left = link_volume - own[~free].sum()
+        if not free.any() or left < 0.0:
+            raise ConfigError(
+                f"{where}.displaced_volume = {link_volume}: does not match the cylinders' own displaced volumes"
+            )
+        volumes[free] = left * geometric[free] / geometric[free].sum()
+    return volumes
+
+
+# --- files ---------------------------------------------------------------------
+
+
+def load_hydro_spec(path: str | Path) -> HydroSpec:
+    """Read and validate a hydrodynamics file (TOML or YAML)."""
+    return validate(HydroSpec, read_mapping(path), str(path))
+
+
+def hydro_file_for(urdf_path: str | Path) -> Path | None:
+    """The hydrodynamics file beside a URDF: ``<stem>.hydro.toml`` (or ``.yaml``/``.yml``)."""
+    urdf_path = Path(urdf_path)
+    for suffix in HYDRO_SUFFIXES:
+        candidate = urdf_path.with_name(urdf_path.stem + suffix)
+        if candidate.is_file():
+            return candidate
+    return None
+
+
+def load_urdf_arm(source: str | Path, hydro: HydroSpec | dict | str | Path | None = None) -> Arm:
+    """Load a URDF arm from a ``.urdf`` path or from a hydrodynamics file that names its URDF.
+
+    For a ``.urdf``, ``hydro`` is a spec, a dict, a path, or None (then the
+    ``<stem>.hydro.toml`` beside the URDF, or if there is none every collision
+    cylinder wet with default coefficients).
+    """
+    path = Path(source)
+    if not path.is_file():
+        raise ConfigError(f"arm '{source}': no such file")
+    name = path.name.lower()
+    hydro_source = str(path)
+    if name.endswith(HYDRO_SUFFIXES):
+        if hydro is not None:
+            raise ConfigError(f"{source}: a hydrodynamics file already; do not pass hydro as well")
+        spec = load_hydro_spec(path)
+        if spec.urdf is None:
+            raise ConfigError(f"{source}: urdf: missing (the URDF this file describes, relative to it)")
+        urdf_path = (path.parent / spec.urdf).resolve()
+        if not urdf_path.is_file():
+            raise ConfigError(f"{source}: urdf = '{spec.urdf}': no such file ({urdf_path})")
+    else:
+        urdf_path = path
+        if hydro is None:
+            found = hydro_file_for(path)
+            spec = load_hydro_spec(found) if found is not None else None
+            hydro_source = str(found) if found is not None else f"{path} (no hydrodynamics file)"
+        elif isinstance(hydro, (str, Path)):
+            spec = load_hydro_spec(hydro)
+            hydro_source = str(hydro)
+        else:
+            spec = hydro if isinstance(hydro, HydroSpec) else validate(HydroSpec, hydro, "hydro")
+    return arm_from_urdf(urdf_path.read_text(), spec, source=hydro_source)
+
+
+def hydro_spec_of(arm: Arm, use_collision: bool = True) -> dict[str, Any]:
+    """A hydrodynamics mapping for ``arm`` exported with :meth:`Arm.to_urdf`.
+
+    One entry per link of :func:`hydroarm.urdf.arm_to_urdf` (``link<i>``): its
+    URDF collision cylinder (``use_collision`` and one cylinder on the link) or
+    explicit cylinders, with the arm's displaced volumes and coefficient
+    overrides, so that re-loading the export with it gives the same dynamics
+    and water (the round-trip test). Cylinders on the base are not exported.
+    """
+    by_joint: dict[int, list[WettedCylinder]] = {}
+    for cylinder in arm.cylinders:
+        by_joint.setdefault(cylinder.joint_id, []).append(cylinder)
+    links = []
+    for joint_id, cylinders in sorted(by_joint.items()):
+        if joint_id == 0:
+            continue
+        if use_collision and len(cylinders) == 1:
+            (c,) = cylinders
+            entry: dict[str, Any] = {"link": f"link{joint_id}", "collision": True, "displaced_volume": c.displaced_volume}
+            entry.update({key: value for key, value in (("cd", c.cd), ("cm", c.cm)) if value is not None})
+        else:
+            entry = {"link": f"link{joint_id}", "cylinders": []}
+            for c in cylinders:
+                row = {"diameter": c.diameter, "start": c.start.tolist(), "end": c.end.tolist()}
+                row["displaced_volume"] = c.displaced_volume
+                row.update({key: value for key, value in (("cd", c.cd), ("cm", c.cm)) if value is not None})
+                entry["cylinders"].append(row)
+        links.append(entry)
+    return {"name": arm.name, "gravity": arm.gravity_acceleration, "links": links}
