@@ -67,18 +67,24 @@ def reproduce(
     seeds: Annotated[int | None, typer.Option("--seeds", min=1, max=100, help="Noisy seeds (default 5; quick 2).")] = None,
     ablation: Annotated[bool | None, typer.Option("--ablation/--no-ablation", help="Run the ablation (default: on unless --quick).")] = None,
     workers: Annotated[int, typer.Option("--workers", min=1, max=64, help="Parallel processes.")] = 2,
+    arm: Annotated[str | None, typer.Option("--arm", help="Another arm (built-in name or file); the task is scaled to its joint limits.")] = None,
     config_file: ConfigOption = None,
     overrides: SetOption = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print metrics.json's tables to stdout.")] = False,
 ) -> None:
     """Reproduce the paper's Tables 1-2 and Figures 4-15 into OUT.
 
-    Example: hydroarm reproduce --out results
+    Examples: hydroarm reproduce --out results;  hydroarm reproduce --arm alpha5 --out alpha5
     """
+    from hydroarm.arm import load_arm
+    from hydroarm.experiments import with_overrides
     from hydroarm.reproduce import reproduce as run
 
     try:
         config = _experiment_config(config_file, overrides or [])
+        if arm is not None:
+            config = with_overrides(config, {"arm": arm})
+        load_arm(config.arm)
     except ConfigError as error:
         _fail(str(error))
     with Progress(
@@ -172,6 +178,37 @@ def run(
 
 
 @app.command()
+def animate(
+    run_file: Annotated[Path, typer.Argument(help="A trajectory .npz (from run or reproduce).")],
+    out: Annotated[Path, typer.Option("--out", help="Output .gif (or .mp4 with ffmpeg).")] = Path("arm.gif"),
+    arm: Annotated[str | None, typer.Option("--arm", help="Arm of the run (default: from the file).")] = None,
+    fps: Annotated[int, typer.Option("--fps", min=1, max=100)] = 10,
+    start: Annotated[float, typer.Option("--start", min=0.0, help="First second to show.")] = 0.0,
+    duration: Annotated[float | None, typer.Option("--duration", min=0.0, help="Seconds to show (default: all).")] = None,
+) -> None:
+    """Render the arm following a saved trajectory, the reference ghosted, the error in a corner.
+
+    Example: hydroarm animate results/runs/clean__GP-MPC__seed0.npz --out arm.gif
+    """
+    from hydroarm.animate import animate as render
+    from hydroarm.arm import load_arm
+    from hydroarm.simulate import Trajectory
+
+    if not run_file.is_file():
+        _fail(f"RUN_FILE '{run_file}': no such file")
+    try:
+        traj = Trajectory.load(run_file)
+    except Exception as error:  # noqa: BLE001 - any unreadable file is bad input
+        _fail(f"RUN_FILE '{run_file}': not a hydroarm trajectory ({error})")
+    try:
+        arm_model = load_arm(arm) if arm else None
+        render(traj, out, arm=arm_model, fps=fps, start=start, duration=duration)
+    except (ConfigError, ValueError) as error:
+        _fail(str(error))
+    console.print(f"wrote {out}")
+
+
+@app.command()
 def arms(as_json: Annotated[bool, typer.Option("--json")] = False) -> None:
     """List the built-in arms."""
     from hydroarm.arm import BUILTIN_ARMS, load_arm
@@ -179,8 +216,8 @@ def arms(as_json: Annotated[bool, typer.Option("--json")] = False) -> None:
     rows = []
     for name in BUILTIN_ARMS:
         arm = load_arm(name)
-        spec = arm.spec
-        rows.append({"name": name, "joints": arm.n_joints, "description": getattr(spec, "description", ""), "torque_limit": arm.torque_limit.tolist()})
+        description = getattr(arm.spec, "description", "") if arm.spec is not None else "URDF arm"
+        rows.append({"name": name, "joints": arm.n_joints, "description": description, "torque_limit": arm.torque_limit.tolist()})
     if as_json:
         print(json.dumps(rows))
         return

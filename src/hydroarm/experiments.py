@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import hashlib
 import json
+
+import numpy as np
 from collections.abc import Callable
 from typing import Any, Literal
 
@@ -23,7 +25,7 @@ from hydroarm.mpc import LinearMPC, MPCConfig
 from hydroarm.plant import PlantConfig, UnderwaterPlant
 from hydroarm.simulate import Trajectory, run_closed_loop
 from hydroarm.smc import SlidingModeController, SMCConfig
-from hydroarm.task import paper_reference
+from hydroarm.task import SinusoidReference, paper_reference
 from hydroarm.water import Water
 
 ControllerName = Literal["SMC", "MPC", "GP-MPC"]
@@ -78,23 +80,50 @@ def build_controller(name: str, arm: Arm, config: ExperimentConfig):
     raise ConfigError(f"controller '{name}': must be one of {', '.join(CONTROLLERS)}")
 
 
+def task_for_arm(arm: Arm) -> tuple[SinusoidReference, np.ndarray]:
+    """The reference and the initial state (2n,) for ``arm``.
+
+    A 6-joint arm without position limits (the paper's, UR5) gets the paper
+    task from rest at q = 0. Other arms get the same shape (joint i follows the
+    paper's joint i mod 6), scaled so that it stays within 80 % of each joint's
+    range around its middle, starting at rest at the middle. Velocity limits are
+    not enforced by the plant; the scaled task is a tracking test, not a
+    certified motion.
+    """
+    paper = paper_reference()
+    n = arm.n_joints
+    if n == 6 and arm.position_limit is None:
+        return paper, np.zeros(12)
+    rows = [i % 6 for i in range(n)]
+    base = SinusoidReference(paper.offset[rows], paper.cos_amp[rows], paper.sin_amp[rows], paper.omega[rows])
+    if arm.position_limit is None:
+        return base, np.zeros(2 * n)
+    limits = np.asarray(arm.position_limit, dtype=float)
+    finite = np.all(np.isfinite(limits), axis=1)
+    middle = np.where(finite, 0.5 * (limits[:, 0] + limits[:, 1]), 0.0)
+    half = np.where(finite, 0.5 * (limits[:, 1] - limits[:, 0]), np.inf)
+    amplitude = np.sum(np.abs(base.cos_amp) + np.abs(base.sin_amp), axis=1)
+    scale = np.minimum(1.0, 0.8 * half / np.maximum(amplitude, 1e-12))
+    return base.scaled(scale, offset=middle), np.concatenate([middle, np.zeros(n)])
+
+
 def run_experiment(
     config: ExperimentConfig,
     controller: str,
     seed: int = 0,
     progress: Callable[[int, int], None] | None = None,
 ) -> Trajectory:
-    """Run ``controller`` on the true plant of ``config`` along the paper task.
+    """Run ``controller`` on the true plant of ``config`` along the paper task
+    (scaled to the arm's joint limits for other arms: :func:`task_for_arm`).
 
     ``seed`` drives the measurement noise; the trajectory's ``meta`` records the
     settings and their digest.
     """
     arm = load_arm(config.arm)
     plant = UnderwaterPlant(arm, config.water, config.plant)
-    reference = paper_reference()
-    if arm.n_joints != reference.n_joints:
-        raise ConfigError(f"arm '{config.arm}' has {arm.n_joints} joints; the paper task needs 6")
-    traj = run_closed_loop(plant, build_controller(controller, arm, config), reference, config.duration, seed, progress=progress)
+    reference, x0 = task_for_arm(arm)
+    controller_object = build_controller(controller, arm, config)
+    traj = run_closed_loop(plant, controller_object, reference, config.duration, seed, x0=x0, progress=progress)
     traj.meta["settings"] = config.model_dump(mode="json")
     traj.meta["digest"] = config.digest()
     traj.meta["arm"] = config.arm

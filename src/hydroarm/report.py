@@ -97,8 +97,9 @@ def render_report(metrics: dict, out: Path) -> str:
     if (out / "ablation.md").exists():
         lines += ["## Ablation", "", (out / "ablation.md").read_text()]
     lines += ["## Figures", ""]
-    from hydroarm.reproduce import FIGURES
+    from hydroarm.reproduce import ANIMATION, FIGURES
 
+    lines += [f"![GP-MPC on the task: the arm (colour) and the reference (grey)]({ANIMATION})", ""]
     for name, title in FIGURES.items():
         lines.append(f"![{title}]({name})")
         lines.append("")

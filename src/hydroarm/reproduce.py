@@ -11,6 +11,7 @@ settings, and writes into ``out_dir``:
   ablation, the settings, wall times and the machine;
 * ``table1.md``/``.csv``, ``table2.md``/``.csv``, ``ablation.md``/``.csv``;
 * ``fig04_...png`` to ``fig15_...png``: the paper's figures;
+* ``gpmpc_arm.gif``: the arm moving under GP-MPC, the reference ghosted;
 * ``report.md``: settings, tables, figures, and where and why we differ.
 
 Each run is saved atomically as soon as it finishes; a later call with the same
@@ -36,6 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from hydroarm import figures
+from hydroarm.animate import animate
 from hydroarm.arm import load_arm
 from hydroarm.experiments import ExperimentConfig, run_experiment, with_overrides
 from hydroarm.simulate import Trajectory, tracking_metrics
@@ -326,6 +328,9 @@ def _write_table(stem: Path, title: str, header: list[str], rows: list[list[str]
     stem.with_suffix(".md").write_text("\n".join(lines) + "\n")
 
 
+ANIMATION = "gpmpc_arm.gif"
+"""The first seconds of the clean GP-MPC run: links as cylinders, the reference ghosted."""
+
 FIGURES = {
     "fig04_disturbance.png": "Fig. 4: true vs GP-estimated disturbance (no noise)",
     "fig05_disturbance_error.png": "Fig. 5: disturbance estimate error (no noise)",
@@ -397,6 +402,8 @@ def reproduce(
     }
     write_tables(metrics, out)
     write_figures(runs, results, out, load_arm(base.arm).torque_limit)
+    clean_gp = next(results[s.key] for s in runs if s.case == "clean" and s.controller == "GP-MPC")
+    animate(clean_gp, out / ANIMATION, duration=min(5.0, base.duration), fps=10)
     metrics["wall_time_s"] = {"runs": run_wall, "total": time.perf_counter() - start}
     metrics["machine"] = {"python": platform.python_version(), "cpus": os.cpu_count(), "platform": platform.platform()}
     (out / "metrics.json").write_text(json.dumps({case: metrics[case] for case in ("clean", "noisy")}, indent=1))

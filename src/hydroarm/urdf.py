@@ -38,7 +38,16 @@ def _axis_to_z_rotation(axis: np.ndarray) -> np.ndarray:
 
 
 def arm_to_urdf(arm: Arm) -> str:
-    """URDF text of ``arm``'s dry rigid body; see the module docstring."""
+    """URDF text of ``arm``'s dry rigid body; see the module docstring.
+
+    Joint axes come from the Pinocchio joint types; position limits from
+    ``arm.position_limit`` when known, else +-2 pi (URDF revolute joints need
+    limits, and a ``continuous`` joint would give Pinocchio a 2-number
+    configuration per joint).
+    """
+    from hydroarm.water import revolute_axes
+
+    axes = revolute_axes(arm)
     model = arm.model
     lines = ['<?xml version="1.0"?>', f"<robot name={quoteattr(arm.name)}>", '  <link name="base_link"/>']
     cylinders_by_joint: dict[int, list] = {}
@@ -72,15 +81,18 @@ def arm_to_urdf(arm: Arm) -> str:
         lines.append("  </link>")
         parent_id = model.parents[joint_id]
         parent_name = "base_link" if parent_id == 0 else f"link{parent_id}"
-        limit = arm.torque_limit[model.joints[joint_id].idx_v]
+        index = model.joints[joint_id].idx_v
+        effort = arm.torque_limit[index]
+        bounds = None if arm.position_limit is None else np.asarray(arm.position_limit)[index]
+        if bounds is None or not np.all(np.isfinite(bounds)):
+            bounds = np.array([-2.0 * np.pi, 2.0 * np.pi])
         lines.append(f'  <joint name="{model.names[joint_id]}" type="revolute">')
         lines.append(f'    <parent link="{parent_name}"/>')
         lines.append(f'    <child link="{link_name}"/>')
         lines.append(f"    {_origin(model.jointPlacements[joint_id])}")
-        lines.append('    <axis xyz="0 0 1"/>')
+        lines.append(f'    <axis xyz="{_fmt(axes[joint_id])}"/>')
         lines.append(
-            f'    <limit lower="-6.2831853071795862" upper="6.2831853071795862" '
-            f'effort="{limit:.17g}" velocity="10"/>'
+            f'    <limit lower="{bounds[0]:.17g}" upper="{bounds[1]:.17g}" effort="{effort:.17g}" velocity="10"/>'
         )
         lines.append("  </joint>")
     if model.existFrame("flange"):
