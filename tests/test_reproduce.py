@@ -114,3 +114,20 @@ def test_cli_run_arms_and_urdf(tmp_path):
     assert {"paper", "ur5"} <= {a["name"] for a in arms}
     urdf = hydroarm_cli("export-urdf", "paper").stdout
     assert urdf.startswith("<?xml") and urdf.count("<joint ") == 7
+
+
+def test_every_controller_runs_on_the_alpha5_without_code_changes(tmp_path):
+    for controller in ("smc", "mpc", "gp-mpc"):
+        out = tmp_path / controller
+        result = hydroarm_cli("run", "--arm", "alpha5", "--controller", controller, "--set", "duration=1.0", "--out", str(out), "--json")
+        metrics = json.loads(result.stdout.strip().splitlines()[-1])
+        assert len(metrics["Ep"]) == 4 and not metrics["diverged"]
+
+
+def test_cli_animate(quick_run, tmp_path):
+    run_file = quick_run / "runs" / "clean__GP-MPC__seed0.npz"
+    out = tmp_path / "arm.gif"
+    hydroarm_cli("animate", str(run_file), "--out", str(out), "--duration", "0.5")
+    assert out.read_bytes()[:6] in (b"GIF89a", b"GIF87a")
+    result = hydroarm_cli("animate", str(tmp_path / "missing.npz"), check=False)
+    assert result.returncode == 2 and "no such file" in result.stderr
