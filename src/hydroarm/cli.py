@@ -251,6 +251,85 @@ def export_urdf(
         console.print(f"wrote {out}")
 
 
+@app.command()
+def sweep(
+    sweep_file: Annotated[Path, typer.Argument(help="Sweep file (TOML/YAML), e.g. examples/sweep.toml.")],
+    out: Annotated[Path, typer.Option("--out", help="Output folder (created; the same command resumes).")] = Path("sweep"),
+    workers: Annotated[int, typer.Option("--workers", min=1, max=256, help="Parallel processes (or the CPUs of a local Ray instance).")] = 2,
+    ray: Annotated[bool, typer.Option("--ray", help="Run on Ray: a local Ray instance with --workers CPUs (pip install 'hydroarm[ray]').")] = False,
+    ray_address: Annotated[
+        str | None,
+        typer.Option("--ray-address", metavar="ADDRESS", help="Run on this Ray cluster instead (implies --ray): auto, HOST:6379 or ray://HOST:10001."),
+    ] = None,
+    trajectories: Annotated[bool, typer.Option("--trajectories", help="Also keep every trajectory (runs/<id>.npz).")] = False,
+    as_json: Annotated[bool, typer.Option("--json", help="Print the summary as JSON.")] = False,
+) -> None:
+    """Run a grid or random sweep over controllers, seeds, arms, water, noise, mismatch and settings.
+
+    One row per run in OUT/results.csv (written as runs finish); OUT/summary.md and box plots at the end.
+    Re-running the same command skips finished runs.
+
+    Examples: hydroarm sweep examples/sweep.toml --out sweep1;  hydroarm sweep examples/sweep.toml --out sweep1 --ray
+    """
+    from hydroarm.sweep import load_sweep, plan_sweep, run_sweep
+
+    if not sweep_file.is_file():
+        _fail(f"SWEEP_FILE '{sweep_file}': no such file")
+    try:  # every setting and arm checked before the progress bar starts
+        plan_sweep(load_sweep(sweep_file), sweep_file.parent, str(sweep_file))
+        if ray or ray_address:
+            from hydroarm.sweep import import_ray
+
+            import_ray()
+    except ConfigError as error:
+        _fail(str(error))
+    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(), console=console) as progress:
+        task = progress.add_task("sweep", total=None)
+
+        def hook(done: int, total: int, label: str) -> None:
+            progress.update(task, completed=done, total=total, description=label[:50])
+
+        try:
+            summary = run_sweep(sweep_file, out, workers=workers, ray_address=ray_address or ('local' if ray else None), on_progress=hook,
+                                save_trajectories=True if trajectories else None)
+        except ConfigError as error:
+            _fail(str(error))
+        except KeyboardInterrupt:
+            console.print(f"[yellow]interrupted:[/] finished runs are kept in {out / 'runs'}; run the same command to resume")
+            raise typer.Exit(130) from None
+    if as_json:
+        print(json.dumps(summary))
+    else:
+        table = Table(title=f"{summary['metric_label']} — {out}/summary.md, {out}/results.csv")
+        for column in ("controller", "finished", "median", "p90", "diverged"):
+            table.add_column(column)
+        for name, entry in summary["controllers"].items():
+            cell = lambda x: "-" if x is None else f"{x:.4g}"  # noqa: E731
+            table.add_row(name, f"{entry['finished']}/{entry['rows']}", cell(entry["median"]), cell(entry["p90"]), str(entry["diverged"]))
+        Console().print(table)
+        console.print(f"{summary['ran']} runs done, {summary['reused']} reused, {len(summary['failed'])} failed ({summary['wall_s']:.1f} s)")
+    if summary["failed"]:
+        raise typer.Exit(1)
+
+
+@app.command()
+def bench(
+    out: Annotated[Path, typer.Option("--out", help="Output folder for bench.json and bench.md.")] = Path("bench-results"),
+    quick: Annotated[bool, typer.Option("--quick", help="A few hundred samples (CI).")] = False,
+) -> None:
+    """Benchmark the control steps, the plant, peers (do-mpc, cvxpy, scikit-learn, GPyTorch) and scaling.
+
+    Example: hydroarm bench --out bench-results
+    """
+    from hydroarm.benchmark import run_benchmarks, validate_report
+
+    report = run_benchmarks(out, quick=quick)
+    problems = validate_report(report)
+    if problems:
+        _fail("benchmark report is malformed: " + "; ".join(problems), code=1)
+    console.print(f"wrote {out / 'bench.json'} and {out / 'bench.md'}")
+
+
 def main() -> None:  # pragma: no cover - entry point
     app()
 

@@ -97,12 +97,15 @@ Measured with ``bench/gp_window_update.py`` (``add`` + ``predict`` with fixed
 theta, 6 outputs, d = 12, 1 BLAS thread, median of 2000 reps, 2-core x86_64
 VM, microseconds; "full" includes rebuilding the O(N^2 d) squared distances)::
 
-    N             10     20     50     100     200
-    full         169    214    524    3677   15647
-    incremental  170    196    327    1396    5314
+    N                      10     20     50     100     200
+    full (NumPy)          169    214    524    3677   15647
+    incremental (NumPy)   170    196    327    1396    5314
+    full (compiled <= 60)  59     87    371    3605   18531   (see "Compiled kernels")
+    incremental            152    181    317    1625    6555   (same code, re-measured)
 
-So the incremental path gains nothing at N = 10 (NumPy call overhead
-dominates), starts to win near N = 20 and wins clearly above; ``GPConfig.incremental_min_window`` (default
+So the incremental path gains nothing at small N (call overhead dominates; with
+the compiled full factorisation it loses below ~40), and wins clearly above;
+``GPConfig.incremental_min_window`` (default
 30) selects it only for windows at least that large, and a full
 refactorisation is forced every ``refactor_every`` incremental updates to bound
 round-off drift (after 2000 incremental updates the factor still agreed with a
@@ -110,6 +113,23 @@ fresh one to 1e-13). With the paper's N_train = 10 the full refactorisation is
 used. Hyperparameter steps do not prevent it: ``add`` slides the window at the
 theta left by the last update, and ``update_hyperparameters`` starts from that
 factor instead of refactorising (the candidates still need full ones).
+
+Compiled kernels
+----------------
+At N = 10 the NumPy formulation of one batched evaluation (kernel matrices,
+batched Cholesky, one LAPACK triangular inverse per row, K^-1, alpha, LML,
+gradient: ~40 NumPy calls) costs ~170 us for the 18 stacked rows of one
+hyperparameter step, nearly all of it call overhead. ``_evaluate_kernel`` and
+``_predict_kernel`` (numba, cached on disk like hydroarm.water) do the same
+algebra in plain loops, ~37 us; the NumPy versions stay as the readable
+references (``_evaluate_reference``, ``_predict_with_factor_reference``) and
+tests compare the two (they differ by rounding only). A Cholesky that fails in
+the kernel (a pivot <= 0 or NaN, LAPACK's test) makes the wrapper rerun the
+reference, so the jitter ladder and the event counts are those of the
+reference. Without the gradient (``predict`` after ``add``), LAPACK's blocked
+factorisation wins above ~60 samples and is used there. One GP control step
+(add + one hyperparameter step + predict, 6 outputs, d = 12, N = 10) went from
+~390 us to ~170 us; see ``bench/README.md``.
 """
 
 from __future__ import annotations
@@ -119,6 +139,7 @@ from dataclasses import asdict, dataclass
 from functools import cached_property
 from typing import NamedTuple
 
+import numba
 import numpy as np
 from scipy.linalg import cho_factor, cho_solve, solve_triangular
 from scipy.linalg.lapack import dpotrf, dtrtri
@@ -428,7 +449,7 @@ def _cholesky_inverse(K: np.ndarray, max_jitter_retries: int):
     return linv, extra_diag, ok, n_jittered
 
 
-def _evaluate(
+def _evaluate_reference(
     window: _Window,
     Y_fit: np.ndarray,
     log_theta: np.ndarray,
@@ -484,13 +505,262 @@ def _solve_with_factor(linv: np.ndarray, Y_fit: np.ndarray) -> np.ndarray:
     return np.einsum("oba,ob->oa", linv, np.einsum("oab,ob->oa", linv, Y_fit))
 
 
-def _predict_with_factor(window: _Window, X_star, log_theta, linv, alpha):
-    """(o, m) normalised mean and latent variance (clipped at 0) (R&W Alg. 2.1 lines 4-6)."""
+def _predict_with_factor_reference(window: _Window, X_star, log_theta, linv, alpha):
+    """(o, m) normalised mean and latent variance (clipped at 0) (R&W Alg. 2.1 lines 4-6).
+
+    NumPy reference of :func:`_predict_kernel` (tests compare the two)."""
     K_star = _signal_kernels(_neg_half_sq_diff_t(X_star, window.X), X_star.shape[0], window.n, log_theta)
     mean = np.einsum("omn,on->om", K_star, alpha)
     v = K_star @ linv.transpose(0, 2, 1)  # (o, m, n): rows of (Linv K_star^T)^T
     var = np.maximum(np.exp(log_theta[:, :1]) - np.einsum("oma,oma->om", v, v), 0.0)
     return mean, var
+
+
+# --------------------------------------------------------------------------
+# Compiled kernels (numba): the same algebra as the NumPy references above,
+# one call per batched evaluation instead of ~40 small NumPy calls
+# --------------------------------------------------------------------------
+# At the paper's N = 10 the NumPy formulation costs ~200 us per evaluation, almost
+# all of it call overhead (a batched Cholesky plus one LAPACK dtrtri per row, ~20
+# einsum/matmul calls); these loops do the same flops in ~15 us. They differ from
+# the references only by rounding (summation order); tests compare them. A
+# Cholesky that fails (a pivot <= 0 or NaN, as LAPACK's dpotrf) makes the wrapper
+# rerun the NumPy reference, whose jitter ladder and event counting then apply
+# unchanged.
+
+_NO_FACTOR = np.empty((0, 0, 0))
+
+# Above this window a bare factorisation (no gradient) is faster in LAPACK's blocked
+# Cholesky and triangular inverse than in the unblocked compiled loops (measured
+# crossover ~60 samples, 6 outputs, d = 12). With the gradient the compiled kernel is
+# faster at every size measured (10 - 200): the reference then also pays K^-1 and
+# the O(n^2 d) gradient in several NumPy passes.
+_COMPILED_FACTOR_MAX_WINDOW = 60
+
+
+@numba.njit(cache=True)
+def _evaluate_kernel(X, Y_fit, log_theta, sn2, jitter, cached_linv, with_gradient):  # pragma: no cover - compiled
+    """Compiled `_evaluate_reference` (R&W Alg. 2.1 and eq. 5.9, per row of log_theta).
+
+    Returns (lml (o,), grad (o, d+2), half_trace_w (o,), alpha (o, n), linv (o, n, n),
+    linv_finite (o,), factorised). ``factorised`` is False if any row's Cholesky
+    failed (then nothing else is meaningful). ``cached_linv`` with o rows skips the
+    factorisation (the incremental path's factor); pass an empty array otherwise.
+    grad and half_trace_w are zero-size unless ``with_gradient``.
+    """
+    n_out = log_theta.shape[0]
+    n, d = X.shape
+    # -1/2 (x_aj - x_bj)^2 for the pairs a > b (column p, lower triangle row-major)
+    n_pairs = n * (n - 1) // 2
+    pairs = np.empty((d, n_pairs))
+    p = 0
+    for a in range(n):
+        for b in range(a):
+            for j in range(d):
+                diff = X[a, j] - X[b, j]
+                pairs[j, p] = -0.5 * diff * diff
+            p += 1
+    exponent = np.empty(n_pairs)
+    use_cached = cached_linv.shape[0] == n_out
+    lml = np.empty(n_out)
+    alpha = np.empty((n_out, n))
+    linv = np.empty((n_out, n, n)) if not use_cached else cached_linv
+    linv_finite = np.ones(n_out, dtype=np.bool_)
+    if with_gradient:
+        grad = np.empty((n_out, d + 2))
+        half_trace_w = np.empty(n_out)
+    else:
+        grad = np.empty((0, d + 2))
+        half_trace_w = np.empty(0)
+    inv_l2 = np.empty(d)
+    k_signal = np.empty((n, n))
+    chol = np.empty((n, n))
+    k_inv = np.empty((n, n))
+    whitened = np.empty(n)
+    half_log_2pi_n = 0.5 * n * math.log(2.0 * math.pi)
+    for r in range(n_out):
+        for j in range(d):
+            inv_l2[j] = math.exp(-2.0 * log_theta[r, 2 + j])
+        log_sf2 = log_theta[r, 0]
+        sf2 = math.exp(log_sf2)
+        exponent[:] = 0.0  # sum_j inv_l2_j D_j, summed in j order as the reference's matmul
+        for j in range(d):
+            for p in range(n_pairs):
+                exponent[p] += inv_l2[j] * pairs[j, p]
+        p = 0
+        for a in range(n):
+            k_signal[a, a] = sf2
+            for b in range(a):
+                value = math.exp(exponent[p] + log_sf2)
+                k_signal[a, b] = value
+                k_signal[b, a] = value
+                p += 1
+        lr = linv[r]
+        if not use_cached:
+            # Cholesky K = L L^T, K = K_signal + (sn2 + jitter) I
+            noise = sn2[r] + jitter
+            for j in range(n):
+                s = k_signal[j, j] + noise
+                for k in range(j):
+                    s -= chol[j, k] * chol[j, k]
+                if not s > 0.0:
+                    return lml, grad, half_trace_w, alpha, linv, linv_finite, False
+                pivot = math.sqrt(s)
+                chol[j, j] = pivot
+                for i in range(j + 1, n):
+                    s = k_signal[i, j]
+                    for k in range(j):
+                        s -= chol[i, k] * chol[j, k]
+                    chol[i, j] = s / pivot
+            # L^-1, lower triangular
+            for j in range(n):
+                lr[j, j] = 1.0 / chol[j, j]
+                for i in range(j + 1, n):
+                    s = 0.0
+                    for k in range(j, i):
+                        s += chol[i, k] * lr[k, j]
+                    lr[i, j] = -s / chol[i, i]
+                for i in range(j):
+                    lr[i, j] = 0.0
+            total = 0.0
+            for a in range(n):
+                for b in range(a + 1):
+                    total += lr[a, b]
+            if not np.isfinite(total):
+                linv_finite[r] = False
+                lr[:, :] = np.nan
+        # alpha = K^-1 y = L^-T (L^-1 y), two triangular products. (The reference forms
+        # K^-1 first; with K's condition number ~1e9 on clean closed-loop windows,
+        # sn2 ~ 1e-5 against sf2 ~ 300, that loses ~100x more digits: predictive means
+        # ~3e-5 N m from an extended-precision solve, against ~2e-7 this way.)
+        for a in range(n):
+            s = 0.0
+            for b in range(a + 1):
+                s += lr[a, b] * Y_fit[r, b]
+            whitened[a] = s
+        for a in range(n):
+            s = 0.0
+            for k in range(a, n):
+                s += lr[k, a] * whitened[k]
+            alpha[r, a] = s
+        fit = 0.0
+        log_det = 0.0
+        if with_gradient:  # K^-1 = L^-T L^-1, for W = alpha alpha^T - K^-1
+            for a in range(n):
+                for b in range(a + 1):
+                    s = 0.0
+                    for k in range(a, n):
+                        s += lr[k, a] * lr[k, b]
+                    k_inv[a, b] = s
+                    k_inv[b, a] = s
+        for a in range(n):
+            fit += alpha[r, a] * Y_fit[r, a]
+            log_det += math.log(lr[a, a])
+        lml[r] = log_det - 0.5 * fit - half_log_2pi_n
+        if not with_gradient:
+            continue
+        # W = alpha alpha^T - K^-1, A = W * K_signal (symmetric)
+        g_sf2 = 0.0
+        trace = 0.0
+        for j in range(d):
+            grad[r, 2 + j] = 0.0
+        p = 0
+        for a in range(n):
+            w_aa = alpha[r, a] * alpha[r, a] - k_inv[a, a]
+            trace += w_aa
+            g_sf2 += w_aa * k_signal[a, a]
+            for b in range(a):
+                weight = 2.0 * (alpha[r, a] * alpha[r, b] - k_inv[a, b]) * k_signal[a, b]
+                g_sf2 += weight
+                for j in range(d):
+                    grad[r, 2 + j] += weight * pairs[j, p]
+                p += 1
+        half_trace_w[r] = 0.5 * trace
+        grad[r, 0] = 0.5 * g_sf2
+        grad[r, 1] = sn2[r] * half_trace_w[r]
+        for j in range(d):
+            grad[r, 2 + j] *= -inv_l2[j]
+    return lml, grad, half_trace_w, alpha, linv, linv_finite, True
+
+
+@numba.njit(cache=True)
+def _predict_kernel(X_star, X, log_theta, linv, alpha):  # pragma: no cover - compiled
+    """Compiled `_predict_with_factor_reference`: (o, m) mean and latent variance (>= 0)."""
+    n_out = log_theta.shape[0]
+    m, d = X_star.shape
+    n = X.shape[0]
+    mean = np.empty((n_out, m))
+    var = np.empty((n_out, m))
+    k_star = np.empty(n)
+    inv_l2 = np.empty(d)
+    for r in range(n_out):
+        for j in range(d):
+            inv_l2[j] = math.exp(-2.0 * log_theta[r, 2 + j])
+        log_sf2 = log_theta[r, 0]
+        for i in range(m):
+            for b in range(n):
+                s = 0.0
+                for j in range(d):
+                    diff = X_star[i, j] - X[b, j]
+                    s += inv_l2[j] * (-0.5 * diff * diff)
+                k_star[b] = math.exp(s + log_sf2)
+            mu = 0.0
+            for b in range(n):
+                mu += k_star[b] * alpha[r, b]
+            explained = 0.0
+            for a in range(n):
+                s = 0.0
+                for b in range(a + 1):
+                    s += linv[r, a, b] * k_star[b]
+                explained += s * s
+            mean[r, i] = mu
+            var[r, i] = max(math.exp(log_sf2) - explained, 0.0)
+    return mean, var
+
+
+def _evaluate(
+    window: _Window,
+    Y_fit: np.ndarray,
+    log_theta: np.ndarray,
+    sn2: np.ndarray,
+    jitter: float,
+    max_jitter_retries: int,
+    with_gradient: bool,
+    cached: tuple[np.ndarray, np.ndarray] | None = None,
+) -> _Evaluation:
+    """`_evaluate_reference` by the compiled kernel; the reference reruns if a Cholesky fails."""
+    result = _evaluate_kernel(
+        np.ascontiguousarray(window.X, dtype=np.float64),
+        np.ascontiguousarray(Y_fit, dtype=np.float64),
+        np.ascontiguousarray(log_theta, dtype=np.float64),
+        np.ascontiguousarray(sn2, dtype=np.float64),
+        float(jitter),
+        _NO_FACTOR if cached is None else np.ascontiguousarray(cached[0]),
+        bool(with_gradient),
+    )
+    lml, grad, half_trace_w, alpha, linv, linv_finite, factorised = result
+    if not factorised:
+        return _evaluate_reference(
+            window, Y_fit, log_theta, sn2, jitter, max_jitter_retries, with_gradient, cached
+        )
+    if cached is None:
+        extra_diag, ok = np.zeros(log_theta.shape[0]), linv_finite & np.isfinite(lml)
+    else:
+        extra_diag, ok = cached[1], np.isfinite(lml)
+    if not with_gradient:
+        grad = half_trace_w = None
+    return _Evaluation(lml, grad, half_trace_w, alpha, linv, extra_diag, ok)
+
+
+def _predict_with_factor(window: _Window, X_star, log_theta, linv, alpha):
+    """(o, m) normalised mean and latent variance (clipped at 0) (R&W Alg. 2.1 lines 4-6)."""
+    return _predict_kernel(
+        np.ascontiguousarray(X_star, dtype=np.float64),
+        np.ascontiguousarray(window.X, dtype=np.float64),
+        np.ascontiguousarray(log_theta, dtype=np.float64),
+        np.ascontiguousarray(linv, dtype=np.float64),
+        np.ascontiguousarray(alpha, dtype=np.float64),
+    )
 
 
 def _check_thetas(thetas, n_outputs: int, n_inputs: int) -> np.ndarray:
@@ -993,16 +1263,27 @@ class SlidingWindowGP:
         if self._linv is not None:
             return
         n = window.n
-        K_signal = _signal_kernels(window.neg_half_sq_diff_t, n, n, self._log_theta)
-        noise = np.exp(self._log_theta[:, 1]) + self.config.jitter
-        K = K_signal + noise[:, None, None] * window.eye
-        linv, extra_diag, ok, n_jittered = _cholesky_inverse(K, self.config.max_jitter_retries)
+        sn2 = np.exp(self._log_theta[:, 1])
+        compiled = (None,) * 7
+        if n <= _COMPILED_FACTOR_MAX_WINDOW:
+            compiled = _evaluate_kernel(
+                np.ascontiguousarray(window.X), window.Y_fit, self._log_theta, sn2, float(self.config.jitter),
+                _NO_FACTOR, False,
+            )  # fmt: skip
+        if compiled[6]:  # every Cholesky succeeded: the factor (and alpha) as the reference below
+            linv, extra_diag, ok, n_jittered = compiled[4], np.zeros(self.n_outputs), compiled[5], 0
+            alpha = compiled[3]
+        else:
+            K_signal = _signal_kernels(window.neg_half_sq_diff_t, n, n, self._log_theta)
+            K = K_signal + (sn2 + self.config.jitter)[:, None, None] * window.eye
+            linv, extra_diag, ok, n_jittered = _cholesky_inverse(K, self.config.max_jitter_retries)
+            alpha = None
         self.stats.n_full_factorizations += 1
         self.stats.n_jittered_factorizations += n_jittered
         self.stats.n_cholesky_fallbacks += int(self.n_outputs - np.count_nonzero(ok))
         self._linv, self._extra_diag, self._factor_ok = linv, extra_diag, ok
         self._n_incremental_since_full = 0
-        self._alpha = None
+        self._alpha = alpha if ok.all() else None
 
     # ----- hyperparameters ----------------------------------------------------
 

@@ -38,7 +38,7 @@ from hydroarm.arm import Arm
 from hydroarm.config import FrozenModel
 from hydroarm.control import ControlOutput, Reference
 from hydroarm.gp import GPConfig, SlidingWindowGP
-from hydroarm.integrator import rk4_step
+from hydroarm.integrator import rk4_second_order_stage, rk4_step
 from hydroarm.mpc import LinearMPC
 
 Features = Literal["state", "state+nominal", "state+torque"]
@@ -84,6 +84,7 @@ class GPMPC:
         self.gp = SlidingWindowGP(feature_size(self.config.features, self.n), self.n, gp_config)
         self.control_period = mpc.control_period
         self._data = arm.model.createData()  # own workspace: the MPC uses arm.data
+        self._rk4_stages = np.empty((4, 2 * self.n))  # work array of _nominal_step
         self.reset()
 
     def reset(self) -> None:
@@ -95,7 +96,24 @@ class GPMPC:
 
     # --- model pieces -----------------------------------------------------------------
     def _nominal_step(self, y: np.ndarray, u: np.ndarray) -> np.ndarray:
-        """The dry model's state after one control period from y under u (one RK4 step)."""
+        """The dry model's state after one control period from y under u (one RK4 step).
+
+        :meth:`_nominal_step_reference` with the RK4 arithmetic compiled
+        (bit-identical; four ABA calls and four small compiled calls).
+        """
+        n, model, data = self.n, self.arm.model, self._data
+        x = np.array(y, dtype=float)
+        stage_state = x.copy()
+        q, v = stage_state[:n], stage_state[n:]
+        u = np.ascontiguousarray(u, dtype=float)
+        for stage in range(4):
+            rk4_second_order_stage(
+                stage, self.control_period, x, stage_state, self._rk4_stages, pin.aba(model, data, q, v, u)
+            )
+        return stage_state
+
+    def _nominal_step_reference(self, y: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """The dry model's state after one control period (``rk4_step`` on ``[v, ABA]``)."""
         n, model, data = self.n, self.arm.model, self._data
 
         def f(_t: float, x: np.ndarray) -> np.ndarray:

@@ -26,7 +26,11 @@ deviation du = u - u_r (n,):
   environment JIT-compiles it (~7 s, then cached on disk like hydroarm.water).
 * Condensed QP in the stacked moves dU (N n,): ``min 1/2 dU' H dU + g' dU``
   subject to ``-u_max - u_r <= dU <= u_max - u_r`` (:func:`condense`); the QP
-  objective equals the MPC cost minus the constant terms. Solved by DAQP (dense
+  objective equals the MPC cost minus the constant terms. The condensing runs
+  compiled (numba, skipping the block-triangular zeros: ~70 us against
+  ~110 us for the NumPy :func:`condense_reference` at N = 10, equal to rounding),
+  and so does the fill of A_j, B_j from ABA's derivatives (bit-identical to
+  :func:`_linearise_into_reference`). Solved by DAQP (dense
   active set, warm-started from the shifted previous plan) by default; OSQP,
   quadprog and Clarabel are selectable (``MPCConfig.solver``; see
   ``bench/mpc_solvers.py`` for the measurement behind the default).
@@ -147,7 +151,42 @@ def _linearise_into(arm, q, v, tau, period, a_mat, b_mat, fixed_part=True) -> np
 
     With ``fixed_part`` the constant blocks (A's top rows ``[I, T I]``, B's top
     rows 0) are taken as already in place and only the bottom rows are written.
+    The same values as :func:`_linearise_into_reference` (bit for bit), with
+    the fill compiled (one call instead of ~10 small NumPy calls).
     """
+    qdd, dqdd_dq, dqdd_dv, minv = arm.forward_dynamics_derivatives(q, v, tau)
+    return _fill_linearisation(
+        np.ascontiguousarray(q, dtype=float), np.ascontiguousarray(v, dtype=float),
+        qdd, dqdd_dq, dqdd_dv, minv, float(period), a_mat, b_mat, not fixed_part,
+    )  # fmt: skip
+
+
+@numba.njit(cache=True)
+def _fill_linearisation(q, v, qdd, dqdd_dq, dqdd_dv, minv_upper, period, a_mat, b_mat, constant_blocks):
+    """A's and B's bottom rows (and with ``constant_blocks`` their top rows) from ABA's
+    derivatives (``M^-1`` symmetric: its upper triangle is read).
+    Returns ``x_next = [q + T v, v + T q'']``.
+    """  # pragma: no cover - compiled
+    n = q.shape[0]
+    x_next = np.empty(2 * n)
+    for i in range(n):
+        if constant_blocks:
+            for j in range(n):
+                a_mat[i, j] = 1.0 if i == j else 0.0
+                a_mat[i, n + j] = period if i == j else 0.0
+                b_mat[i, j] = 0.0
+        for j in range(n):
+            a_mat[n + i, j] = dqdd_dq[i, j] * period
+            a_mat[n + i, n + j] = dqdd_dv[i, j] * period
+            b_mat[n + i, j] = (minv_upper[i, j] if i <= j else minv_upper[j, i]) * period
+        a_mat[n + i, n + i] += 1.0
+        x_next[i] = q[i] + period * v[i]
+        x_next[n + i] = v[i] + period * qdd[i]
+    return x_next
+
+
+def _linearise_into_reference(arm, q, v, tau, period, a_mat, b_mat, fixed_part=True) -> np.ndarray:
+    """NumPy formulation of :func:`_linearise_into` (tests compare the two)."""
     n = arm.n_joints
     qdd, dqdd_dq, dqdd_dv, minv = arm.forward_dynamics_derivatives(q, v, tau)
     if not fixed_part:
@@ -156,9 +195,20 @@ def _linearise_into(arm, q, v, tau, period, a_mat, b_mat, fixed_part=True) -> np
         b_mat[:n] = 0.0
     np.multiply(dqdd_dq, period, out=a_mat[n:, :n])
     np.multiply(dqdd_dv, period, out=a_mat[n:, n:])
-    a_mat[n:, n:].flat[:: n + 1] += 1.0
+    a_mat[n:, n:][_diagonal(n)] += 1.0
     np.multiply(minv, period, out=b_mat[n:])
     return np.concatenate([q + period * v, v + period * qdd])
+
+
+def _diagonal(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Index arrays of the diagonal of an (n, n) block (cached: the same n every call)."""
+    cached = _DIAGONALS.get(n)
+    if cached is None:
+        cached = _DIAGONALS[n] = (np.arange(n), np.arange(n))
+    return cached
+
+
+_DIAGONALS: dict[int, tuple[np.ndarray, np.ndarray]] = {}
 
 
 def euler_step(arm: Arm, x: np.ndarray, tau: np.ndarray, period: float) -> np.ndarray:
@@ -353,7 +403,113 @@ class CondensedQP:
         return self.prediction[-1] @ du + self.free[-1]
 
 
+@numba.njit(cache=True)
+def _condense_kernel(A, B, c, q_diag, r_diag, P, e0):  # pragma: no cover - compiled
+    """Compiled :func:`condense_reference` for diagonal Q and R: ``(H, g, work)``.
+
+    The same recursion and products, skipping the structural zeros: block row i
+    of the prediction matrix is nonzero in column blocks 0..i only, so the
+    recursion and ``G' Qbar [G | w]`` touch ~half the entries, and only the upper
+    triangle of the symmetric ``H = 2 (G' Qbar G + Rbar)`` is summed (then
+    mirrored). ``work[i] = [G_i | w_{i+1}]`` as in the reference.
+    """
+    horizon, nx, nu = B.shape
+    m = horizon * nu
+    work = np.zeros((horizon, nx, m + 1))
+    for r in range(nx):
+        s = 0.0
+        for k in range(nx):
+            s += A[0, r, k] * e0[k]
+        work[0, r, m] = c[0, r] + s
+        for u in range(nu):
+            work[0, r, u] = B[0, r, u]
+    for i in range(1, horizon):
+        prev = work[i - 1]
+        cur = work[i]
+        width = i * nu  # nonzero columns of the previous block row
+        for r in range(nx):
+            for k in range(nx):
+                a_rk = A[i, r, k]
+                for col in range(width):
+                    cur[r, col] += a_rk * prev[k, col]
+            s = 0.0
+            for k in range(nx):
+                s += A[i, r, k] * prev[k, m]
+            cur[r, m] = c[i, r] + s
+            for u in range(nu):
+                cur[r, width + u] = B[i, r, u]
+    weighted = np.empty((horizon, nx, m + 1))
+    for i in range(horizon - 1):
+        for r in range(nx):
+            for col in range(m + 1):
+                weighted[i, r, col] = q_diag[r] * work[i, r, col]
+    last = horizon - 1
+    for r in range(nx):
+        for col in range(m + 1):
+            weighted[last, r, col] = 0.0
+        for k in range(nx):
+            p_rk = P[r, k]
+            for col in range(m + 1):
+                weighted[last, r, col] += p_rk * work[last, k, col]
+    upper = np.zeros((m, m))
+    linear = np.zeros(m)
+    for i in range(horizon):
+        width = (i + 1) * nu
+        for r in range(nx):
+            row = work[i, r]
+            wrow = weighted[i, r]
+            for a in range(width):
+                coefficient = row[a]
+                if coefficient == 0.0:
+                    continue
+                for b in range(a, width):
+                    upper[a, b] += coefficient * wrow[b]
+                linear[a] += coefficient * wrow[m]
+    hessian = np.empty((m, m))
+    for a in range(m):
+        hessian[a, a] = 2.0 * upper[a, a] + 2.0 * r_diag[a % nu]
+        for b in range(a + 1, m):
+            value = 2.0 * upper[a, b]
+            hessian[a, b] = value
+            hessian[b, a] = value
+    return hessian, 2.0 * linear, work
+
+
 def condense(
+    A: np.ndarray,
+    B: np.ndarray,
+    c: np.ndarray,
+    Q: np.ndarray,
+    R: np.ndarray,
+    P: np.ndarray,
+    e0: np.ndarray,
+) -> CondensedQP:
+    """Condense ``e_{i+1} = A_i e_i + B_i du_i + c_i`` (i < N) into a QP in dU.
+
+    The algebra of :func:`condense_reference` (which documents it); with Q and R
+    given by their diagonals it runs compiled (:func:`_condense_kernel`, equal to
+    the reference up to rounding, ~4x faster at N = 10), otherwise the reference.
+    """
+    Q = np.asarray(Q, dtype=float)
+    R = np.asarray(R, dtype=float)
+    if Q.ndim != 1 or R.ndim != 1:
+        return condense_reference(A, B, c, Q, R, P, e0)
+    A = np.ascontiguousarray(A, dtype=float)
+    B = np.ascontiguousarray(B, dtype=float)
+    c = np.ascontiguousarray(c, dtype=float)
+    hessian, linear, work = _condense_kernel(
+        A, B, c, np.ascontiguousarray(Q), np.ascontiguousarray(R),
+        np.ascontiguousarray(P, dtype=float), np.ascontiguousarray(e0, dtype=float),
+    )  # fmt: skip
+    horizon, nx, nu = B.shape
+    m = horizon * nu
+    free = np.empty((horizon + 1, nx))
+    free[0] = e0
+    free[1:] = work[:, :, m]
+    return CondensedQP(H=hessian, g=linear, prediction=work[:, :, :m], free=free)
+
+
+def condense_reference(
     A: np.ndarray,
     B: np.ndarray,
     c: np.ndarray,
@@ -396,7 +552,7 @@ def condense(
     hessian = hg[:, :m]
     hessian = hessian + hessian.T  # = 2 G' Qbar G, exactly symmetric
     if R.ndim == 1:
-        hessian.flat[:: m + 1] += np.tile(2.0 * R, horizon)
+        hessian.ravel()[:: m + 1] += np.tile(2.0 * R, horizon)  # a view: hessian is a new array
     else:
         hessian += np.kron(np.eye(horizon), R + R.T)
     free = np.empty((horizon + 1, nx))

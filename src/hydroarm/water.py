@@ -449,6 +449,65 @@ def underwater_dynamics_kernel(
     return acc, disturbance
 
 
+@numba.njit(cache=True)
+def rk4_stage_kernel(
+    stage, t, h, x, xs, ks, dists, average, tau, friction, mass_upper, nonlinear, jac, djac,
+    current_joint, current_world,
+    parents, placement_rotation, placement_translation, axes, idx_v,
+    joint_ids, start, axis, length, support, drag_per_length, mass_per_length, buoyancy_force,
+    nodes, weights, use_drag, use_added_mass, use_buoyancy,
+):  # fmt: skip  # pragma: no cover - compiled
+    """One stage of a classic RK4 step of the true plant, everything but Pinocchio compiled.
+
+    The caller evaluates Pinocchio (CRBA -> ``mass_upper``, NLE -> ``nonlinear``,
+    Jacobians and their time variation -> ``jac``, ``djac``) at the stage state
+    ``xs = [q, v]`` (2n,) and time ``t``; this evaluates the current at ``t`` and
+    :func:`underwater_dynamics_kernel`, stores the stage derivative ``ks[stage] =
+    [v, q'']`` and disturbance ``dists[stage]``, and overwrites ``xs`` with the next
+    stage's state: ``x + h/2 k1``, ``x + h/2 k2``, ``x + h k3``; after the last stage
+    (3) ``x`` itself becomes ``x + h/6 (k1 + 2 k2 + 2 k3 + k4)`` (``xs`` too) and
+    ``average`` gets ``d1 + 2 d2 + 2 d3 + d4``. Same operations, in the same order,
+    as :func:`hydroarm.integrator.rk4_step` driven by ``_RK4Model.step`` (the
+    reference, which a test compares).
+
+    Current: ``current_joint`` (3, n) = paper amplitude (rad/s^2, zero unless the
+    paper current), angular frequency and phase: joint acceleration
+    ``amplitude cos(omega t + phase)``; ``current_world`` (8,) = uniform mean (3),
+    amplitude (3) (m/s, zero unless the uniform current), ``2 pi f`` and phase:
+    water velocity ``mean + amplitude sin(2 pi f t + phase)``.
+    """
+    n = tau.shape[0]
+    joint_acceleration = np.empty(n)
+    for i in range(n):
+        joint_acceleration[i] = current_joint[0, i] * np.cos(current_joint[1, i] * t + current_joint[2, i])
+    wave = math.sin(current_world[6] * t + current_world[7])
+    water_velocity = np.empty(3)
+    for i in range(3):
+        water_velocity[i] = current_world[i] + current_world[3 + i] * wave
+    acc, disturbance = underwater_dynamics_kernel(
+        xs[:n], xs[n:], tau, water_velocity, joint_acceleration, friction, mass_upper, nonlinear, jac, djac,
+        parents, placement_rotation, placement_translation, axes, idx_v,
+        joint_ids, start, axis, length, support, drag_per_length, mass_per_length, buoyancy_force,
+        nodes, weights, use_drag, use_added_mass, use_buoyancy,
+    )  # fmt: skip
+    k = ks[stage]
+    for i in range(n):
+        k[i] = xs[n + i]
+        k[n + i] = acc[i]
+        dists[stage, i] = disturbance[i]
+    if stage < 3:
+        scale = h if stage == 2 else 0.5 * h
+        for i in range(2 * n):
+            xs[i] = x[i] + scale * k[i]
+        return
+    sixth = h / 6.0
+    for i in range(2 * n):
+        x[i] = x[i] + sixth * (ks[0, i] + 2.0 * ks[1, i] + 2.0 * ks[2, i] + ks[3, i])
+        xs[i] = x[i]
+    for i in range(n):
+        average[i] += dists[0, i] + 2.0 * dists[1, i] + 2.0 * dists[2, i] + dists[3, i]
+
+
 @dataclass
 class WaterModel:
     """The water acting on one arm: precomputed strip geometry + evaluation.
@@ -476,6 +535,19 @@ class WaterModel:
         self._current_phase[:m] = PAPER_CURRENT_PHASE[:m]
         self._zero3 = np.zeros(3)
         self._zero_n = np.zeros(n)
+        # The current as the compiled RK4 stage takes it (rk4_stage_kernel): zero amplitudes
+        # for the models not in use, so each formula gives exactly 0 there.
+        self.current_joint = np.zeros((3, n))
+        if current.model == "paper":
+            self.current_joint[0] = self._current_amplitude
+        self.current_joint[1] = self._current_omega
+        self.current_joint[2] = self._current_phase
+        self.current_world = np.zeros(8)
+        if current.model == "uniform":
+            self.current_world[:3] = current.mean
+            self.current_world[3:6] = current.amplitude
+            self.current_world[6] = 2.0 * math.pi * current.frequency_hz
+            self.current_world[7] = current.phase
 
     def _kernel(self, q, v, t, drag, added_mass, buoyancy):
         data = self.arm.data

@@ -1,0 +1,1257 @@
+"""Parameter sweeps: many closed-loop runs over a grid or a random sample of settings.
+
+A sweep file (TOML or YAML, validated into :class:`SweepConfig`) names the
+controllers, the seeds, the settings shared by every run (``[base]``, an
+:class:`~hydroarm.experiments.ExperimentConfig`) and the settings that vary
+(``[parameters]``: dotted keys such as ``mpc.r``, ``water.current.scale``,
+``plant.noise_variance``, ``arm``, ``mismatch.mass_scale``)::
+
+    controllers = ["MPC", "GP-MPC"]
+    seeds = 2                       # seeds 0 and 1; or a list [0, 4, 7]
+    mode = "grid"                   # every combination; "random": `samples` draws
+
+    [base]
+    arm = "paper"
+    duration = 3.0
+
+    [parameters]
+    "water.current.scale" = [0.5, 1.0, 2.0]
+    "mismatch.mass_scale" = [1.0, 1.3]
+    "mpc.r" = { low = 1e-4, high = 1e-1, num = 4, log = true }
+
+:func:`run_sweep` runs every combination x seed x controller that is not
+finished yet, on a local process pool (default) or a Ray cluster, and writes
+into its output folder:
+
+* ``sweep.json``: the validated sweep and its plan (one entry per row);
+* ``runs/<id>.json``: one finished run (settings + metrics), written
+  atomically; ``<id>`` is a hash of everything that determines the run (the
+  arm's content, the settings the controller uses, the mismatch, controller,
+  seed), so a re-run skips finished runs and recomputes an unreadable file;
+  ``runs/<id>.npz`` the trajectory when asked for;
+* ``results.csv``: one row per run with every setting and metric, rewritten
+  atomically after each finished run (an interrupted sweep leaves a readable
+  table);
+* ``summary.md``, ``summary.json``, ``ep_boxplot.png``, ``ep_by_<key>.png``,
+  ``ep_distribution.png``: written by :func:`summarise` at the end.
+
+Model mismatch. The controllers know the arm file (the nominal model); the
+true plant is that arm plus the water. ``water.*`` and ``plant.*`` settings
+exist only in the plant, so sweeping them is already mismatch;
+``mismatch.mass_scale`` (every link's mass and rotational inertia about its
+centre of gravity, i.e. the density, times this factor) and
+``mismatch.payload_kg`` (a point mass at the flange, or at the last link's
+centre of gravity for URDF arms) change the plant's rigid body only
+(:func:`perturbed_arm`). The recorded ``disturbance`` of a trajectory is then
+relative to the plant's own (perturbed) dry dynamics.
+
+Executors are small and pluggable (:class:`SerialExecutor`,
+:class:`LocalExecutor`, :class:`RayExecutor`): each only turns tasks into
+outcomes; all result handling is here. Ray is optional (``pip install
+hydroarm[ray]``) and used through its own API only (``ray.remote``,
+``ray.wait``).
+"""
+
+from __future__ import annotations
+
+import csv
+import hashlib
+import io
+import itertools
+import json
+import math
+import multiprocessing
+import os
+import tempfile
+import time
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal, Protocol, Self
+
+import numpy as np
+import pinocchio as pin
+import pydantic
+
+from hydroarm.arm import BUILTIN_ARMS, Arm, load_arm
+from hydroarm.config import ConfigError, FrozenModel, read_mapping, validate
+from hydroarm.experiments import CONTROLLERS, ExperimentConfig, build_controller, task_for_arm, with_overrides
+
+FORMAT = 1
+"""Version of the run-file layout; a run file of another format is recomputed."""
+
+MAX_RUNS = 100_000
+MISMATCH_PREFIX = "mismatch."
+
+CONTROLLER_SETTINGS: dict[str, tuple[str, ...]] = {
+    "SMC": ("smc",),
+    "MPC": ("mpc",),
+    "GP-MPC": ("mpc", "gp", "gpmpc"),
+}
+"""The controller sections of :class:`ExperimentConfig` each controller reads
+(:func:`hydroarm.experiments.build_controller`); the other controllers'
+sections are left out of a run's id, so sweeping ``mpc.r`` runs SMC once."""
+
+CONTROLLER_SECTIONS = ("smc", "mpc", "gp", "gpmpc")
+
+
+# --- the sweep file -----------------------------------------------------------------
+
+
+class Mismatch(FrozenModel):
+    """How the true plant's rigid body differs from the arm file the controllers use.
+
+    ``mass_scale``: every link's mass and rotational inertia (about its centre
+    of gravity) times this factor, centres of gravity unchanged; ``payload_kg``:
+    a point mass at the flange (DH arms) or at the last link's centre of gravity
+    (URDF arms), in the plant only.
+    """
+
+    mass_scale: float = pydantic.Field(1.0, gt=0.0, le=100.0)
+    payload_kg: float = pydantic.Field(0.0, ge=0.0, le=1000.0)
+
+    @property
+    def is_identity(self) -> bool:
+        return self.mass_scale == 1.0 and self.payload_kg == 0.0
+
+
+class Range(FrozenModel):
+    """A range of values: ``num`` evenly spaced points (grid) or uniform draws (random).
+
+    ``log``: evenly spaced / uniform in log space (``low`` > 0); ``integer``:
+    round to integers (e.g. ``gp.window``, ``mpc.horizon``).
+    """
+
+    low: float
+    high: float
+    log: bool = False
+    integer: bool = False
+    num: int | None = pydantic.Field(None, ge=1, le=10_000, description="grid mode: how many values")
+
+    @pydantic.model_validator(mode="after")
+    def _check(self) -> Self:
+        if self.high < self.low:
+            raise ValueError(f"high ({self.high}) < low ({self.low})")
+        if self.log and self.low <= 0.0:
+            raise ValueError(f"log = true needs low > 0 (low = {self.low})")
+        return self
+
+    def grid(self) -> list[float | int]:
+        """The ``num`` grid values (duplicates removed after integer rounding)."""
+        num = int(self.num or 1)
+        values = np.geomspace(self.low, self.high, num) if self.log else np.linspace(self.low, self.high, num)
+        return _unique([_as_number(x, self.integer) for x in values])
+
+    def draw(self, rng: np.random.Generator) -> float | int:
+        """One uniform draw (in log space if ``log``)."""
+        if self.log:
+            x = math.exp(rng.uniform(math.log(self.low), math.log(self.high)))
+        else:
+            x = rng.uniform(self.low, self.high)
+        return _as_number(min(max(x, self.low), self.high), self.integer)
+
+
+def _as_number(x: float, integer: bool) -> float | int:
+    return int(round(float(x))) if integer else float(x)
+
+
+def _unique(values: list) -> list:
+    out: list = []
+    for value in values:
+        if value not in out:
+            out.append(value)
+    return out
+
+
+class SweepConfig(FrozenModel):
+    """A whole sweep file (see the module docstring and ``examples/sweep.toml``).
+
+    ``controllers``: names (case-insensitive: smc, mpc, gp-mpc); ``seeds``: a
+    count n (seeds 0..n-1) or a list; ``mode``: ``grid`` (every combination of
+    the parameters' values) or ``random`` (``samples`` points drawn with
+    ``sampling_seed``: a list is a uniform choice, a range a uniform draw);
+    ``base``: the settings of every run; ``mismatch``: the plant's rigid-body
+    mismatch of every run; ``parameters``: dotted key -> list of values or
+    :class:`Range`; ``save_trajectories``: also keep ``runs/<id>.npz``;
+    ``metric``: the column the summary and the plots compare (default the mean
+    E_p over joints; ``Ep_steady_mean`` leaves out the first 2 s).
+    """
+
+    name: str = pydantic.Field("sweep", min_length=1, max_length=200)
+    description: str = ""
+    controllers: list[Literal["SMC", "MPC", "GP-MPC"]] = pydantic.Field(min_length=1)
+    seeds: pydantic.PositiveInt | list[pydantic.NonNegativeInt] = 1
+    mode: Literal["grid", "random"] = "grid"
+    samples: int | None = pydantic.Field(None, ge=1, le=MAX_RUNS)
+    sampling_seed: int = pydantic.Field(0, ge=0)
+    base: ExperimentConfig = ExperimentConfig()
+    mismatch: Mismatch = Mismatch()
+    parameters: dict[str, list[Any] | Range] = pydantic.Field(default_factory=dict)
+    save_trajectories: bool = False
+    metric: Literal[
+        "Ep_mean", "Ep_steady_mean", "rms_mean", "max_error", "torque_rms_mean", "time_to_band_max", "step_ms_median"
+    ] = "Ep_mean"
+
+    @pydantic.field_validator("controllers", mode="before")
+    @classmethod
+    def _controller_case(cls, value: Any) -> Any:
+        names = {name.lower(): name for name in CONTROLLERS}
+        if isinstance(value, list):
+            return [names.get(v.lower(), v) if isinstance(v, str) else v for v in value]
+        return value
+
+    @pydantic.field_validator("parameters", mode="before")
+    @classmethod
+    def _flatten(cls, value: Any) -> Any:
+        return flatten_parameters(value) if isinstance(value, dict) else value
+
+    @property
+    def seed_list(self) -> list[int]:
+        return list(range(self.seeds)) if isinstance(self.seeds, int) else list(self.seeds)
+
+
+def flatten_parameters(parameters: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
+    """``{"mpc": {"r": [..]}}`` -> ``{"mpc.r": [..]}`` (TOML's unquoted dotted keys nest);
+    a mapping with ``low``/``high`` is a :class:`Range`, not a level."""
+    out: dict[str, Any] = {}
+    for key, value in parameters.items():
+        dotted = f"{prefix}{key}"
+        if isinstance(value, Mapping) and not ({"low", "high"} & set(value)):
+            out.update(flatten_parameters(value, dotted + "."))
+        else:
+            out[dotted] = value
+    return out
+
+
+def validate_sweep(data: Mapping[str, Any], source: str = "sweep", folder: Path | None = None) -> SweepConfig:
+    """Validate a sweep mapping; errors name the field (``parameters.mpc.r``, ``controllers.1``).
+
+    ``base`` may be a path to an experiment settings file (relative to ``folder``).
+    """
+    data = dict(data)
+    if isinstance(data.get("base"), str):
+        data["base"] = read_mapping(_resolve(data["base"], folder))
+    parameters = data.get("parameters", {})
+    if isinstance(parameters, Mapping):
+        parameters = flatten_parameters(parameters)
+        for key, value in parameters.items():
+            if isinstance(value, list) and not value:
+                raise ConfigError(f"{source}: parameters.{key}: empty list: give at least one value")
+            if not isinstance(value, (list, Mapping)):
+                raise ConfigError(
+                    f"{source}: parameters.{key} = {value!r}: give a list of values or a range "
+                    "{low, high[, num][, log][, integer]}"
+                )
+            if isinstance(value, Mapping):
+                try:
+                    Range.model_validate(value)
+                except pydantic.ValidationError as error:
+                    problems = [
+                        (".".join(map(str, e["loc"])) + ": " if e["loc"] else "")
+                        + e["msg"].removeprefix("Value error, ")
+                        for e in error.errors()
+                    ]
+                    raise ConfigError(f"{source}: parameters.{key}: " + "; ".join(problems)) from None
+        data["parameters"] = parameters
+    config = validate(SweepConfig, data, source)
+    check_sweep(config, source)
+    return config
+
+
+def check_sweep(config: SweepConfig, source: str = "sweep") -> None:
+    """What the field types cannot say: mode/samples/range combinations, seeds, duplicates."""
+    if len(set(config.controllers)) != len(config.controllers):
+        raise ConfigError(f"{source}: controllers: a controller is listed twice ({config.controllers})")
+    seeds = config.seed_list
+    if len(set(seeds)) != len(seeds):
+        raise ConfigError(f"{source}: seeds: a seed is listed twice ({seeds})")
+    if config.mode == "grid" and config.samples is not None:
+        raise ConfigError(f"{source}: samples: only for mode = 'random' (mode is 'grid')")
+    if config.mode == "random":
+        if config.samples is None:
+            raise ConfigError(f"{source}: samples: missing: mode = 'random' needs the number of draws")
+        if not config.parameters:
+            raise ConfigError(f"{source}: parameters: mode = 'random' needs at least one parameter to draw")
+    for key, value in config.parameters.items():
+        if isinstance(value, list) and not value:
+            raise ConfigError(f"{source}: parameters.{key}: empty list: give at least one value")
+        if isinstance(value, Range):
+            if config.mode == "grid" and value.num is None:
+                raise ConfigError(f"{source}: parameters.{key}: a range in grid mode needs num (how many values)")
+            if config.mode == "random" and value.num is not None:
+                raise ConfigError(
+                    f"{source}: parameters.{key}: num is for grid mode; random mode draws `samples` values"
+                )
+
+
+def load_sweep(path: str | Path) -> SweepConfig:
+    """Read and validate a sweep file (TOML or YAML)."""
+    path = Path(path)
+    return validate_sweep(read_mapping(path), str(path), path.parent)
+
+
+# --- the plan -----------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class RunTask:
+    """One closed-loop run, as sent to a worker: everything is plain data except the arm,
+    which the executor sends once per arm (``arm_key``)."""
+
+    id: str
+    controller: str
+    seed: int
+    settings: dict  # ExperimentConfig as JSON (arm: the path the driver loaded)
+    mismatch: dict
+    arm_key: str
+    save_trajectory: bool = False
+
+
+@dataclass(frozen=True)
+class PlanRow:
+    """One row of the sweep's table: a point of the grid/sample, a seed, a controller."""
+
+    index: int
+    point: int
+    params: dict
+    controller: str
+    seed: int
+    config: ExperimentConfig  # ``arm`` as written in the sweep file
+    mismatch: Mismatch
+    id: str
+
+
+@dataclass
+class Plan:
+    """The rows of a sweep and what running them needs."""
+
+    config: SweepConfig
+    rows: list[PlanRow]
+    tasks: dict[str, RunTask]  # by run id (rows that differ only in unused settings share one)
+    arms: dict[str, Arm]  # by arm digest
+    keys: list[str]  # the swept parameters, in file order
+
+
+def _resolve(value: str, folder: Path | None) -> Path:
+    path = Path(value)
+    if folder is not None and not path.is_absolute() and (folder / path).exists():
+        return folder / path
+    return path
+
+
+def _resolve_arm(value: str, folder: Path | None) -> str:
+    """A built-in name as is; a file relative to the sweep file's folder (else to the cwd)."""
+    if value in BUILTIN_ARMS:
+        return value
+    return str(_resolve(value, folder).resolve()) if _resolve(value, folder).exists() else value
+
+
+def arm_digest(arm: Arm) -> str:
+    """A hash of what the simulation uses of an arm (joints, placements, inertias, limits,
+    wetted cylinders): the same arm from another path has the same digest; an edited one not."""
+    model = arm.model
+    content = {
+        "joints": [[j.shortname(), getattr(j, "axis", np.zeros(0)).tolist()] for j in model.joints],
+        "parents": [int(p) for p in model.parents],
+        "placements": [p.homogeneous.tolist() for p in model.jointPlacements],
+        "inertias": [[i.mass, *i.lever.tolist(), *i.inertia.ravel().tolist()] for i in model.inertias],
+        "gravity": model.gravity.linear.tolist(),
+        "cylinders": [
+            [c.name, c.joint_id, c.start.tolist(), c.end.tolist(), c.diameter, c.displaced_volume, c.cd, c.cm]
+            for c in arm.cylinders
+        ],
+        "torque_limit": arm.torque_limit.tolist(),
+        "position_limit": None if arm.position_limit is None else arm.position_limit.tolist(),
+        "frames": [[f.name, int(f.parentJoint), f.placement.homogeneous.tolist()] for f in model.frames],
+    }
+    return hashlib.sha256(json.dumps(content, sort_keys=True).encode()).hexdigest()[:16]
+
+
+def run_id(config: ExperimentConfig, controller: str, seed: int, mismatch: Mismatch, arm_key: str) -> str:
+    """The run's id: a hash of the arm's content, the settings ``controller`` reads, the
+    mismatch, the controller and the seed."""
+    settings = config.model_dump(mode="json")
+    settings["arm"] = arm_key
+    for section in CONTROLLER_SECTIONS:
+        if section not in CONTROLLER_SETTINGS[controller]:
+            settings.pop(section, None)
+    text = json.dumps(
+        {
+            "format": FORMAT,
+            "controller": controller,
+            "seed": seed,
+            "settings": settings,
+            "mismatch": mismatch.model_dump(),
+        },
+        sort_keys=True,
+    )
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def sample_points(config: SweepConfig) -> list[dict[str, Any]]:
+    """The parameter points: every combination (grid) or ``samples`` draws (random)."""
+    keys = list(config.parameters)
+    if config.mode == "grid":
+        values = [v.grid() if isinstance(v, Range) else list(v) for v in config.parameters.values()]
+        return [dict(zip(keys, combo)) for combo in itertools.product(*values)]
+    rng = np.random.default_rng(config.sampling_seed)
+    points = []
+    for _ in range(int(config.samples or 0)):
+        point = {}
+        for key, spec in config.parameters.items():
+            point[key] = spec.draw(rng) if isinstance(spec, Range) else spec[int(rng.integers(len(spec)))]
+        points.append(point)
+    return points
+
+
+def _label(value: Any) -> str:
+    if isinstance(value, float):
+        return f"{value:.4g}"
+    if isinstance(value, str):
+        return value
+    return json.dumps(value)
+
+
+def plan_sweep(config: SweepConfig, folder: Path | None = None, source: str = "sweep") -> Plan:
+    """Validate every run's settings and load every arm before any run starts."""
+    check_sweep(config, source)
+    points = sample_points(config)
+    size = len(points) * len(config.seed_list) * len(config.controllers)
+    if size > MAX_RUNS:
+        raise ConfigError(f"{source}: the sweep has {size} runs; at most {MAX_RUNS}")
+    keys = list(config.parameters)
+    arms: dict[str, Arm] = {}
+    arm_keys: dict[str, str] = {}  # resolved arm source -> digest
+    rows: list[PlanRow] = []
+    tasks: dict[str, RunTask] = {}
+    for number, point in enumerate(points):
+        overrides = {k: v for k, v in point.items() if not k.startswith(MISMATCH_PREFIX)}
+        mismatch_values = {
+            k.removeprefix(MISMATCH_PREFIX): v for k, v in point.items() if k.startswith(MISMATCH_PREFIX)
+        }
+        where = ", ".join(f"{k} = {_label(v)}" for k, v in point.items()) or "base"
+        try:
+            experiment = with_overrides(config.base, overrides) if overrides else config.base
+        except ConfigError as error:
+            message = str(error).removeprefix("settings: ")
+            if message.startswith("unknown setting"):
+                bad = message.split("'")[1] if "'" in message else message
+                raise ConfigError(
+                    f"{source}: parameters.{bad}: unknown setting (a dotted key of the experiment settings, "
+                    f"e.g. mpc.r or water.current.scale, or {MISMATCH_PREFIX}mass_scale / {MISMATCH_PREFIX}payload_kg)"
+                ) from None
+            lines = [line.removeprefix("settings: ") for line in message.splitlines()]
+            raise ConfigError("\n".join(f"{source}: parameters ({where}): {line}" for line in lines)) from None
+        ignored = [k for k in overrides if k in ("smc.control_period", "mpc.control_period")]
+        if ignored:
+            raise ConfigError(
+                f"{source}: parameters.{ignored[0]}: set by control_period for every controller; sweep control_period"
+            )
+        unknown = set(mismatch_values) - set(Mismatch.model_fields)
+        if unknown:
+            raise ConfigError(
+                f"{source}: parameters.{MISMATCH_PREFIX}{sorted(unknown)[0]}: unknown setting "
+                f"(mismatch keys: {', '.join(MISMATCH_PREFIX + f for f in Mismatch.model_fields)})"
+            )
+        mismatch = validate(
+            Mismatch, {**config.mismatch.model_dump(), **mismatch_values}, f"{source}: parameters ({where}): mismatch"
+        )
+        resolved = _resolve_arm(experiment.arm, folder)
+        if resolved not in arm_keys:
+            try:
+                arm = load_arm(resolved)
+            except ConfigError as error:
+                text = str(error)
+                raise ConfigError(
+                    f"{source}: {text}" if text.startswith("arm '") else f"{source}: arm '{experiment.arm}': {text}"
+                ) from None
+            digest = arm_digest(arm)
+            arm_keys[resolved] = digest
+            arms.setdefault(digest, arm)
+        key = arm_keys[resolved]
+        settings = experiment.model_dump(mode="json")
+        settings["arm"] = resolved
+        for seed in config.seed_list:
+            for controller in config.controllers:
+                identifier = run_id(experiment, controller, seed, mismatch, key)
+                rows.append(PlanRow(len(rows), number, dict(point), controller, seed, experiment, mismatch, identifier))
+                if identifier not in tasks:
+                    tasks[identifier] = RunTask(
+                        identifier, controller, seed, settings, mismatch.model_dump(), key, config.save_trajectories
+                    )
+    return Plan(config, rows, tasks, arms, keys)
+
+
+# --- one run (in a worker) -------------------------------------------------------------
+
+
+def perturbed_arm(arm: Arm, mismatch: Mismatch) -> Arm:
+    """The plant's arm: ``arm`` with its masses scaled and a payload added (see
+    :class:`Mismatch`); ``arm`` itself if there is no mismatch. The geometry, the
+    wetted cylinders and the limits are the nominal arm's."""
+    if mismatch.is_identity:
+        return arm
+    model = arm.model.copy()
+    scale = mismatch.mass_scale
+    for joint in range(1, model.njoints):
+        inertia = model.inertias[joint]
+        model.inertias[joint] = pin.Inertia(inertia.mass * scale, inertia.lever.copy(), inertia.inertia * scale)
+    if mismatch.payload_kg > 0.0:
+        last = model.njoints - 1
+        where = model.inertias[last].lever.copy()
+        if model.existFrame("flange"):
+            frame = model.frames[model.getFrameId("flange")]
+            if frame.parentJoint == last:
+                where = frame.placement.translation.copy()
+        model.inertias[last] = model.inertias[last] + pin.Inertia(mismatch.payload_kg, where, np.zeros((3, 3)))
+    return Arm(
+        name=f"{arm.name} (plant: mass x{scale:g}, payload {mismatch.payload_kg:g} kg)",
+        model=model,
+        cylinders=arm.cylinders,
+        torque_limit=arm.torque_limit,
+        spec=None,
+        position_limit=arm.position_limit,
+    )
+
+
+def _finite(value: Any) -> Any:
+    """NaN/inf -> None, recursively (strict JSON)."""
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, list):
+        return [_finite(v) for v in value]
+    if isinstance(value, dict):
+        return {k: _finite(v) for k, v in value.items()}
+    return value
+
+
+def _scalars(metrics: dict, traj) -> dict:
+    """One number per metric: means over joints (max for the error and the settling time)."""
+    ttb = metrics["time_to_band"]
+    total = traj.timings.get("total")
+    return {
+        "Ep_mean": float(np.mean(metrics["Ep"])),
+        "Ep_steady_mean": float(np.mean(metrics["Ep_steady"])),
+        "rms_mean": float(np.mean(metrics["rms"])),
+        "max_error": float(np.max(metrics["max"])),
+        "torque_rms_mean": float(np.mean(metrics["torque_rms"])),
+        "time_to_band_max": float(np.max(ttb)) if all(math.isfinite(x) for x in ttb) else math.nan,
+        "diverged": bool(metrics["diverged"]),
+        "diverged_at_s": traj.meta.get("diverged_at_s"),
+        "step_ms_median": float(np.nanmedian(total) * 1e3)
+        if total is not None and np.isfinite(total).any()
+        else math.nan,
+    }
+
+
+def execute_run(task: RunTask, arm: Arm | None = None) -> dict:
+    """Run one task: the plant gets the perturbed arm, the controller the nominal one.
+
+    Returns ``{"record": <the run file's content>, "trajectory": <.npz bytes or None>}``;
+    the driver writes both (so workers need no shared disk, e.g. on a Ray cluster).
+    """
+    from hydroarm import __version__
+    from hydroarm.plant import UnderwaterPlant
+    from hydroarm.simulate import Trajectory, run_closed_loop, tracking_metrics
+
+    start = time.perf_counter()
+    if arm is None:
+        arm = _WORKER_ARMS[task.arm_key]
+    config = ExperimentConfig.model_validate(task.settings)
+    mismatch = Mismatch.model_validate(task.mismatch)
+    plant = UnderwaterPlant(perturbed_arm(arm, mismatch), config.water, config.plant)
+    reference, x0 = task_for_arm(arm)
+    controller = build_controller(task.controller, arm, config)
+    traj: Trajectory = run_closed_loop(plant, controller, reference, config.duration, task.seed, x0=x0)
+    metrics = tracking_metrics(traj)
+    record = {
+        "format": FORMAT,
+        "id": task.id,
+        "controller": task.controller,
+        "seed": task.seed,
+        "arm_digest": task.arm_key,
+        "settings": task.settings,
+        "mismatch": task.mismatch,
+        "metrics": metrics,
+        "summary": _scalars(metrics, traj),
+        "n_joints": arm.n_joints,
+        "wall_s": time.perf_counter() - start,
+        "hydroarm": __version__,
+    }
+    blob = None
+    if task.save_trajectory:
+        traj.meta.update(id=task.id, settings=task.settings, mismatch=task.mismatch, arm=config.arm)
+        with tempfile.TemporaryDirectory() as folder:
+            path = Path(folder) / "run.npz"
+            traj.save(path)
+            blob = path.read_bytes()
+    return {"record": _finite(record), "trajectory": blob}
+
+
+_WORKER_ARMS: dict[str, Arm] = {}
+
+
+def _init_worker(arms: dict[str, Arm]) -> None:
+    """Process-pool initializer: the arms arrive once per worker, not once per task."""
+    _WORKER_ARMS.clear()
+    _WORKER_ARMS.update(arms)
+
+
+# --- executors ---------------------------------------------------------------------------
+
+Outcome = dict | BaseException
+
+
+class Executor(Protocol):
+    """Turns tasks into outcomes (the dict of :func:`execute_run`, or the exception a
+    run raised), yielded as runs finish, in any order."""
+
+    def map(self, tasks: Sequence[RunTask], arms: Mapping[str, Arm]) -> Iterator[tuple[RunTask, Outcome]]: ...
+
+
+class SerialExecutor:
+    """In this process, one run after the other (debugging, profiling, tiny sweeps)."""
+
+    def map(self, tasks: Sequence[RunTask], arms: Mapping[str, Arm]) -> Iterator[tuple[RunTask, Outcome]]:
+        for task in tasks:
+            try:
+                outcome: Outcome = execute_run(task, arms[task.arm_key])
+            except Exception as error:  # noqa: BLE001 - a failed run is a result of the sweep
+                outcome = error
+            yield task, outcome
+
+
+@dataclass
+class LocalExecutor:
+    """``workers`` processes of this machine (``concurrent.futures``, spawn context)."""
+
+    workers: int = 2
+
+    def map(self, tasks: Sequence[RunTask], arms: Mapping[str, Arm]) -> Iterator[tuple[RunTask, Outcome]]:
+        if not tasks:
+            return
+        context = multiprocessing.get_context("spawn")
+        used = {task.arm_key: arms[task.arm_key] for task in tasks}
+        pool = ProcessPoolExecutor(
+            max_workers=max(1, min(self.workers, len(tasks))), mp_context=context,
+            initializer=_init_worker, initargs=(used,),
+        )  # fmt: skip
+        futures = {pool.submit(execute_run, task): task for task in tasks}
+        pending = set(futures)
+        try:
+            while pending:
+                done, pending = wait(pending, timeout=0.5, return_when=FIRST_COMPLETED)
+                for future in done:
+                    try:
+                        outcome: Outcome = future.result()
+                    except Exception as error:  # noqa: BLE001 - incl. a worker that died
+                        outcome = error
+                    yield futures[future], outcome
+        finally:
+            pool.shutdown(wait=not pending, cancel_futures=True)
+
+
+@dataclass
+class RayExecutor:
+    """Ray tasks (``ray.remote`` + ``ray.wait``) on a cluster.
+
+    ``address``: ``None`` or ``"local"`` starts a local Ray instance with
+    ``num_cpus`` CPUs; anything else is passed to ``ray.init(address=...)``
+    (``"auto"``, ``"ray://head:10001"``, ``"10.0.0.5:6379"``). If Ray is already
+    initialised in this process it is used as it is. A Ray instance started here
+    is shut down at the end. Every node needs hydroarm installed (same versions).
+    """
+
+    address: str | None = None
+    num_cpus: int = 2
+
+    def map(self, tasks: Sequence[RunTask], arms: Mapping[str, Arm]) -> Iterator[tuple[RunTask, Outcome]]:
+        if not tasks:
+            return
+        ray = import_ray()
+        started = False
+        if not ray.is_initialized():
+            os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
+            if self.address in (None, "local"):
+                ray.init(address="local", num_cpus=self.num_cpus, include_dashboard=False, log_to_driver=False)
+            else:
+                ray.init(address=self.address, log_to_driver=False)
+            started = True
+        pending: dict = {}
+        try:
+            remote = ray.remote(num_cpus=1, max_retries=0)(execute_run)
+            refs = {key: ray.put(arms[key]) for key in {task.arm_key for task in tasks}}
+            pending = {remote.remote(task, refs[task.arm_key]): task for task in tasks}
+            while pending:
+                ready, _ = ray.wait(list(pending), num_returns=1)
+                for ref in ready:
+                    task = pending.pop(ref)
+                    try:
+                        outcome: Outcome = ray.get(ref)
+                    except Exception as error:  # noqa: BLE001 - RayTaskError wraps the run's error
+                        outcome = error
+                    yield task, outcome
+        finally:
+            for ref in pending:
+                ray.cancel(ref, force=True)
+            if started:
+                ray.shutdown()
+
+
+def import_ray():
+    """``import ray`` or a ConfigError saying how to install it."""
+    try:
+        import ray
+    except ImportError:
+        raise ConfigError("--ray needs Ray: pip install 'hydroarm[ray]'") from None
+    return ray
+
+
+def make_executor(workers: int = 2, ray_address: str | None = None) -> Executor:
+    """``ray_address`` None: local processes (``workers`` of them; 0 = in this process);
+    ``"local"``: a new local Ray instance with ``workers`` CPUs; else a Ray cluster's address."""
+    if ray_address is not None:
+        import_ray()
+        return RayExecutor(address=ray_address, num_cpus=max(1, workers))
+    if workers <= 0:
+        return SerialExecutor()
+    return LocalExecutor(workers=workers)
+
+
+# --- files ---------------------------------------------------------------------------------
+
+
+def _atomic_write(path: Path, data: str | bytes) -> None:
+    """Write to a temporary file beside ``path``, then rename it over ``path``."""
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    if isinstance(data, bytes):
+        tmp.write_bytes(data)
+    else:
+        tmp.write_text(data)
+    os.replace(tmp, path)
+
+
+def read_run(path: Path, identifier: str) -> dict | None:
+    """A finished run file of this id and format, or None (missing, unreadable, stale)."""
+    try:
+        record = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+    if not isinstance(record, dict) or record.get("id") != identifier or record.get("format") != FORMAT:
+        return None
+    if not isinstance(record.get("summary"), dict) or not isinstance(record.get("metrics"), dict):
+        return None
+    return record
+
+
+def _flat(data: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for key, value in data.items():
+        if isinstance(value, Mapping):
+            out.update(_flat(value, f"{prefix}{key}."))
+        else:
+            out[f"{prefix}{key}"] = value
+    return out
+
+
+SUMMARY_COLUMNS = (
+    "Ep_mean", "Ep_steady_mean", "rms_mean", "max_error", "torque_rms_mean", "time_to_band_max",
+    "diverged", "diverged_at_s", "step_ms_median",
+)  # fmt: skip
+
+
+PER_JOINT = ("Ep", "Ep_steady", "rms", "max", "torque_rms", "time_to_band")
+"""The per-joint metrics of :func:`hydroarm.simulate.tracking_metrics`: columns ``Ep_1``, ``Ep_2``, ..."""
+
+
+def _cell(value: Any) -> Any:
+    if value is None:
+        return ""
+    if isinstance(value, (list, dict)):
+        return json.dumps(value)
+    return value
+
+
+def table_columns(plan_keys: list[str], settings_keys: list[str], joints: int) -> list[str]:
+    """``id, controller, seed, point, <swept keys>, <metrics>, Ep_1.., <every other setting>``."""
+    per_joint = [f"{name}_{j + 1}" for name in PER_JOINT for j in range(joints)]
+    rest = [k for k in settings_keys if k not in plan_keys]
+    return ["id", "controller", "seed", "point", *plan_keys, *SUMMARY_COLUMNS, "wall_s", *per_joint, *rest]
+
+
+def table_row(row: PlanRow, record: Mapping[str, Any], settings: Mapping[str, Any]) -> dict[str, Any]:
+    """One CSV row: the row's settings (as written in the sweep) and the run's metrics."""
+    out: dict[str, Any] = {"id": row.id, "controller": row.controller, "seed": row.seed, "point": row.point}
+    out.update(settings)
+    out.update({key: _cell(value) for key, value in row.params.items()})
+    summary = record["summary"]
+    out.update({key: _cell(summary.get(key)) for key in SUMMARY_COLUMNS})
+    out["wall_s"] = record.get("wall_s", "")
+    for key in PER_JOINT:
+        for j, value in enumerate(record["metrics"].get(key, [])):
+            out[f"{key}_{j + 1}"] = _cell(value)
+    return out
+
+
+def _row_settings(row: PlanRow) -> dict[str, Any]:
+    settings = _flat(row.config.model_dump(mode="json"))
+    settings.update({f"{MISMATCH_PREFIX}{k}": v for k, v in row.mismatch.model_dump().items()})
+    return {key: _cell(value) for key, value in settings.items()}
+
+
+class ResultsTable:
+    """results.csv: one row per finished plan row, rewritten atomically on demand."""
+
+    def __init__(self, plan: Plan, path: Path):
+        self.plan, self.path = plan, path
+        joints = max(arm.n_joints for arm in plan.arms.values())
+        settings_keys = list(_row_settings(plan.rows[0])) if plan.rows else []
+        self.columns = table_columns(plan.keys, settings_keys, joints)
+        self.rows: dict[int, dict] = {}
+        self.by_id: dict[str, list[PlanRow]] = {}
+        for row in plan.rows:
+            self.by_id.setdefault(row.id, []).append(row)
+
+    def add(self, record: Mapping[str, Any]) -> None:
+        for row in self.by_id.get(record["id"], []):
+            self.rows[row.index] = table_row(row, record, _row_settings(row))
+
+    def write(self) -> None:
+        buffer = io.StringIO()
+        writer = csv.DictWriter(buffer, fieldnames=self.columns, extrasaction="ignore", lineterminator="\n")
+        writer.writeheader()
+        for index in sorted(self.rows):
+            writer.writerow(self.rows[index])
+        _atomic_write(self.path, buffer.getvalue())
+
+
+def _plan_json(plan: Plan, source: str) -> dict:
+    return {
+        "format": FORMAT,
+        "source": source,
+        "sweep": plan.config.model_dump(mode="json"),
+        "parameters": plan.keys,
+        "rows": [
+            {"id": r.id, "point": r.point, "controller": r.controller, "seed": r.seed, "params": r.params}
+            for r in plan.rows
+        ],
+    }
+
+
+# --- running ---------------------------------------------------------------------------------
+
+ProgressHook = Callable[[int, int, str], None]
+"""``on_progress(done, total, label)``: runs finished (incl. reused) of the sweep's distinct runs."""
+
+
+def _task_label(task: RunTask, rows: list[PlanRow]) -> str:
+    params = rows[0].params if rows else {}
+    shown = ", ".join(f"{k}={_label(v)}" for k, v in params.items())
+    return f"{task.controller} seed {task.seed}" + (f" {shown}" if shown else "")
+
+
+def run_sweep(
+    sweep: str | Path | SweepConfig,
+    out_dir: str | Path,
+    workers: int = 2,
+    ray_address: str | None = None,
+    on_progress: ProgressHook | None = None,
+    executor: Executor | None = None,
+    save_trajectories: bool | None = None,
+) -> dict:
+    """Run a sweep into ``out_dir`` (see the module docstring); return :func:`summarise`'s dict
+    plus ``ran``, ``reused``, ``failed`` and ``wall_s``.
+
+    ``sweep``: a sweep file or a :class:`SweepConfig` (relative arm paths then
+    relative to the cwd). ``workers``: local processes (0 = this process), or
+    the CPUs of a local Ray instance. ``ray_address``: ``None`` local processes;
+    ``"local"`` a new local Ray instance; else a Ray address (``"auto"``,
+    ``"ray://head:10001"``). ``executor``: any :class:`Executor` (overrides both).
+    Every setting is validated and every arm loaded before the first run
+    (:class:`~hydroarm.config.ConfigError` otherwise). A run that raises is
+    listed in ``failed`` (and ``failed.json``) and retried by the next call;
+    the others go on. KeyboardInterrupt stops the sweep; finished runs are kept.
+    """
+    start = time.perf_counter()
+    if isinstance(sweep, SweepConfig):
+        config, folder, source = sweep, None, "sweep"
+    else:
+        config, folder, source = load_sweep(sweep), Path(sweep).parent, str(sweep)
+    if save_trajectories is not None:
+        config = config.model_copy(update={"save_trajectories": save_trajectories})
+    plan = plan_sweep(config, folder, source)
+    out = Path(out_dir)
+    run_dir = out / "runs"
+    run_dir.mkdir(parents=True, exist_ok=True)
+    _atomic_write(out / "sweep.json", json.dumps(_plan_json(plan, source), indent=1))
+    table = ResultsTable(plan, out / "results.csv")
+    todo: list[RunTask] = []
+    for identifier, task in plan.tasks.items():
+        record = read_run(run_dir / f"{identifier}.json", identifier)
+        if record is None or (task.save_trajectory and not (run_dir / f"{identifier}.npz").is_file()):
+            todo.append(task)
+        else:
+            table.add(record)
+    total, reused = len(plan.tasks), len(plan.tasks) - len(todo)
+    table.write()
+    if on_progress:
+        on_progress(reused, total, "reused finished runs" if reused else "starting")
+    runner = executor if executor is not None else make_executor(workers, ray_address)
+    failed: list[dict] = []
+    done = reused
+    last_write = time.perf_counter()
+    many = len(plan.rows) > 2000
+    outcomes = runner.map(todo, plan.arms)
+    try:
+        for task, outcome in outcomes:
+            done += 1
+            if isinstance(outcome, BaseException):
+                error = f"{type(outcome).__name__}: {outcome}"
+                failed.append({"id": task.id, "controller": task.controller, "seed": task.seed, "error": error[:2000]})
+            else:
+                if outcome.get("trajectory") is not None:
+                    _atomic_write(run_dir / f"{task.id}.npz", outcome["trajectory"])
+                record = outcome["record"]
+                _atomic_write(run_dir / f"{task.id}.json", json.dumps(record, indent=1, allow_nan=False))
+                table.add(record)
+                if not many or time.perf_counter() - last_write > 2.0:
+                    table.write()
+                    last_write = time.perf_counter()
+            if on_progress:
+                on_progress(done, total, _task_label(task, table.by_id.get(task.id, [])))
+    finally:
+        close = getattr(outcomes, "close", None)
+        if close is not None:
+            close()  # stops the executor's workers now, not at garbage collection
+        table.write()
+        failed_path = out / "failed.json"
+        if failed:
+            _atomic_write(failed_path, json.dumps(failed, indent=1))
+        elif failed_path.exists():
+            failed_path.unlink()
+    summary = summarise(out)
+    summary.update(ran=len(todo) - len(failed), reused=reused, failed=failed, wall_s=time.perf_counter() - start)
+    return summary
+
+
+# --- summary and plots --------------------------------------------------------------------
+
+
+def _stats(values: list[float]) -> dict:
+    finite = np.array([v for v in values if v is not None and math.isfinite(v)], dtype=float)
+    if finite.size == 0:
+        return {"mean": None, "median": None, "p90": None, "min": None, "max": None}
+    return {
+        "mean": float(finite.mean()),
+        "median": float(np.median(finite)),
+        "p90": float(np.percentile(finite, 90)),
+        "min": float(finite.min()),
+        "max": float(finite.max()),
+    }
+
+
+MAX_GROUPS = 12
+"""A parameter with more distinct values than this (or drawn from a range in random mode)
+is plotted as a scatter, not boxes."""
+
+
+def _load_rows(out: Path) -> tuple[dict, list[dict]]:
+    """sweep.json and its rows joined with their run files (``record`` None if not finished)."""
+    path = out / "sweep.json"
+    if not path.is_file():
+        raise ConfigError(f"{out}: no sweep.json (not a sweep folder)")
+    plan = json.loads(path.read_text())
+    records: dict[str, dict | None] = {}
+    rows = []
+    for row in plan["rows"]:
+        identifier = row["id"]
+        if identifier not in records:
+            records[identifier] = read_run(out / "runs" / f"{identifier}.json", identifier)
+        rows.append({**row, "record": records[identifier]})
+    return plan, rows
+
+
+METRICS = {
+    "Ep_mean": ("mean E_p over joints", "rad$^2$"),
+    "Ep_steady_mean": ("mean E_p over joints after 2 s", "rad$^2$"),
+    "rms_mean": ("mean RMS error over joints", "rad"),
+    "max_error": ("largest |error|", "rad"),
+    "torque_rms_mean": ("mean RMS torque over joints", "N m"),
+    "time_to_band_max": ("time to stay within 0.05 rad, slowest joint", "s"),
+    "step_ms_median": ("median controller step", "ms"),
+}
+"""The columns a summary can compare (``metric`` in the sweep file): label, unit."""
+
+
+def summarise(out_dir: str | Path, metric: str | None = None) -> dict:
+    """Write ``summary.md``, ``summary.json`` and the plots of a sweep folder; return the summary.
+
+    ``metric``: a key of :data:`METRICS` (default: the sweep file's ``metric``,
+    the mean E_p over joints). Per controller: rows, finished, diverged runs and
+    mean/median/p90/min/max of the metric; per swept parameter with at most
+    ``MAX_GROUPS`` values that are not drawn from a range: the same per value
+    and controller (the others are plotted as a scatter).
+    """
+    out = Path(out_dir)
+    plan, rows = _load_rows(out)
+    metric = metric or plan["sweep"].get("metric", "Ep_mean")
+    if metric not in METRICS:
+        raise ConfigError(f"metric '{metric}': must be one of {', '.join(METRICS)}")
+    controllers = plan["sweep"]["controllers"]
+    finished = [r for r in rows if r["record"] is not None]
+
+    def group(selected: list[dict]) -> dict:
+        return {
+            "finished": len(selected),
+            "diverged": sum(bool(r["record"]["summary"]["diverged"]) for r in selected),
+            **_stats([r["record"]["summary"].get(metric) for r in selected]),
+        }
+
+    per_controller = {}
+    for name in controllers:
+        mine = [r for r in rows if r["controller"] == name]
+        per_controller[name] = {"rows": len(mine), **group([r for r in mine if r["record"] is not None])}
+    by_parameter: dict[str, dict] = {}
+    varying = []
+    continuous = _continuous(plan, rows)
+    for key in plan["parameters"]:
+        labels = _unique([_label(r["params"][key]) for r in rows])
+        if len(labels) < 2:
+            continue
+        varying.append(key)
+        if key in continuous:
+            by_parameter[key] = {"values": len(labels), "grouped": False}
+            continue
+        groups = {
+            label: {
+                name: group([r for r in finished if r["controller"] == name and _label(r["params"][key]) == label])
+                for name in controllers
+            }
+            for label in labels
+        }
+        by_parameter[key] = {"values": len(labels), "grouped": True, "groups": groups}
+    summary = {
+        "name": plan["sweep"]["name"],
+        "out": str(out),
+        "metric": metric,
+        "metric_label": f"{METRICS[metric][0]} ({METRICS[metric][1].replace('$^2$', '^2')})",
+        "rows": len(rows),
+        "runs": len({r["id"] for r in rows}),
+        "finished_rows": len(finished),
+        "controllers": per_controller,
+        "parameters": plan["parameters"],
+        "varying": varying,
+        "by_parameter": by_parameter,
+    }
+    failed_path = out / "failed.json"
+    summary["failed_runs"] = json.loads(failed_path.read_text()) if failed_path.is_file() else []
+    summary["plots"] = _plots(out, controllers, finished, varying, continuous, metric)
+    _atomic_write(out / "summary.json", json.dumps(_finite(summary), indent=1))
+    _atomic_write(out / "summary.md", _markdown(summary, plan))
+    return summary
+
+
+def _fmt(value: float | None) -> str:
+    return "-" if value is None else f"{value:.4g}"
+
+
+def _markdown(summary: dict, plan: dict) -> str:
+    sweep = plan["sweep"]
+    seeds = sweep["seeds"] if isinstance(sweep["seeds"], list) else list(range(sweep["seeds"]))
+    label = summary["metric_label"]
+    lines = [f"# Sweep `{summary['name']}`", ""]
+    if sweep.get("description"):
+        lines += [sweep["description"], ""]
+    lines += [
+        f"{summary['finished_rows']} of {summary['rows']} rows finished ({summary['runs']} distinct runs: rows that "
+        "differ only in another controller's settings share one run). Mode "
+        f"`{sweep['mode']}`; controllers {', '.join(sweep['controllers'])}; seeds {seeds}; arm `{sweep['base']['arm']}` "
+        f"unless swept; {sweep['base']['duration']:g} s per run. Every setting and metric of every run: "
+        "`results.csv`; one file per run: `runs/<id>.json`.",
+        "",
+        f"## {label[0].upper() + label[1:]}, per controller",
+        "",
+        "| controller | rows | finished | mean | median | p90 | min | max | diverged |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for name, s in summary["controllers"].items():
+        lines.append(
+            f"| {name} | {s['rows']} | {s['finished']} | {_fmt(s['mean'])} | {_fmt(s['median'])} | "
+            f"{_fmt(s['p90'])} | {_fmt(s['min'])} | {_fmt(s['max'])} | {s['diverged']} |"
+        )
+    lines += ["", "A diverged run's metrics are over the steps before it stopped.", ""]
+    for name in ("ep_boxplot", "ep_distribution"):
+        if name in summary["plots"]:
+            lines += [f"![{name}]({summary['plots'][name]})", ""]
+    for key, entry in summary["by_parameter"].items():
+        lines += [f"## By `{key}`", ""]
+        if not entry["grouped"]:
+            lines += [f"{entry['values']} distinct values: see the scatter plot.", ""]
+        else:
+            names = list(summary["controllers"])
+            lines += ["| " + key + " | " + " | ".join(f"{n}: median (runs)" for n in names) + " |",
+                      "|---" * (len(names) + 1) + "|"]  # fmt: skip
+            for value, group in entry["groups"].items():
+                cells = [f"{_fmt(group[n]['median'])} ({group[n]['finished']})" for n in names]
+                lines.append(f"| {value} | " + " | ".join(cells) + " |")
+            lines.append("")
+        plot = summary["plots"].get(f"ep_by_{_safe(key)}")
+        if plot:
+            lines += [f"![{label} by {key}]({plot})", ""]
+    if summary["failed_runs"]:
+        lines += ["## Failed runs (retried by the next call)", ""]
+        lines += [f"- `{f['id']}` {f['controller']} seed {f['seed']}: {f['error']}" for f in summary["failed_runs"]]
+        lines.append("")
+    return "\n".join(lines)
+
+
+def _safe(key: str) -> str:
+    return "".join(c if c.isalnum() or c in "-_" else "_" for c in key)
+
+
+COLOURS = {"SMC": "tab:green", "MPC": "tab:blue", "GP-MPC": "tab:red"}
+
+
+def _plots(
+    out: Path, controllers: list[str], finished: list[dict], varying: list[str], continuous: set[str], metric: str
+) -> dict[str, str]:
+    """ep_boxplot.png, ep_distribution.png and ep_by_<key>.png; returns name -> file."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    label = f"{METRICS[metric][0]} ({METRICS[metric][1]})"
+
+    def values(rows: list[dict]) -> list[float]:
+        got = (r["record"]["summary"].get(metric) for r in rows)
+        return [v for v in got if v is not None and math.isfinite(v)]
+
+    def wide(data: list[float]) -> bool:
+        return bool(data) and min(data) > 0.0 and max(data) / min(data) > 20.0
+
+    def scale(ax, data: list[float]) -> None:
+        if wide(data):
+            ax.set_yscale("log")
+
+    plots: dict[str, str] = {}
+    per = {name: values([r for r in finished if r["controller"] == name]) for name in controllers}
+    everything = [v for vs in per.values() for v in vs]
+    if not everything:
+        return plots
+    names = [n for n in controllers if per[n]]
+    single = varying[0] if len(varying) == 1 and varying[0] not in continuous else None
+    fig, axes = plt.subplots(1, 2 if single else 1, figsize=(11 if single else 6, 4.2), squeeze=False)
+    ax = axes[0, 0]
+    box = ax.boxplot([per[n] for n in names], tick_labels=names, patch_artist=True, medianprops={"color": "black"})
+    for patch, name in zip(box["boxes"], names):
+        patch.set_facecolor(COLOURS.get(name, "lightgrey"))
+        patch.set_alpha(0.5)
+    scale(ax, everything)
+    ax.set_ylabel(label)
+    ax.set_title("per controller")
+    ax.grid(True, axis="y", alpha=0.3)
+    if single:
+        _grouped_boxes(axes[0, 1], single, controllers, finished, values, label)
+        scale(axes[0, 1], everything)
+    fig.tight_layout()
+    fig.savefig(out / "ep_boxplot.png", dpi=110)
+    plt.close(fig)
+    plots["ep_boxplot"] = "ep_boxplot.png"
+
+    fig, ax = plt.subplots(figsize=(6, 4.2))
+    for name in names:
+        data = np.sort(per[name])
+        fraction = np.arange(0, data.size + 1) / data.size
+        ax.step(np.r_[data[0], data], fraction, where="post", label=name, color=COLOURS.get(name))
+    if wide(everything):
+        ax.set_xscale("log")
+    ax.set_xlabel(label)
+    ax.set_ylabel("fraction of runs <= x")
+    ax.set_title("distribution per controller")
+    ax.grid(True, alpha=0.3)
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(out / "ep_distribution.png", dpi=110)
+    plt.close(fig)
+    plots["ep_distribution"] = "ep_distribution.png"
+
+    for key in varying:
+        fig, ax = plt.subplots(figsize=(8, 4.2))
+        if key in continuous:
+            for name in names:
+                mine = [r for r in finished if r["controller"] == name]
+                xs = [r["params"][key] for r in mine]
+                ys = [r["record"]["summary"].get(metric) for r in mine]
+                ys = [math.nan if y is None else y for y in ys]
+                ax.scatter(xs, ys, s=14, alpha=0.7, label=name, color=COLOURS.get(name))
+            numeric = [r["params"][key] for r in finished if isinstance(r["params"][key], (int, float))]
+            if numeric and min(numeric) > 0 and max(numeric) / min(numeric) > 50:
+                ax.set_xscale("log")
+            ax.set_xlabel(key)
+            ax.set_ylabel(label)
+            ax.legend()
+            ax.grid(True, alpha=0.3)
+        else:
+            _grouped_boxes(ax, key, controllers, finished, values, label)
+        scale(ax, everything)
+        ax.set_title(f"by {key}")
+        fig.tight_layout()
+        name = f"ep_by_{_safe(key)}"
+        fig.savefig(out / f"{name}.png", dpi=110)
+        plt.close(fig)
+        plots[name] = f"{name}.png"
+    return plots
+
+
+def _continuous(plan: dict, rows: list[dict]) -> set[str]:
+    """Parameters shown as a scatter, not boxes: drawn from a range, or more than
+    ``MAX_GROUPS`` distinct values."""
+    sweep = plan["sweep"]
+    out = set()
+    for key in plan["parameters"]:
+        drawn = sweep["mode"] == "random" and isinstance(sweep["parameters"].get(key), dict)
+        if drawn or len(_unique([_label(r["params"][key]) for r in rows])) > MAX_GROUPS:
+            out.add(key)
+    return out
+
+
+def _grouped_boxes(ax, key: str, controllers: list[str], finished: list[dict], values, label: str) -> None:
+    """Boxes of the metric per value of ``key``, one colour per controller."""
+    labels = _unique([_label(r["params"][key]) for r in finished])
+    width = 0.8 / max(1, len(controllers))
+    for c, name in enumerate(controllers):
+        data, positions = [], []
+        for g, value in enumerate(labels):
+            group = values([r for r in finished if r["controller"] == name and _label(r["params"][key]) == value])
+            if group:
+                data.append(group)
+                positions.append(g + (c - (len(controllers) - 1) / 2) * width)
+        if not data:
+            continue
+        box = ax.boxplot(
+            data,
+            positions=positions,
+            widths=width * 0.9,
+            patch_artist=True,
+            medianprops={"color": "black"},
+            manage_ticks=False,
+        )
+        for patch in box["boxes"]:
+            patch.set_facecolor(COLOURS.get(name, "lightgrey"))
+            patch.set_alpha(0.5)
+        ax.plot([], [], color=COLOURS.get(name, "grey"), linewidth=8, alpha=0.5, label=name)
+    ax.set_xticks(range(len(labels)), [_short(value) for value in labels], rotation=20 if len(labels) > 4 else 0)
+    ax.set_xlabel(key)
+    ax.set_ylabel(label)
+    ax.set_title(f"by {key}")
+    ax.grid(True, axis="y", alpha=0.3)
+    ax.legend(fontsize=8)
+
+
+def _short(label: str) -> str:
+    """File arms by their file name; long labels cut."""
+    if "/" in label or "\\" in label:
+        label = Path(label).name
+    return label if len(label) <= 24 else label[:21] + "..."

@@ -1,0 +1,263 @@
+"""The benchmark suite (quick mode: shape and sanity, no timing thresholds) and the
+compiled kernels behind its numbers, each against the readable reference it replaces."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+import hydroarm
+from hydroarm import gp as gp_module
+from hydroarm import mpc as mpc_module
+from hydroarm.benchmark import _missing, growth_exponent, run_benchmarks, stats_ms, validate_report
+from hydroarm.plant import PlantConfig, UnderwaterPlant
+from hydroarm.task import paper_reference
+from hydroarm.water import CurrentConfig, Water
+
+HEADLINE = ("speedup_vs_do_mpc", "speedup_vs_cvxpy", "gp_speedup_vs_sklearn")
+
+
+# --------------------------------------------------------------------------------------
+# The quick benchmark
+# --------------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def quick_report(tmp_path_factory):
+    out = tmp_path_factory.mktemp("bench")
+    report = run_benchmarks(out, quick=True)
+    return out, report
+
+
+def test_quick_benchmark_writes_json_and_markdown(quick_report):
+    out, report = quick_report
+    on_disk = json.loads((out / "bench.json").read_text())
+    assert on_disk["gp_mpc_step_ms"] == report["gp_mpc_step_ms"]
+    markdown = (out / "bench.md").read_text()
+    for heading in ("## Targets", "## 1. Control step", "## 2. Peers", "## 3. Scaling", "## 4. Throughput"):
+        assert heading in markdown
+
+
+def test_quick_benchmark_json_is_valid(quick_report):
+    _, report = quick_report
+    assert validate_report(report) == []
+    for key in ("gp_mpc_step_ms", "mpc_step_ms", "smc_step_ms"):
+        assert set(report[key]) == {"median", "p90", "p99", "max"}
+        assert all(value > 0 for value in report[key].values())
+    assert report["paper_scenario_wall_s"] > 0
+    assert report["blas_threads"] == 1
+    for key in HEADLINE:  # a number, or null with the reason (peer not installed)
+        assert report[key] is None and report[f"{key}_reason"] or report[key] > 0
+
+
+def test_gp_mpc_total_is_at_least_each_part(quick_report):
+    _, report = quick_report
+    parts = report["breakdown"]["GP-MPC"]
+    assert {"observe", "gp", "linearise", "riccati", "qp_update", "qp_solve", "compute", "total"} <= set(parts)
+    for key, row in parts.items():
+        assert row["n"] >= 200
+        for stat in ("median", "p90", "p99", "max"):
+            assert 0 < row[stat] <= parts["total"][stat], (key, stat)
+
+
+def test_peers_that_ran_give_the_same_answers(quick_report):
+    _, report = quick_report
+    for label, peer in report["peers"]["mpc"]["peers"].items():
+        if peer["available"]:
+            assert peer["first_torque_max_abs_diff_nm"] <= 1e-4, label
+        else:
+            assert peer["reason"], label
+    sklearn = report["peers"]["gp"]["peers"]["sklearn"]
+    if sklearn["available"]:
+        assert sklearn["mean_at_our_theta_max_abs_diff"] <= 1e-6
+    plant = report["peers"]["plant"]
+    assert plant["plant_step_max_abs_diff_vs_reference"] == 0.0
+
+
+def test_scaling_rows_and_exponents(quick_report):
+    _, report = quick_report
+    scaling = report["scaling"]
+    assert [row["window"] for row in scaling["gp_window"]["rows"]] == [10, 20, 50, 100, 200]
+    assert [row["horizon"] for row in scaling["mpc_horizon"]["rows"]] == [5, 10, 20, 40]
+    assert len(scaling["plant_quadrature"]["rows"]) >= 4
+    for section in scaling.values():
+        assert math.isfinite(section["growth_exponent"])
+
+
+def test_validation_catches_bad_documents(quick_report):
+    _, report = quick_report
+    broken = json.loads(json.dumps(report))
+    broken["gp_mpc_step_ms"]["median"] = -1.0
+    broken["speedup_vs_do_mpc"] = None
+    broken.pop("speedup_vs_do_mpc_reason", None)
+    broken["breakdown"]["GP-MPC"]["gp"]["max"] = broken["breakdown"]["GP-MPC"]["total"]["max"] * 2
+    problems = validate_report(broken)
+    assert any("gp_mpc_step_ms" in p for p in problems)
+    assert any("speedup_vs_do_mpc" in p for p in problems)
+    assert any("exceeds total" in p for p in problems)
+
+
+def test_helpers():
+    assert _missing("surely_not_an_installed_module_xyz").startswith("not installed")
+    assert _missing("numpy") is None
+    assert growth_exponent([10, 20, 40], [1.0, 4.0, 16.0]) == pytest.approx(2.0)
+    row = stats_ms([0.001] * 10)
+    assert row["median"] == pytest.approx(1.0) and row["n"] == 10
+
+
+# --------------------------------------------------------------------------------------
+# Compiled kernels equal their references
+# --------------------------------------------------------------------------------------
+def _window(rng, n=10, d=12, o=6):
+    X = rng.normal(size=(n, d))
+    Y = 50.0 * rng.normal(size=(o, n))
+    window = gp_module._Window(X, Y, np.zeros(o), np.ones(o))
+    log_theta = np.log(rng.uniform(0.3, 5.0, size=(o, d + 2)))
+    log_theta[:, 0] = np.log(rng.uniform(10.0, 300.0, size=o))
+    log_theta[:, 1] = np.log(rng.uniform(1e-5, 1e-1, size=o))
+    return window, Y, log_theta
+
+
+@pytest.mark.parametrize("seed", range(5))
+@pytest.mark.parametrize("with_gradient", [True, False])
+def test_gp_evaluate_kernel_equals_reference(seed, with_gradient):
+    window, Y, log_theta = _window(np.random.default_rng(seed))
+    sn2 = np.exp(log_theta[:, 1])
+    fast = gp_module._evaluate(window, Y, log_theta, sn2, 1e-10, 4, with_gradient)
+    reference = gp_module._evaluate_reference(window, Y, log_theta, sn2, 1e-10, 4, with_gradient)
+    for field in ("lml", "grad", "half_trace_w", "alpha", "linv"):
+        a, b = getattr(fast, field), getattr(reference, field)
+        if b is None:
+            assert a is None
+            continue
+        np.testing.assert_allclose(a, b, rtol=1e-9, atol=1e-9 * np.abs(b).max(), err_msg=field)
+    np.testing.assert_array_equal(fast.ok, reference.ok)
+    np.testing.assert_array_equal(fast.extra_diag, reference.extra_diag)
+    cached = gp_module._evaluate(window, Y, log_theta, sn2, 1e-10, 4, True, cached=(reference.linv, reference.extra_diag))
+    np.testing.assert_allclose(cached.lml, reference.lml, rtol=1e-12)
+
+
+def test_gp_evaluate_falls_back_to_the_reference_when_a_cholesky_fails():
+    X = np.zeros((4, 2))  # identical inputs: K = sf2 * ones, singular without noise
+    Y = np.ones((2, 4))
+    window = gp_module._Window(X, Y, np.zeros(2), np.ones(2))
+    log_theta = np.zeros((2, 4))
+    sn2 = np.zeros(2)
+    fast = gp_module._evaluate(window, Y, log_theta, sn2, 0.0, 4, True)
+    reference = gp_module._evaluate_reference(window, Y, log_theta, sn2, 0.0, 4, True)
+    np.testing.assert_array_equal(fast.extra_diag, reference.extra_diag)
+    assert (fast.extra_diag > 0).all()
+    np.testing.assert_array_equal(fast.lml, reference.lml)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_gp_predict_kernel_equals_reference(seed):
+    rng = np.random.default_rng(seed)
+    window, Y, log_theta = _window(rng)
+    evaluation = gp_module._evaluate_reference(window, Y, log_theta, np.exp(log_theta[:, 1]), 1e-10, 4, False)
+    X_star = rng.normal(size=(3, window.X.shape[1]))
+    fast = gp_module._predict_with_factor(window, X_star, log_theta, evaluation.linv, evaluation.alpha)
+    reference = gp_module._predict_with_factor_reference(window, X_star, log_theta, evaluation.linv, evaluation.alpha)
+    for a, b in zip(fast, reference):
+        np.testing.assert_allclose(a, b, rtol=1e-9, atol=1e-9 * np.abs(b).max())
+
+
+@pytest.fixture(scope="module")
+def arm():
+    return hydroarm.load_arm("paper")
+
+
+def _linearised_window(arm, start: float, horizon: int = 10, period: float = 0.01):
+    reference = paper_reference()
+    points = []
+    for k in range(horizon + 1):
+        q, v, a = reference.sample(start + k * period)
+        tau = arm.inverse_dynamics(q, v, a)
+        A, B, x_next = mpc_module.linearise_euler(arm, q, v, tau, period)
+        points.append((A, B, x_next, np.concatenate([q, v])))
+    A = np.stack([p[0] for p in points[:horizon]])
+    B = np.stack([p[1] for p in points[:horizon]])
+    c = np.stack([p[2] for p in points[:horizon]]) - np.stack([p[3] for p in points[1:]])
+    return A, B, c
+
+
+@pytest.mark.parametrize("start", [0.0, 1.3, 4.7])
+def test_condense_kernel_equals_reference(arm, start):
+    A, B, c = _linearised_window(arm, start)
+    rng = np.random.default_rng(int(start * 10))
+    q_diag = np.concatenate([np.full(6, 300.0), np.full(6, 0.01)])
+    r_diag = np.full(6, 0.1)
+    root = rng.normal(size=(12, 12))
+    P = root @ root.T + 100.0 * np.eye(12)
+    e0 = rng.normal(size=12) * 0.1
+    fast = mpc_module.condense(A, B, c, q_diag, r_diag, P, e0)
+    reference = mpc_module.condense_reference(A, B, c, q_diag, r_diag, P, e0)
+    for field in ("H", "g", "prediction", "free"):
+        a, b = getattr(fast, field), getattr(reference, field)
+        np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-12 * np.abs(b).max(), err_msg=field)
+    np.testing.assert_array_equal(fast.H, fast.H.T)
+
+
+def test_linearisation_fill_is_bit_identical(arm):
+    reference = paper_reference()
+    for t in (0.0, 0.37, 6.1):
+        q, v, a = reference.sample(t)
+        tau = arm.inverse_dynamics(q, v, a)
+        for fixed in (False, True):
+            fast_a, fast_b = np.full((12, 12), 3.0), np.full((12, 6), 3.0)
+            ref_a, ref_b = fast_a.copy(), fast_b.copy()
+            x_fast = mpc_module._linearise_into(arm, q, v, tau, 0.01, fast_a, fast_b, fixed)
+            x_ref = mpc_module._linearise_into_reference(arm, q, v, tau, 0.01, ref_a, ref_b, fixed)
+            np.testing.assert_array_equal(fast_a, ref_a)
+            np.testing.assert_array_equal(fast_b, ref_b)
+            np.testing.assert_array_equal(x_fast, x_ref)
+
+
+@pytest.mark.parametrize(
+    "water",
+    [
+        Water(),
+        Water(current=CurrentConfig(model="none")),
+        Water(current=CurrentConfig(model="uniform", mean=[0.2, -0.1, 0.0], amplitude=[0.1, 0.0, 0.05], frequency_hz=1.0, phase=0.3)),
+        Water().off(),
+    ],
+    ids=["paper", "still", "uniform", "off"],
+)
+@pytest.mark.parametrize("friction", [0.0, 0.05])
+def test_compiled_plant_step_is_bit_identical_to_the_reference(arm, water, friction):
+    plant = UnderwaterPlant(arm, water, PlantConfig(friction=friction))
+    x0 = np.concatenate([[0.3, -0.8, 1.2, 0.4, -0.6, 0.2], [1.0, -0.5, 0.8, 2.0, -1.5, 3.0]])
+    u = np.array([20.0, -40.0, 10.0, 2.0, -1.0, 0.5])
+    for t, dt in ((0.37, 0.01), (1.0, 0.0035), (2.0, 0.02)):
+        x_fast, info_fast = plant.step(t, x0, u, dt)
+        x_ref, info_ref = plant.step_reference(t, x0, u, dt)
+        np.testing.assert_array_equal(x_fast, x_ref)
+        np.testing.assert_array_equal(info_fast.disturbance, info_ref.disturbance)
+        np.testing.assert_array_equal(info_fast.disturbance_start, info_ref.disturbance_start)
+    np.testing.assert_array_equal(x0[:3], [0.3, -0.8, 1.2])  # the input is not modified
+
+
+def test_a_missing_peer_is_skipped_with_a_reason(monkeypatch):
+    """CI installs no do-mpc or GPyTorch: their rows must say why instead of failing."""
+    from hydroarm import benchmark
+
+    snapshots = []
+    traj, _, _, controller = benchmark._closed_loop("MPC", 0.05, 0, benchmark._mpc_snapshot_hook(snapshots))
+    recorded = {"MPC": {"traj": traj, "controller": controller, "snapshots": snapshots}}
+    monkeypatch.setattr(benchmark, "_missing", lambda *modules: f"not installed: {', '.join(modules)}")
+    report = benchmark.bench_mpc_peers(recorded, stats_ms(traj.timings["total"]), quick=True)
+    assert report["problem"]["problems"] == len(snapshots) == 5
+    for label, peer in report["peers"].items():
+        assert peer == {"available": False, "reason": peer["reason"]} and "not installed" in peer["reason"], label
+    assert report["ours_qp_vs_controller_torque_max_abs_diff_nm"] < 1e-9
+
+
+def test_compiled_nominal_rk4_step_is_bit_identical(arm):
+    from hydroarm.experiments import ExperimentConfig, build_controller
+
+    controller = build_controller("GP-MPC", arm, ExperimentConfig())
+    rng = np.random.default_rng(3)
+    for _ in range(10):
+        y, u = rng.normal(size=12), 50.0 * rng.normal(size=6)
+        np.testing.assert_array_equal(controller._nominal_step(y, u), controller._nominal_step_reference(y, u))
