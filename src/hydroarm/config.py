@@ -14,6 +14,7 @@ import tomllib
 from pathlib import Path
 from typing import Any, TypeVar
 
+import numpy as np
 import pydantic
 
 ModelT = TypeVar("ModelT", bound=pydantic.BaseModel)
@@ -88,6 +89,19 @@ def read_mapping(path: str | Path) -> dict[str, Any]:
 def load_model(model: type[ModelT], path: str | Path) -> ModelT:
     """Read and validate a config file into ``model``."""
     return validate(model, read_mapping(path), str(path))
+
+
+def per_joint(value: float | list[float], n: int, field: str) -> np.ndarray:
+    """Broadcast a scalar, or check a per-joint list has n values; shape (n,).
+
+    Raises :class:`ConfigError` naming ``field`` when the length is wrong.
+    """
+    values = np.asarray(value, dtype=float)
+    if values.ndim == 0:
+        return np.full(n, float(values))
+    if values.shape != (n,):
+        raise ConfigError(f"{field} has {values.shape[0]} values for {n} joints: give one or {n}")
+    return values.copy()
 
 
 def require_finite(name: str, value: float) -> float:

@@ -76,7 +76,7 @@ import pydantic
 import scipy.linalg
 
 from hydroarm.arm import Arm
-from hydroarm.config import ConfigError, FrozenModel
+from hydroarm.config import ConfigError, FrozenModel, per_joint
 from hydroarm.control import ControlOutput, Reference
 
 SOLVERS = ("daqp", "osqp", "quadprog", "clarabel")
@@ -777,15 +777,6 @@ def solve_terminal_qp(
 # --------------------------------------------------------------------------------------
 # The controller
 # --------------------------------------------------------------------------------------
-def _per_joint(value: float | list[float], n: int, field: str) -> np.ndarray:
-    values = np.asarray(value, dtype=float)
-    if values.ndim == 0:
-        return np.full(n, float(values))
-    if values.shape != (n,):
-        raise ConfigError(f"{field} has {values.shape[0]} values for {n} joints: give one or {n}")
-    return values.copy()
-
-
 class LinearMPC:
     """Linear time-varying MPC about the reference, with the controller interface.
 
@@ -815,13 +806,13 @@ class LinearMPC:
         self.horizon = cfg.horizon
         self.control_period = cfg.control_period
         self._q_diag = np.concatenate(
-            [_per_joint(cfg.q_position, n, "q_position"), _per_joint(cfg.q_velocity, n, "q_velocity")]
+            [per_joint(cfg.q_position, n, "q_position"), per_joint(cfg.q_velocity, n, "q_velocity")]
         )
-        self._r_diag = _per_joint(cfg.r, n, "r")
+        self._r_diag = per_joint(cfg.r, n, "r")
         self.Q = np.diag(self._q_diag)
         self.R = np.diag(self._r_diag)
         limit = arm.torque_limit if cfg.torque_limit is None else cfg.torque_limit
-        self.torque_limit = _per_joint(limit, n, "torque_limit")
+        self.torque_limit = per_joint(limit, n, "torque_limit")
         self._limit_stacked = np.tile(self.torque_limit, cfg.horizon)
         self._solver = make_box_qp_solver(cfg.solver)
         if cfg.terminal_set != "off":

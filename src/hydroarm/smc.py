@@ -25,7 +25,7 @@ import pinocchio as pin
 import pydantic
 
 from hydroarm.arm import Arm
-from hydroarm.config import ConfigError, FrozenModel
+from hydroarm.config import FrozenModel, per_joint
 from hydroarm.control import ControlOutput, Reference
 
 PositiveOrList = Annotated[float, pydantic.Field(gt=0.0)] | list[Annotated[float, pydantic.Field(gt=0.0)]]
@@ -48,16 +48,6 @@ class SMCConfig(FrozenModel):
         if any(v < 0.0 for v in values):
             raise ValueError("must be >= 0")
         return value
-
-
-def per_joint(value: float | list[float], n: int, name: str) -> np.ndarray:
-    """Broadcast a scalar or check a per-joint list of length n; shape (n,)."""
-    arr = np.asarray(value, dtype=float)
-    if arr.ndim == 0:
-        return np.full(n, float(arr))
-    if arr.shape != (n,):
-        raise ConfigError(f"{name}: expected one value or {n} values (one per joint), got {arr.shape[0]}")
-    return arr.copy()
 
 
 class SlidingModeController:
