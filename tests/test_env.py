@@ -64,3 +64,11 @@ def test_controller_rollout_gives_the_runner_e_p(name):
     ep_env = np.mean(np.square(errors), axis=0)
     ep_runner = tracking_metrics(run_experiment(config, name, seed=3))["Ep"]
     np.testing.assert_allclose(ep_env, ep_runner, rtol=1e-12)
+
+
+@pytest.mark.parametrize("action", [np.full(6, np.nan), np.array([0, 0, 0, np.inf, 0, 0]), np.zeros(5)])
+def test_bad_action_is_a_clear_error(action):
+    env = UnderwaterArmEnv(duration=0.2)
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match="action must be 6 finite joint torques"):
+        env.step(action)

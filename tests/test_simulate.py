@@ -63,7 +63,7 @@ def test_metrics_on_a_known_error():
     traj = Trajectory(
         t=t, x=np.hstack([q, np.zeros_like(q)]), y=np.hstack([q, np.zeros_like(q)]), u=np.ones((400, n)),
         q_ref=q_ref, v_ref=q_ref, disturbance=q_ref, disturbance_estimate=q_ref, disturbance_var=q_ref,
-        terminal_violation=np.zeros(400), status=np.array(["ok"] * 400),
+        terminal_violation=np.zeros(400), status=np.array(["ok"] * 400), events=np.array([""] * 400),
     )  # fmt: skip
     metrics = tracking_metrics(traj)
     assert metrics["Ep"][0] == pytest.approx(0.01)

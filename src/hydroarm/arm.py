@@ -27,68 +27,95 @@ import numpy as np
 import pinocchio as pin
 import pydantic
 
-from hydroarm.config import ConfigError, FrozenModel, load_model
+from hydroarm.config import ConfigError, FrozenModel, field_error, load_model
 
 REFERENCE_WATER_DENSITY = 1000.0
 """kg/m^3: the density at which arm files state ``buoyancy_kg`` (Table A1's)."""
 
-Vector3 = Annotated[list[float], pydantic.Field(min_length=3, max_length=3)]
-PositiveFloat = Annotated[float, pydantic.Field(gt=0.0)]
-NonNegativeFloat = Annotated[float, pydantic.Field(ge=0.0)]
+MAX_LENGTH = 100.0
+"""m: bound on |a|, |d| and every centre-of-gravity coordinate of an arm file."""
+
+Coordinate = Annotated[float, pydantic.Field(ge=-MAX_LENGTH, le=MAX_LENGTH)]
+Vector3 = Annotated[list[Coordinate], pydantic.Field(min_length=3, max_length=3)]
+InertiaEntry = Annotated[float, pydantic.Field(ge=-1e6, le=1e6)]
+Inertia = Annotated[float, pydantic.Field(gt=0.0, le=1e6)]
+TorqueLimit = Annotated[float, pydantic.Field(gt=0.0, le=1e7)]
 
 
 class LinkSpec(FrozenModel):
-    """One DH row with the link's dry inertial data and wetted cylinder."""
+    """One DH row with the link's dry inertial data and wetted cylinder.
 
-    name: str
-    a: float = pydantic.Field(description="DH a_i (m)")
+    Ranges: |a|, |d|, |com| <= 100 m; 0 < mass <= 1e5 kg; inertias in kg m^2
+    up to 1e6; 0 < cylinder_diameter <= 10 m; 0 <= buoyancy_kg <= 1e6.
+    """
+
+    name: str = pydantic.Field(min_length=1)
+    a: Coordinate = pydantic.Field(description="DH a_i (m)")
     alpha_deg: float = pydantic.Field(ge=-360.0, le=360.0, description="DH alpha_i (deg)")
-    d: float = pydantic.Field(description="DH d_i (m)")
+    d: Coordinate = pydantic.Field(description="DH d_i (m)")
     theta_offset_deg: float = pydantic.Field(0.0, ge=-360.0, le=360.0)
-    mass: PositiveFloat = pydantic.Field(description="dry mass (kg)")
+    mass: float = pydantic.Field(gt=0.0, le=1e5, description="dry mass (kg)")
     com: Vector3 = pydantic.Field(description="centre of gravity in DH frame i (m)")
-    inertia_axial: PositiveFloat | None = pydantic.Field(
+    inertia_axial: Inertia | None = pydantic.Field(
         None, description="moment of inertia about the cylinder axis through the CoG (kg m^2)"
     )
-    inertia_transverse: PositiveFloat | None = pydantic.Field(
+    inertia_transverse: Inertia | None = pydantic.Field(
         None, description="moment of inertia about any perpendicular axis through the CoG"
     )
-    inertia: list[Vector3] | None = pydantic.Field(
+    inertia: list[Annotated[list[InertiaEntry], pydantic.Field(min_length=3, max_length=3)]] | None = pydantic.Field(
         None,
         min_length=3,
         max_length=3,
         description="full inertia tensor about the CoG in DH frame i (kg m^2)",
     )
-    cylinder_diameter: PositiveFloat = pydantic.Field(description="wetted cylinder diameter (m)")
-    buoyancy_kg: NonNegativeFloat | None = pydantic.Field(
-        None, description="displaced water mass at 1000 kg/m^3; default: the cylinder's volume"
+    cylinder_diameter: float = pydantic.Field(gt=0.0, le=10.0, description="wetted cylinder diameter (m)")
+    buoyancy_kg: float | None = pydantic.Field(
+        None, ge=0.0, le=1e6, description="displaced water mass at 1000 kg/m^3; default: the cylinder's volume"
     )
 
     @pydantic.model_validator(mode="after")
     def _check(self) -> Self:
         if math.hypot(self.a, self.d) <= 1e-9:
-            raise ValueError("a and d are both zero: the link's cylinder has no length")
+            raise field_error(
+                "a", self.a, f"a and d (= {self.d!r}) are both zero: the link's cylinder has no length; "
+                "give a non-zero a or d"
+            )  # fmt: skip
         axisym = self.inertia_axial is not None or self.inertia_transverse is not None
         if axisym and self.inertia is not None:
-            raise ValueError("give either inertia_axial/inertia_transverse or inertia, not both")
+            raise field_error(
+                "inertia", self.inertia, "give either inertia_axial/inertia_transverse or inertia, not both"
+            )
         if axisym:
             if self.inertia_axial is None or self.inertia_transverse is None:
-                raise ValueError("inertia_axial and inertia_transverse go together")
+                missing = "inertia_axial" if self.inertia_axial is None else "inertia_transverse"
+                raise field_error(
+                    missing, None, "inertia_axial and inertia_transverse go together: give both (kg m^2, > 0)"
+                )
             if self.inertia_axial > 2.0 * self.inertia_transverse:
-                raise ValueError(
-                    "inertia_axial must be <= 2 * inertia_transverse (triangle inequality)"
+                raise field_error(
+                    "inertia_axial",
+                    self.inertia_axial,
+                    f"must be <= 2 * inertia_transverse = 2 * {self.inertia_transverse!r} (triangle inequality)",
                 )
         elif self.inertia is None:
-            raise ValueError("missing inertia: give inertia_axial and inertia_transverse, or inertia")
+            raise field_error(
+                "inertia", None, "missing: give inertia_axial and inertia_transverse, or inertia (kg m^2)"
+            )
         else:
             tensor = np.asarray(self.inertia)
             if not np.allclose(tensor, tensor.T, rtol=0.0, atol=1e-12):
-                raise ValueError("inertia must be symmetric")
+                raise field_error("inertia", self.inertia, "must be symmetric")
             eig = np.linalg.eigvalsh(tensor)
             if eig[0] <= 0.0:
-                raise ValueError(f"inertia must be positive definite (eigenvalues {eig})")
+                raise field_error(
+                    "inertia", self.inertia, f"must be positive definite (eigenvalues {eig.tolist()})"
+                )
             if eig[2] > eig[0] + eig[1] + 1e-12:
-                raise ValueError("inertia violates the triangle inequality (not a rigid body)")
+                raise field_error(
+                    "inertia",
+                    self.inertia,
+                    "violates the triangle inequality (largest eigenvalue <= sum of the others): not a rigid body",
+                )
         return self
 
     @property
@@ -121,13 +148,14 @@ class LinkSpec(FrozenModel):
 
 
 class ArmSpec(FrozenModel):
-    """A whole arm file."""
+    """A whole arm file: 1 to 12 links with distinct names; ``gravity`` in (0, 100] m/s^2;
+    ``torque_limit`` in (0, 1e7] N m, one value or one per link."""
 
     name: str
     description: str = ""
     source: str = ""
-    gravity: PositiveFloat = pydantic.Field(9.81, description="m/s^2 along -z of the base")
-    torque_limit: list[PositiveFloat] | PositiveFloat = pydantic.Field(
+    gravity: float = pydantic.Field(9.81, gt=0.0, le=100.0, description="m/s^2 along -z of the base")
+    torque_limit: list[TorqueLimit] | TorqueLimit = pydantic.Field(
         description="|tau_i| <= limit (N m): one value or one per joint"
     )
     links: list[LinkSpec] = pydantic.Field(min_length=1, max_length=12)
@@ -135,9 +163,15 @@ class ArmSpec(FrozenModel):
     @pydantic.model_validator(mode="after")
     def _check(self) -> Self:
         if isinstance(self.torque_limit, list) and len(self.torque_limit) != len(self.links):
-            raise ValueError(
-                f"torque_limit has {len(self.torque_limit)} values for {len(self.links)} links"
+            raise field_error(
+                "torque_limit",
+                self.torque_limit,
+                f"{len(self.torque_limit)} values for {len(self.links)} links: give one value or a list of {len(self.links)}",
             )
+        names = [link.name for link in self.links]
+        for index, name in enumerate(names):
+            if name in names[:index]:
+                raise field_error(f"links.{index}.name", name, f"link names must differ (links.{names.index(name)} too)")
         return self
 
 
@@ -379,14 +413,14 @@ def load_arm_spec(source: str | Path) -> ArmSpec:
     """Read and validate a DH arm file, or a built-in DH arm by name."""
     if is_urdf_source(source):
         raise ConfigError(
-            f"arm '{source}' is a URDF arm: it has no DH arm file; load it with load_arm()"
+            f"arm {str(source)!r} is a URDF arm: it has no DH arm file; load it with load_arm()"
         )
     if isinstance(source, str) and source in BUILTIN_ARMS:
         return load_model(ArmSpec, builtin_arm_path(source))
     path = Path(source)
-    if not path.exists():
+    if not str(source) or not path.is_file():
         raise ConfigError(
-            f"arm '{source}': neither a built-in arm ({', '.join(BUILTIN_ARMS)}) nor an existing file"
+            f"arm {str(source)!r}: neither a built-in arm ({', '.join(BUILTIN_ARMS)}) nor an existing file"
         )
     return load_model(ArmSpec, path)
 

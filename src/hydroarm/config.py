@@ -5,12 +5,21 @@ Every config model of hydroarm is a frozen pydantic model with
 whose message names the field (as a dotted path such as ``links.2.mass``), the
 value given and what is allowed; never a traceback from deep inside NumPy or
 Pinocchio.
+
+Types are not coerced across kinds: a boolean where a number is expected
+(``horizon = true``), a number where a boolean is expected (``drag = 1``) or a
+string where a number or a boolean is expected (``r = "0.1"``) is an error,
+although pydantic's lax mode would accept it (see :class:`FrozenModel`).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import tomllib
+import types
+import typing
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -19,38 +28,293 @@ import pydantic
 
 ModelT = TypeVar("ModelT", bound=pydantic.BaseModel)
 
+MAX_SHOWN = 60
+"""Characters of a value shown in an error message (longer values are cut with "...")."""
+
+MAX_LINES = 8
+"""Problems listed in one error message; the rest are counted."""
+
 
 class ConfigError(ValueError):
-    """A configuration value is missing, unknown or out of its allowed range."""
+    """A configuration value is missing, unknown or out of its allowed range.
+
+    The message is the whole story (``field = value: what is allowed``). Raised
+    from inside a pydantic validator with ``field`` (a dotted path relative to
+    the model), ``value`` and ``reason`` set (see :func:`field_error`), it lets
+    :func:`format_validation_error` name the full path of the field
+    (``links.2.a`` rather than ``links.2``).
+    """
+
+    def __init__(self, message: str, *, field: str | None = None, value: Any = None, reason: str | None = None):
+        super().__init__(message)
+        self.field = field
+        self.value = value
+        self.reason = reason
+
+
+def shown(value: Any) -> str:
+    """``repr(value)``, cut to :data:`MAX_SHOWN` characters."""
+    text = repr(value)
+    return text if len(text) <= MAX_SHOWN else text[: MAX_SHOWN - 3] + "..."
+
+
+def field_error(field: str, value: Any, reason: str, prefix: str = "") -> ConfigError:
+    """A :class:`ConfigError` ``"{prefix}{field} = {value}: {reason}"`` that keeps its parts."""
+    return ConfigError(f"{prefix}{field} = {shown(value)}: {reason}", field=field, value=value, reason=reason)
+
+
+# --- no coercion across kinds ---------------------------------------------------------
+
+_NUMBER_TYPES = (int, float)
+
+
+def _kind(value: Any) -> str | None:
+    """"bool", "number", "str", "list", "dict" or None (anything else: not checked)."""
+    if isinstance(value, (bool, np.bool_)):
+        return "bool"
+    if isinstance(value, (int, float, np.integer, np.floating)):
+        return "number"
+    if isinstance(value, str):
+        return "str"
+    if isinstance(value, (list, tuple)):
+        return "list"
+    if isinstance(value, Mapping):
+        return "dict"
+    return None
+
+
+def _members(annotation: Any) -> list[Any]:
+    """The members of a union (``Annotated`` unwrapped), or ``[annotation]``."""
+    origin = typing.get_origin(annotation)
+    if origin is typing.Annotated:
+        return _members(typing.get_args(annotation)[0])
+    if origin in (typing.Union, types.UnionType):
+        return [m for arg in typing.get_args(annotation) for m in _members(arg)]
+    return [annotation]
+
+
+def _kinds(annotation: Any) -> set[str] | None:
+    """The kinds of value an annotation accepts (None: any kind, e.g. ``Any``)."""
+    out: set[str] = set()
+    for member in _members(annotation):
+        origin = typing.get_origin(member)
+        if member is Any or member is object:
+            return None
+        if member is bool:
+            out.add("bool")
+        elif member in _NUMBER_TYPES:
+            out.add("number")
+        elif member is str:
+            out.add("str")
+        elif origin is typing.Literal:
+            out.update(_kind(value) or "other" for value in typing.get_args(member))
+        elif origin in (list, tuple, set, frozenset) or member in (list, tuple):
+            out.add("list")
+        elif origin is dict or member is dict:
+            out.add("dict")
+        elif member is type(None):
+            out.add("none")
+        else:  # a model, a dataclass, a Path...: pydantic checks it
+            return None
+    return out
+
+
+def _item_annotations(annotation: Any, value: Any) -> list[tuple[str, Any, Any]]:
+    """(key, item, annotation of the item) for the items of a list/dict ``value`` under ``annotation``."""
+    pairs: list[tuple[str, Any, Any]] = []
+    for member in _members(annotation):
+        origin = typing.get_origin(member)
+        args = [a for a in typing.get_args(member) if a is not Ellipsis]
+        if isinstance(value, (list, tuple)) and origin in (list, tuple, set, frozenset) and args:
+            if origin is tuple and len(args) == len(value) and len(args) > 1:
+                pairs += [(f"{k}", item, ann) for k, (item, ann) in enumerate(zip(value, args))]
+            else:
+                item_type = typing.Union[tuple(args)] if len(args) > 1 else args[0]
+                pairs += [(f"{k}", item, item_type) for k, item in enumerate(value)]
+        elif isinstance(value, Mapping) and origin is dict and len(args) == 2:
+            pairs += [(f"{key}", item, args[1]) for key, item in value.items()]
+        elif isinstance(value, Mapping) and dataclasses.is_dataclass(member):
+            hints = typing.get_type_hints(member)
+            pairs += [(f"{key}", item, hints[key]) for key, item in value.items() if key in hints]
+    return pairs
+
+
+_KIND_NAMES = {"bool": "a boolean", "number": "a number", "str": "a string"}
+_COERCED = {("bool", "number"), ("number", "bool"), ("str", "number"), ("str", "bool")}
+"""(given, expected) pairs that pydantic's lax mode would silently convert."""
+
+
+def _coercion(value: Any, annotation: Any, path: str = "") -> tuple[str, Any, str] | None:
+    """Where ``value`` holds a kind that ``annotation`` would accept only by coercion:
+    ``(path of the item, the item, what is allowed)``; else None."""
+    kinds = _kinds(annotation)
+    given = _kind(value)
+    if kinds is not None and given is not None and given not in kinds:
+        wanted = sorted(kinds & {"number", "bool"})
+        if wanted and (given, wanted[0]) in _COERCED:
+            expected = " or ".join(_KIND_NAMES[k] for k in wanted)
+            return path, value, f"Input should be {expected}, not {_KIND_NAMES[given]}"
+    for key, item, item_type in _item_annotations(annotation, value):
+        problem = _coercion(item, item_type, f"{path}.{key}" if path else key)
+        if problem is not None:
+            return problem
+    return None
 
 
 class FrozenModel(pydantic.BaseModel):
-    """Base of every config model: immutable, unknown keys rejected, NaN rejected."""
+    """Base of every config model: immutable, unknown keys rejected, NaN rejected,
+    no coercion of booleans/strings to numbers or of numbers/strings to booleans."""
 
     model_config = pydantic.ConfigDict(
         extra="forbid", frozen=True, allow_inf_nan=False, validate_default=True
     )
+
+    @pydantic.field_validator("*", mode="before")
+    @classmethod
+    def _no_coercion(cls, value: Any, info: pydantic.ValidationInfo) -> Any:
+        field = cls.model_fields.get(info.field_name) if info.field_name else None
+        problem = _coercion(value, field.annotation) if field is not None else None
+        if problem is not None:
+            path, item, reason = problem
+            if not path:
+                raise ValueError(reason)
+            raise ConfigError(f"{path} = {shown(item)}: {reason}", field=path, value=item, reason=reason)
+        return value
+
+
+# --- messages -----------------------------------------------------------------------
+
+_TYPE_ERRORS = ("_type", "_parsing", "is_instance_of", "none_required")
+_UNKNOWN = object()  # tags an unknown key's line
+
+
+def _is_type_error(kind: str) -> bool:
+    return kind.endswith(_TYPE_ERRORS) or kind in _TYPE_ERRORS
+
+
+def _clean_location(loc: tuple[Any, ...], data: Any, missing: bool) -> tuple[Any, ...]:
+    """The part of a pydantic location that follows ``data``: union member tags
+    (``constrained-float``, ``list[...]``) dropped."""
+    out = []
+    node = data
+    for k, part in enumerate(loc):
+        last = k == len(loc) - 1
+        if isinstance(node, Mapping) and part in node:
+            node = node[part]
+        elif isinstance(node, (list, tuple)) and isinstance(part, int) and 0 <= part < len(node):
+            node = node[part]
+        elif isinstance(part, str) and not isinstance(node, (Mapping, list, tuple, str)) and hasattr(node, part):
+            node = getattr(node, part)
+        elif isinstance(part, int) or (last and missing) or data is None:
+            node = None
+        else:
+            continue  # a union member's tag
+        out.append(part)
+    return tuple(out)
 
 
 def _location(loc: tuple[Any, ...]) -> str:
     return ".".join(str(part) for part in loc) or "<root>"
 
 
-def format_validation_error(error: pydantic.ValidationError, source: str) -> str:
-    """One readable line per problem: ``source: field = value: what is allowed``."""
-    lines = []
+def _fields_of(cls: Any) -> list[str] | None:
+    """The field names of a pydantic model or dataclass type, else None."""
+    if isinstance(cls, type) and issubclass(cls, pydantic.BaseModel):
+        return list(cls.model_fields)
+    if isinstance(cls, type) and dataclasses.is_dataclass(cls):
+        return [field.name for field in dataclasses.fields(cls)]
+    return None
+
+
+def _inner_class(annotation: Any) -> Any:
+    """The first model/dataclass type inside an annotation (through unions, lists, dict values)."""
+    for member in _members(annotation):
+        if _fields_of(member) is not None:
+            return member
+        for arg in typing.get_args(member):
+            found = _inner_class(arg)
+            if found is not None:
+                return found
+    return None
+
+
+def _known_keys(model: Any, where: tuple[Any, ...]) -> list[str] | None:
+    """The keys allowed in the mapping at ``where`` (a cleaned location) of ``model``."""
+    cls, in_dict = model, False
+    for part in where:
+        if isinstance(part, int) or in_dict:
+            in_dict = False
+            continue  # a list item or a dict value: ``cls`` is already the item's type
+        if part not in (_fields_of(cls) or []):
+            return None
+        hints = typing.get_type_hints(cls) if dataclasses.is_dataclass(cls) else None
+        annotation = hints[part] if hints is not None else cls.model_fields[part].annotation
+        in_dict = any(typing.get_origin(m) is dict for m in _members(annotation))
+        cls = _inner_class(annotation)
+    return _fields_of(cls)
+
+
+def format_validation_error(
+    error: pydantic.ValidationError, source: str, data: Any = None, model: Any = None
+) -> str:
+    """One readable line per problem: ``source: field = value: what is allowed``.
+
+    ``data`` (the validated input) lets union member tags be dropped from the
+    locations. Of the alternatives of a union, only the errors of the closest
+    match are kept (a wrong type is not reported next to a range error of the
+    same value). ``model`` (the validated type) lets an unknown key's message
+    list the keys allowed there.
+    """
+    items = []
     for item in error.errors():
-        where = _location(item["loc"])
+        missing = item["type"] == "missing"
+        where = _clean_location(tuple(item["loc"]), data, missing)
+        cause = (item.get("ctx") or {}).get("error")
+        message = item["msg"].removeprefix("Value error, ").removeprefix("Assertion failed, ")
         value = item.get("input")
-        message = item["msg"]
-        if item["type"] == "extra_forbidden":
-            lines.append(f"{source}: unknown key '{where}'")
+        if isinstance(cause, ConfigError) and cause.field is not None:
+            where = where + tuple(cause.field.split("."))
+            value, message = cause.value, cause.reason
+        items.append((where, item["type"], value, message))
+    # Drop the wrong-type errors of union alternatives when another alternative got further.
+    specific = {where for where, kind, _, _ in items if not _is_type_error(kind)}
+
+    def superseded(where: tuple, kind: str) -> bool:
+        return _is_type_error(kind) and any(other[: len(where)] == where for other in specific)
+
+    kept = [entry for entry in items if not superseded(entry[0], entry[1])] or items
+    # Merge the alternatives reported for one location; collapse one problem repeated over list items.
+    lines: dict[tuple, list] = {}
+    for where, kind, value, message in kept:
+        if kind in ("extra_forbidden", "unexpected_keyword_argument"):
+            known = _known_keys(model, where[:-1]) if model is not None else None
+            text = f"unknown key '{_location(where)}'" + (f" (allowed: {', '.join(known)})" if known else "")
+            lines.setdefault((where, _UNKNOWN), [where, value, [text], 0])
             continue
-        shown = repr(value)
-        if len(shown) > 60:
-            shown = shown[:57] + "..."
-        lines.append(f"{source}: {where} = {shown}: {message}")
-    return "\n".join(lines)
+        group = (where[:-1], message) if where and isinstance(where[-1], int) else (where, None)
+        if group in lines and group[1] is not None:
+            lines[group][3] += 1
+            continue
+        entry = lines.setdefault(group, [where, value, [], 0])
+        if message not in entry[2]:
+            entry[2].append(message)
+    out = []
+    for (_, tag), (where, value, messages, repeats) in lines.items():
+        if tag is _UNKNOWN:
+            out.append(f"{source}: {messages[0]}")
+            continue
+        text = "; or ".join(messages)
+        if repeats:
+            text += f" (and {repeats} more items of {_location(where[:-1])})"
+        if not where:
+            out.append(f"{source}: {text}")
+        elif isinstance(value, Mapping):
+            out.append(f"{source}: {_location(where)}: {text}")
+        else:
+            out.append(f"{source}: {_location(where)} = {shown(value)}: {text}")
+    if len(out) > MAX_LINES:
+        out = out[:MAX_LINES] + [f"{source}: ... and {len(out) - MAX_LINES} more problems"]
+    return "\n".join(out)
 
 
 def validate(model: type[ModelT], data: Any, source: str) -> ModelT:
@@ -58,32 +322,40 @@ def validate(model: type[ModelT], data: Any, source: str) -> ModelT:
     try:
         return model.model_validate(data)
     except pydantic.ValidationError as error:
-        raise ConfigError(format_validation_error(error, source)) from None
+        raise ConfigError(format_validation_error(error, source, data, model)) from None
 
 
 def read_mapping(path: str | Path) -> dict[str, Any]:
-    """Read a TOML (``.toml``) or YAML (``.yaml``/``.yml``) file into a dict."""
+    """Read a TOML (``.toml``) or YAML (``.yaml``/``.yml``) file into a dict.
+
+    Raises :class:`ConfigError` for a missing file, an unknown suffix, a syntax error
+    (the parser's message, with line and column) or a top level that is not a mapping.
+    """
     path = Path(path)
     if not path.is_file():
         raise ConfigError(f"{path}: no such file")
     suffix = path.suffix.lower()
-    try:
-        if suffix == ".toml":
+    if suffix == ".toml":
+        try:
             with path.open("rb") as handle:
-                return tomllib.load(handle)
-        if suffix in (".yaml", ".yml"):
+                data = tomllib.load(handle)
+        except (tomllib.TOMLDecodeError, UnicodeDecodeError) as error:
+            raise ConfigError(f"{path}: cannot parse: {error}") from None
+    elif suffix in (".yaml", ".yml"):
+        try:
             import yaml  # optional: only needed for YAML files
-
-            with path.open() as handle:
+        except ImportError:
+            raise ConfigError(f"{path}: YAML files need PyYAML (pip install pyyaml)") from None
+        try:
+            with path.open(encoding="utf-8") as handle:
                 data = yaml.safe_load(handle)
-            if not isinstance(data, dict):
-                raise ConfigError(f"{path}: the top level must be a mapping")
-            return data
-    except (tomllib.TOMLDecodeError, ValueError) as error:
-        if isinstance(error, ConfigError):
-            raise
-        raise ConfigError(f"{path}: cannot parse: {error}") from None
-    raise ConfigError(f"{path}: unknown config format '{suffix}' (use .toml, .yaml or .yml)")
+        except (yaml.YAMLError, UnicodeDecodeError) as error:
+            raise ConfigError(f"{path}: cannot parse: {error}") from None
+    else:
+        raise ConfigError(f"{path}: unknown config format '{suffix}' (use .toml, .yaml or .yml)")
+    if not isinstance(data, dict):
+        raise ConfigError(f"{path}: the top level must be a mapping, not {type(data).__name__}")
+    return data
 
 
 def load_model(model: type[ModelT], path: str | Path) -> ModelT:
@@ -94,14 +366,38 @@ def load_model(model: type[ModelT], path: str | Path) -> ModelT:
 def per_joint(value: float | list[float], n: int, field: str) -> np.ndarray:
     """Broadcast a scalar, or check a per-joint list has n values; shape (n,).
 
-    Raises :class:`ConfigError` naming ``field`` when the length is wrong.
+    Raises :class:`ConfigError` naming ``field`` and the value when the length is wrong.
     """
     values = np.asarray(value, dtype=float)
     if values.ndim == 0:
         return np.full(n, float(values))
     if values.shape != (n,):
-        raise ConfigError(f"{field} has {values.shape[0]} values for {n} joints: give one or {n}")
+        raise ConfigError(
+            f"{field} = {shown(value)}: {values.size} values for {n} joints: give one value or a list of {n}"
+        )
     return values.copy()
+
+
+def is_per_joint(annotation: Any) -> bool:
+    """True for a per-joint field: one number or a list of numbers (``float | list[float]``)."""
+    members = _members(annotation)
+    scalar = any(m in _NUMBER_TYPES for m in members)
+    listed = any(
+        typing.get_origin(m) is list and _kinds(typing.get_args(m)[0]) == {"number"} for m in members
+    )
+    return scalar and listed
+
+
+def check_joint_counts(config: pydantic.BaseModel, n: int, prefix: str = "") -> None:
+    """Check every per-joint list (:func:`is_per_joint`) in ``config`` and its sub-models
+    has ``n`` values; raise :class:`ConfigError` naming the first that has not."""
+    for name, field in type(config).model_fields.items():
+        value = getattr(config, name)
+        path = f"{prefix}{name}"
+        if isinstance(value, pydantic.BaseModel):
+            check_joint_counts(value, n, path + ".")
+        elif isinstance(value, list) and is_per_joint(field.annotation):
+            per_joint(value, n, path)
 
 
 def require_finite(name: str, value: float) -> float:

@@ -30,7 +30,9 @@ class ControlOutput:
     phase (``"gp"``, ``"linearise"``, ``"qp_update"``, ``"qp_solve"``,
     ``"total"``); ``disturbance_mean``/``disturbance_var`` (n,): the learned
     disturbance estimate (N m, (N m)^2) fed forward, None if the controller
-    has none; ``terminal_violation``: slack of the soft terminal set (0 if off).
+    has none; ``terminal_violation``: slack of the soft terminal set (0 if off);
+    ``events``: the faults met and recovered from since the previous step
+    (names from :data:`FAULT_EVENTS`), counted by the runner.
     """
 
     tau: np.ndarray
@@ -39,6 +41,27 @@ class ControlOutput:
     disturbance_mean: np.ndarray | None = None
     disturbance_var: np.ndarray | None = None
     terminal_violation: float = 0.0
+    events: tuple[str, ...] = ()
+
+
+FAULT_EVENTS: dict[str, str] = {
+    "measurement_held": "non-finite measurement: the last valid one was used (runner)",
+    "gp_jittered": "GP Cholesky needed extra diagonal jitter (one per factorisation and output)",
+    "gp_cholesky_fallback": "GP Cholesky failed even with jitter: previous hyperparameters kept",
+    "gp_prior_prediction": "GP had no factor for an output: its prior (zero) was predicted",
+    "gp_nonfinite_prediction": "GP predicted a non-finite mean: zero fed forward on that joint",
+    "gp_sample_rejected": "a non-finite residual or input was not added to the GP window",
+    "qp_iteration_limit": "QP solver hit its iteration limit: fallback torque used",
+    "qp_infeasible": "QP reported infeasible: fallback torque used",
+    "qp_invalid_solution": "QP returned a non-finite or out-of-box solution: fallback torque used",
+    "qp_failed": "QP solver failed otherwise (e.g. raised): fallback torque used",
+    "terminal_soft_fallback": "hard terminal set infeasible: soft terminal set used",
+    "torque_clipped": "last guard clipped a torque beyond its limit (or non-finite)",
+    "controller_error": "the controller raised: the run was stopped (runner)",
+    "diverged": "the plant state blew up: the run was stopped (runner)",
+}
+"""Every fault a run can meet, and how it was handled (``Trajectory.meta["faults"]``
+counts each one; docs/robustness.md)."""
 
 
 @runtime_checkable

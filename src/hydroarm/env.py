@@ -12,7 +12,9 @@
 * truncation at the end of the task (``duration``); termination if the plant
   diverges;
 * ``info``: the true state ``x``, time ``t``, the water/current disturbance
-  over the step (``disturbance``, N m) and the error ``q_ref - q``.
+  over the step (``disturbance``, N m) and the error ``q_ref - q``;
+* start: rest at q = 0, moved by the config's ``initial_state`` (none by
+  default); ``reset(options={"x0": x0})`` starts at ``x0`` instead.
 
 Seeded through ``reset(seed=...)``: the noise stream is the same as
 :func:`hydroarm.simulate.run_closed_loop`'s with that seed, so a controller
@@ -86,12 +88,18 @@ class UnderwaterArmEnv(gymnasium.Env):
         super().reset(seed=seed)
         self._k = 0
         x0 = None if options is None else options.get("x0")
-        self._x = np.zeros(2 * self.n) if x0 is None else np.asarray(x0, dtype=float).copy()
+        if x0 is None:  # rest at q = 0, moved by the config's initial_state (none by default)
+            self._x = self.config.initial_state.apply(np.zeros(2 * self.n))
+        else:
+            self._x = np.asarray(x0, dtype=float).copy()
         self._y = self.plant.measure(self._x, self.np_random)
         return self._observation(), {"x": self._x.copy(), "t": 0.0}
 
     def step(self, action):
-        tau = np.clip(np.asarray(action, dtype=float), self.action_space.low, self.action_space.high)
+        action = np.asarray(action, dtype=float)
+        if action.shape != (self.n,) or not np.all(np.isfinite(action)):
+            raise ValueError(f"action must be {self.n} finite joint torques (N m); got {action!r}")
+        tau = np.clip(action, self.action_space.low, self.action_space.high)
         t = self.t
         q_r, v_r, _ = self.reference.sample(t)
         error = q_r - self._x[: self.n]

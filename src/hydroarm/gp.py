@@ -903,20 +903,20 @@ class GPConfig:
     target scaling) and measured choices otherwise (module docstring).
 
     Fields:
-        window: N_train, samples kept (int >= 2; paper 10).
-        hyper_steps: gradient-ascent steps on the LML per update (int >= 0;
+        window: N_train, samples kept (int in [2, 1000]; paper 10).
+        hyper_steps: gradient-ascent steps on the LML per update (int in [0, 100];
             0 = fixed hyperparameters). Default 1 per 10 ms control step:
             3 steps cost ~2.2x as much for a small gain (module docstring).
         learning_rate: step = learning_rate * dL/dlog(theta) (float > 0), log space.
         max_log_step: cap on |change| of any log-hyperparameter per step (float > 0).
         max_step_halvings: halvings of a step that would decrease the LML before
-            the step is rejected (int >= 0); each level adds one stacked
+            the step is rejected (int in [0, 20]); each level adds one stacked
             candidate per output to the batch (0 is ~15 % cheaper, same accuracy
             in our trials).
         grad_tol: the paper's training accuracy epsilon: an output stops
             stepping when max |dL/dlog theta| <= grad_tol (float >= 0; 0 = always step).
         log_sf2_bounds, log_sn2_bounds, log_lengthscale_bounds: box bounds
-            (natural log) for sf2, sn2 and every lengthscale. sf2, sn2 are in
+            (natural log, within [-100, 100]) for sf2, sn2 and every lengthscale. sf2, sn2 are in
             fitted target units^2 (N*m^2 for raw torques; unit-free with
             normalize_y or output_scale), lengthscales in scaled input units.
             Defaults for raw torques: sf2 in [1e-4, 1e8], sn2 in [1e-6, 1e6]
@@ -927,15 +927,15 @@ class GPConfig:
         normalize_y: standardise each output's window targets by the window
             mean and (population) std before fitting, as sklearn's normalize_y
             (the paper does not). Measured worse on the arm; off by default.
-        input_scale: per-feature divisors (tuple of d floats > 0) applied to
+        input_scale: per-feature divisors (tuple of d floats in [1e-6, 1e6]) applied to
             inputs before the kernel, or None. Set it when inputs mix units
             (e.g. torques ~ 500 N*m next to angles ~ 1 rad).
-        output_scale: per-output (or one common) divisor of the targets, or
-            None; excludes normalize_y.
+        output_scale: per-output (or one common) divisor of the targets (floats
+            in [1e-6, 1e6]), or None; excludes normalize_y.
         jitter: absolute value added to the training diagonal (float >= 0;
             like sklearn's alpha).
         max_jitter_retries: retries with growing extra diagonal after a failed
-            Cholesky (int >= 0).
+            Cholesky (int in [0, 20]).
         incremental_min_window: use the O(N^2) rank update of the factor when
             the window holds at least this many samples and theta is unchanged
             since the last factorisation (int >= 2); measured break-even ~20.
@@ -962,9 +962,40 @@ class GPConfig:
     refactor_every: int = 100
 
     def __post_init__(self) -> None:
-        _require(_is_int(self.window) and self.window >= 2, "window", "must be an int >= 2", self.window)
+        """Check every field; a bad one raises ``hydroarm.config.ConfigError`` (a ValueError)
+        ``GPConfig.<field> = <value>: <what is allowed>`` that names the field, so that an
+        enclosing settings file reports it as ``gp.<field>``."""
+        from hydroarm.config import ConfigError, field_error
+
+        try:
+            self._check_fields()
+        except ConfigError:
+            raise
+        except ValueError as error:  # from _require: "GPConfig.<field> <rule>; got <value>"
+            name, _, rest = str(error).removeprefix("GPConfig.").partition(" ")
+            rule = rest.rsplit("; got ", 1)[0]
+            value = getattr(self, name, None)
+            if isinstance(value, tuple):  # name the first entry out of range
+                for k, item in enumerate(value):
+                    if not (_is_number(item) and math.isfinite(item)):
+                        bad = True
+                    elif name.startswith("log_"):
+                        bad = False
+                    else:  # theta0 entries > 0, scales in [1e-6, 1e6]
+                        bad = not (1e-6 <= item <= 1e6) if name.endswith("_scale") else item <= 0
+                    if bad:
+                        raise field_error(f"{name}.{k}", item, rule, prefix="GPConfig.") from None
+            raise field_error(name, value, rule, prefix="GPConfig.") from None
+
+    def _check_fields(self) -> None:
         _require(
-            _is_int(self.hyper_steps) and self.hyper_steps >= 0, "hyper_steps", "must be an int >= 0", self.hyper_steps
+            _is_int(self.window) and 2 <= self.window <= 1000, "window", "must be an int >= 2 and <= 1000", self.window
+        )
+        _require(
+            _is_int(self.hyper_steps) and 0 <= self.hyper_steps <= 100,
+            "hyper_steps",
+            "must be an int >= 0 and <= 100",
+            self.hyper_steps,
         )
         for name in ("learning_rate", "max_log_step"):
             value = getattr(self, name)
@@ -976,7 +1007,7 @@ class GPConfig:
             _require(ok, name, "must be a finite float >= 0", value)
         for name in ("max_step_halvings", "max_jitter_retries"):
             value = getattr(self, name)
-            _require(_is_int(value) and value >= 0, name, "must be an int >= 0", value)
+            _require(_is_int(value) and 0 <= value <= 20, name, "must be an int >= 0 and <= 20", value)
         _require(
             _is_int(self.incremental_min_window) and self.incremental_min_window >= 2,
             "incremental_min_window",
@@ -992,6 +1023,13 @@ class GPConfig:
         _require(isinstance(self.normalize_y, bool), "normalize_y", "must be a bool", self.normalize_y)
         for name in ("log_sf2_bounds", "log_sn2_bounds", "log_lengthscale_bounds"):
             _check_log_bounds(name, getattr(self, name))
+            low, high = getattr(self, name)
+            _require(
+                -100.0 <= low and high <= 100.0,
+                name,
+                "must lie within [-100, 100] (exp(100) ~ 2.7e43: wider bounds overflow the kernel)",
+                (low, high),
+            )
         if self.theta0 is not None:
             theta0 = self.theta0
             ok = (
@@ -1002,13 +1040,14 @@ class GPConfig:
             _require(ok, "theta0", "must be None or a tuple (sf2, sn2, l_1..l_d) of finite floats > 0", theta0)
             log_theta0 = [math.log(v) for v in theta0]
             names = ["sf2", "sn2"] + [f"l_{j + 1}" for j in range(len(theta0) - 2)]
-            bounds = [self.log_sf2_bounds, self.log_sn2_bounds] + [self.log_lengthscale_bounds] * (len(theta0) - 2)
-            for name, value, (low, high) in zip(names, log_theta0, bounds):
+            fields = ["log_sf2_bounds", "log_sn2_bounds"] + ["log_lengthscale_bounds"] * (len(theta0) - 2)
+            for name, entry, value, field_name in zip(names, theta0, log_theta0, fields):
+                low, high = getattr(self, field_name)
                 _require(
                     low <= value <= high,
                     "theta0",
-                    f"entry {name} = {math.exp(value):.3g} must lie within exp(bounds) "
-                    f"[{math.exp(low):.3g}, {math.exp(high):.3g}]",
+                    f"entry {name} = {entry!r} must lie within exp({field_name} = {(low, high)!r}) "
+                    f"= [{math.exp(low):.3g}, {math.exp(high):.3g}]",
                     theta0,
                 )
         else:
@@ -1020,9 +1059,9 @@ class GPConfig:
             ok = value is None or (
                 isinstance(value, tuple)
                 and len(value) >= 1
-                and all(_is_number(v) and math.isfinite(v) and v > 0 for v in value)
+                and all(_is_number(v) and math.isfinite(v) and 1e-6 <= v <= 1e6 for v in value)
             )
-            _require(ok, name, "must be None or a tuple of finite floats > 0", value)
+            _require(ok, name, "must be None or a tuple of floats >= 1e-6 and <= 1e6", value)
         _require(
             not (self.normalize_y and self.output_scale is not None),
             "output_scale",
@@ -1077,18 +1116,22 @@ class SlidingWindowGP:
         config = GPConfig() if config is None else config
         if not isinstance(config, GPConfig):
             raise ValueError(f"config must be a GPConfig; got {type(config).__name__}")
+        from hydroarm.config import field_error
+
         if config.theta0 is not None and len(config.theta0) != n_inputs + 2:
-            raise ValueError(
-                f"GPConfig.theta0 must have d+2 = {n_inputs + 2} entries for n_inputs = {n_inputs}; "
-                f"got {len(config.theta0)}"
+            raise field_error(
+                "theta0", config.theta0, f"{len(config.theta0)} values: give d+2 = {n_inputs + 2} for {n_inputs} inputs",
+                prefix="GPConfig.",
             )
         if config.input_scale is not None and len(config.input_scale) != n_inputs:
-            raise ValueError(
-                f"GPConfig.input_scale must have n_inputs = {n_inputs} entries; got {len(config.input_scale)}"
+            raise field_error(
+                "input_scale", config.input_scale, f"{len(config.input_scale)} values: give one per input ({n_inputs})",
+                prefix="GPConfig.",
             )
         if config.output_scale is not None and len(config.output_scale) not in (1, n_outputs):
-            raise ValueError(
-                f"GPConfig.output_scale must have 1 or n_outputs = {n_outputs} entries; got {len(config.output_scale)}"
+            raise field_error(
+                "output_scale", config.output_scale,
+                f"{len(config.output_scale)} values: give 1 or one per output ({n_outputs})", prefix="GPConfig.",
             )
         self.n_inputs = int(n_inputs)
         self.n_outputs = int(n_outputs)

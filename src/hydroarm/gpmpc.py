@@ -52,7 +52,7 @@ class GPMPCConfig(FrozenModel):
         "torque",
         description="where the estimate enters the MPC: the model's affine term (paper) or the input reference",
     )
-    torque_scale: float = pydantic.Field(100.0, gt=0.0, description="N m per feature unit for torque inputs")
+    torque_scale: float = pydantic.Field(100.0, ge=1e-3, le=1e6, description="N m per feature unit for torque inputs")
     min_samples: int = pydantic.Field(2, ge=1, le=10_000, description="window samples before feeding forward")
     variance_aware: bool = False
 
@@ -93,6 +93,23 @@ class GPMPC:
         self._last_u = np.zeros(self.n)
         self._nominal_now = None  # nominal prediction of the current state
         self._features_now = None
+        self._pending_events: list[str] = []  # faults met in observe, reported by the next compute
+        self._gp_counts = self._gp_fault_counts()
+
+    def _gp_fault_counts(self) -> dict[str, int]:
+        stats = self.gp.stats
+        return {
+            "gp_jittered": stats.n_jittered_factorizations,
+            "gp_cholesky_fallback": stats.n_cholesky_fallbacks,
+            "gp_prior_prediction": stats.n_prior_predictions,
+        }
+
+    def _collect_gp_events(self) -> None:
+        """Add one event per GP fault counted since the last call (``SlidingWindowGP.stats``)."""
+        counts = self._gp_fault_counts()
+        for name, value in counts.items():
+            self._pending_events.extend([name] * (value - self._gp_counts[name]))
+        self._gp_counts = counts
 
     # --- model pieces -----------------------------------------------------------------
     def _nominal_step(self, y: np.ndarray, u: np.ndarray) -> np.ndarray:
@@ -141,6 +158,9 @@ class GPMPC:
         if self.gp.n_samples >= self.config.min_samples:
             self.gp.update_hyperparameters()
             mean, var = self.gp.predict(features)
+            if not np.all(np.isfinite(mean)):  # cannot happen with finite data; guarded anyway
+                self._pending_events.append("gp_nonfinite_prediction")
+                mean = np.where(np.isfinite(mean), mean, 0.0)
             scaled = mean
             if self.config.variance_aware:
                 scaled = mean * mean**2 / (mean**2 + var + 1e-12)
@@ -151,7 +171,10 @@ class GPMPC:
             else:
                 feedforward = {"feedforward_torque": scaled}
         gp_time = time.perf_counter() - start
+        self._collect_gp_events()
         out = self.mpc.compute(t, y, reference, **(feedforward or {}))
+        out.events = (*self._pending_events, *out.events)
+        self._pending_events = []
         out.disturbance_mean = mean
         out.disturbance_var = var
         out.timings["gp"] = gp_time
@@ -167,5 +190,9 @@ class GPMPC:
         mass = np.triu(mass) + np.triu(mass, 1).T
         residual = mass @ (y_next[n:] - nominal[n:]) / self.control_period
         features = self._features_now if self._features_now is not None else self._features(y, u, None)
-        self.gp.add(features, residual)
         self._nominal_now = nominal
+        if not (np.all(np.isfinite(residual)) and np.all(np.isfinite(features))):
+            self._pending_events.append("gp_sample_rejected")  # e.g. a blown-up step: not learned
+            return
+        self.gp.add(features, residual)
+        self._collect_gp_events()

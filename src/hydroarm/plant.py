@@ -28,22 +28,29 @@ import pinocchio as pin
 import pydantic
 
 from hydroarm.arm import Arm
-from hydroarm.config import FrozenModel
+from hydroarm.config import ConfigError, FrozenModel
 from hydroarm.integrator import rk4_step
-from hydroarm.water import Water, WaterModel, rk4_stage_kernel
+from hydroarm.water import Water, WaterModel, added_mass_matrix, rk4_stage_kernel
+
+STIFFNESS_LIMIT = 2.5
+"""Bound on ``friction * inner_step / lambda_min(M + M_A)`` (classic RK4 is stable on the
+negative real axis up to 2.785; the smallest joint-space inertia is taken at q = 0)."""
 
 
 class PlantConfig(FrozenModel):
     """Integration and sensing of the true plant.
 
-    ``inner_step`` (s): the RK4 step (the control period is divided into equal
+    ``inner_step`` (s, in [1e-5, 0.1]): the RK4 step (the control period is divided into equal
     steps no longer than this); ``friction`` (N m s/rad): joint viscous friction,
-    0 = off (SPEC default); ``noise_variance`` (rad^2 and (rad/s)^2): variance of
+    0 = off (SPEC default); it must also be soft enough for explicit RK4 on the
+    arm (:class:`UnderwaterPlant` checks ``friction * inner_step`` against the
+    arm's smallest joint-space inertia: about 0.3 N m s/rad for the paper arm at
+    1 ms); ``noise_variance`` (rad^2 and (rad/s)^2): variance of
     the zero-mean Gaussian measurement noise on q and v (0.001 in the paper's
     Table 2).
     """
 
-    inner_step: float = pydantic.Field(1e-3, gt=0.0, le=0.1)
+    inner_step: float = pydantic.Field(1e-3, ge=1e-5, le=0.1)
     friction: float = pydantic.Field(0.0, ge=0.0, le=1e4)
     noise_variance: float = pydantic.Field(0.0, ge=0.0, le=10.0)
 
@@ -170,6 +177,26 @@ class UnderwaterPlant(_RK4Model):
         self.water_model = WaterModel(arm, self.water)
         self.inner_step = self.config.inner_step
         self.n = arm.n_joints
+        self._check_friction()
+
+    def _check_friction(self) -> None:
+        """Raise :class:`ConfigError` if the joint friction is too stiff for RK4 at ``inner_step``:
+        ``friction * inner_step / lambda_min(M(0) + M_A(0)) <= STIFFNESS_LIMIT``."""
+        friction = self.config.friction
+        if friction == 0.0:
+            return
+        q = pin.neutral(self.arm.model)
+        inertia = self.arm.mass_matrix(q)
+        if self.water.added_mass:
+            inertia = inertia + added_mass_matrix(self.arm, self.water, q)
+        smallest = float(np.linalg.eigvalsh(inertia)[0])
+        limit = STIFFNESS_LIMIT * smallest / self.inner_step
+        if friction > limit:
+            raise ConfigError(
+                f"plant.friction = {friction!r}: too stiff for RK4 with plant.inner_step = {self.inner_step!r} s "
+                f"on arm '{self.arm.name}': must be <= {limit:.3g} N m s/rad (smallest joint-space inertia "
+                f"{smallest:.3g} kg m^2), or use a smaller inner_step"
+            )
 
     def _dynamics(self, t: float, q: np.ndarray, v: np.ndarray, tau: np.ndarray):
         return self.water_model.dynamics(q, v, tau, t, self.config.friction)
@@ -182,7 +209,10 @@ class UnderwaterPlant(_RK4Model):
         three Pinocchio calls per stage (CRBA, NLE, Jacobians and their time
         variation) in one compiled call (:func:`hydroarm.water.rk4_stage_kernel`):
         ~2.5x faster than the reference, whose per-stage NumPy and closure calls
-        cost more than the water itself.
+        cost more than the water itself. A state that stops being finite (a
+        diverging run) gives an all-NaN ``x_next`` and disturbance instead of an
+        exception from the solve; :func:`hydroarm.simulate.run_closed_loop`
+        reports it as ``diverged``.
         """
         n = self.n
         steps = max(1, int(np.ceil(dt / self.inner_step - 1e-9)))
@@ -209,11 +239,18 @@ class UnderwaterPlant(_RK4Model):
                 nonlinear = pin.nonLinearEffects(model, data, q, v)
                 pin.computeJointJacobiansTimeVariation(model, data, q, v)
                 mass, jac, djac = live if live is not None else (data.M, data.J, data.dJ)
-                rk4_stage_kernel(
-                    stage, stage_time, h, state, stage_state, derivatives, disturbances, average, tau,
-                    friction, mass, nonlinear, jac, djac,
-                    wm.current_joint, wm.current_world, *constants, drag, added_mass, buoyancy,
-                )  # fmt: skip
+                try:
+                    rk4_stage_kernel(
+                        stage, stage_time, h, state, stage_state, derivatives, disturbances, average, tau,
+                        friction, mass, nonlinear, jac, djac,
+                        wm.current_joint, wm.current_world, *constants, drag, added_mass, buoyancy,
+                    )  # fmt: skip
+                except np.linalg.LinAlgError:  # the solve met an infinite force: diverged
+                    stage_state[:] = np.nan
+                    break
+            if not np.all(np.isfinite(stage_state)):  # diverged: NaN out, the caller reports it
+                nan = np.full(n, np.nan)
+                return np.full(2 * n, np.nan), StepInfo(disturbance=nan, disturbance_start=nan.copy())
             if start is None:
                 start = disturbances[0].copy()
             time += h

@@ -56,7 +56,8 @@ def render_report(metrics: dict, out: Path) -> str:
         f"{experiment['control_period'] * 1e3:g} ms; torque limit from the arm file.",
         f"- MPC: N = {experiment['mpc']['horizon']}, Q = diag({experiment['mpc']['q_position']:g} x 6, "
         f"{experiment['mpc']['q_velocity']:g} x 6), R = {experiment['mpc']['r']:g} I, terminal cost from the DARE, "
-        f"terminal set `{experiment['mpc']['terminal_set']}`, solver {experiment['mpc']['solver']}.",
+        f"terminal set `{experiment['mpc']['terminal_set']}`, solver {experiment['mpc']['solver']}, "
+        f"prediction model `{experiment['mpc'].get('discretisation', 'euler')}` (docs/deviations.md).",
         f"- GP: window {experiment['gp']['window']}, {experiment['gp']['hyper_steps']} hyperparameter step(s) per control step, "
         f"features `{experiment['gpmpc']['features']}`, estimate fed forward as `{experiment['gpmpc']['feedforward']}`.",
         f"- SMC: lambda = {experiment['smc']['surface_slope']}, k = {experiment['smc']['switching_gain']}, "
@@ -94,6 +95,14 @@ def render_report(metrics: dict, out: Path) -> str:
     for name in CONTROLLERS:
         lines.append(f"| {name} | {clean[name]['step_ms_median']:.3f} | {clean[name]['step_ms_p99']:.3f} |")
     lines += ["", "(Measured inside the closed loop on a shared machine; `hydroarm bench` measures it properly.)", ""]
+    lines += ["### Faults met during the runs (docs/reliability.md)", ""]
+    faults = [
+        f"- {case}, {name}: " + ", ".join(f"{key} x {count}" for key, count in sorted(block[name]["faults"].items()))
+        for case, block in (("no noise", clean), ("noise", noisy))
+        for name in CONTROLLERS
+        if block[name].get("faults")
+    ]
+    lines += (faults or ["None: no measurement held, no GP or QP fallback, no clipped torque, no stopped run."]) + [""]
     if (out / "ablation.md").exists():
         lines += ["## Ablation", "", (out / "ablation.md").read_text()]
     lines += ["## Figures", ""]

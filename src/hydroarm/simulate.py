@@ -3,8 +3,23 @@
 One control step k (period T): the plant's true state x_k is measured as
 y_k (seeded noise), the controller returns u_k, the plant integrates to
 x_{k+1} under u_k held constant, y_{k+1} is measured and the controller
-observes (y_k, u_k, y_{k+1}). A run that blows up (non-finite state or speed
-beyond ``divergence_speed``) stops cleanly and is marked diverged.
+observes (y_k, u_k, y_{k+1}).
+
+Faults are caught where they happen and counted, never hidden
+(:data:`hydroarm.control.FAULT_EVENTS`; ``Trajectory.meta["faults"]``):
+
+* a non-finite measurement is replaced by the last valid one (before any valid
+  one: the known initial state x0), event ``measurement_held``; a step whose
+  start or end measurement was held is not passed to ``observe`` (a learning
+  controller must not learn from it);
+* the controllers recover from their own faults (GP jitter, QP fallbacks) and
+  report them as ``ControlOutput.events``;
+* a controller that raises anyway, or returns a non-finite torque, stops the
+  run cleanly (``meta["stopped"] = "controller_error"``, the message in
+  ``meta["error"]``);
+* a plant that blows up (non-finite state or speed beyond
+  :data:`DIVERGENCE_SPEED`) stops the run cleanly (``meta["stopped"] =
+  "diverged"``).
 """
 
 from __future__ import annotations
@@ -17,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hydroarm.control import Controller, Reference
+from hydroarm.control import FAULT_EVENTS, Controller, Reference
 from hydroarm.plant import UnderwaterPlant
 
 DIVERGENCE_SPEED = 1e3  # rad/s: beyond this the run is declared diverged
@@ -33,7 +48,10 @@ class Trajectory:
     (N m); ``disturbance_estimate`` / ``disturbance_var`` (K, n) what the
     controller estimated (NaN if it has no estimator); ``timings`` per phase
     (K,) s; ``status`` (K,) solver/fallback status; ``terminal_violation``
-    (K,); ``meta``: settings and outcome (JSON-serialisable).
+    (K,); ``events`` (K,) the fault events of each step, comma-separated
+    ("" if none); ``meta``: settings and outcome (JSON-serialisable), with
+    ``faults`` (event -> count over the run), ``stopped`` (None,
+    ``"diverged"`` or ``"controller_error"``) and ``error``.
     """
 
     t: np.ndarray
@@ -47,6 +65,7 @@ class Trajectory:
     disturbance_var: np.ndarray
     terminal_violation: np.ndarray
     status: np.ndarray
+    events: np.ndarray
     timings: dict[str, np.ndarray] = field(default_factory=dict)
     meta: dict = field(default_factory=dict)
 
@@ -71,6 +90,7 @@ class Trajectory:
         path = Path(path)
         arrays = {f.name: getattr(self, f.name) for f in fields(self) if f.name not in ("timings", "meta")}
         arrays["status"] = np.asarray(self.status, dtype=str)
+        arrays["events"] = np.asarray(self.events, dtype=str)
         for key, value in self.timings.items():
             arrays[f"timing__{key}"] = value
         arrays["meta_json"] = np.asarray(json.dumps(self.meta))
@@ -103,13 +123,17 @@ def run_closed_loop(
 
     ``seed`` drives the measurement noise (the only random thing here);
     ``x0`` (2n,) defaults to rest at q = 0 (the paper's start); ``progress(k, K)``
-    is called after every step. Returns a :class:`Trajectory`.
+    is called after every step. Returns a :class:`Trajectory`; faults are
+    handled and counted as the module docstring says. No exception from the
+    controller or the plant's numbers escapes (bad arguments still raise).
     """
     n = plant.n
     period = controller.control_period
     steps = int(round(duration / period))
     rng = np.random.default_rng(seed)
     x = np.zeros(2 * n) if x0 is None else np.asarray(x0, dtype=float).copy()
+    if x.shape != (2 * n,) or not np.all(np.isfinite(x)):
+        raise ValueError(f"x0 must be finite with shape ({2 * n},); got {x}")
     rows = {
         name: np.full((steps, width), np.nan)
         for name, width in (
@@ -120,16 +144,37 @@ def run_closed_loop(
     t_grid = np.arange(steps) * period
     violation = np.zeros(steps)
     status = np.full(steps, "", dtype=object)
+    events = np.full(steps, "", dtype=object)
     timings: dict[str, np.ndarray] = {}
+    faults = dict.fromkeys(FAULT_EVENTS, 0)
     controller.reset()
-    y = plant.measure(x, rng)
-    diverged_at = None
+    last_valid = x.copy()  # before any valid measurement: the known initial state
+
+    def measure(state: np.ndarray) -> tuple[np.ndarray, bool]:
+        nonlocal last_valid
+        measured = plant.measure(state, rng)
+        if np.all(np.isfinite(measured)):
+            last_valid = measured
+            return measured, True
+        return last_valid.copy(), False
+
+    y, y_valid = measure(x)
+    step_events: list[str] = [] if y_valid else ["measurement_held"]
+    stopped, error, used, stop_time = None, None, steps, None
     for k in range(steps):
         t = t_grid[k]
         q_r, v_r, _ = reference.sample(t)
-        out = controller.compute(t, y, reference)
-        x_next, info = plant.step(t, x, out.tau, period)
-        rows["x"][k], rows["y"][k], rows["u"][k] = x, y, out.tau
+        try:
+            out = controller.compute(t, y, reference)
+            tau = np.asarray(out.tau, dtype=float)
+            if tau.shape != (n,) or not np.all(np.isfinite(tau)):
+                raise ValueError(f"{controller.name} returned a torque that is not finite with shape ({n},): {tau}")
+        except Exception as exc:  # noqa: BLE001 - the last guard: stop cleanly, record why
+            stopped, error, used, stop_time = "controller_error", f"{type(exc).__name__}: {exc}", k, float(t)
+            faults["controller_error"] += 1
+            break
+        x_next, info = plant.step(t, x, tau, period)
+        rows["x"][k], rows["y"][k], rows["u"][k] = x, y, tau
         rows["q_ref"][k], rows["v_ref"][k] = q_r, v_r
         rows["disturbance"][k] = info.disturbance
         if out.disturbance_mean is not None:
@@ -140,29 +185,47 @@ def run_closed_loop(
         status[k] = out.status
         for key, value in out.timings.items():
             timings.setdefault(key, np.full(steps, np.nan))[k] = value
+        step_events.extend(out.events)
         if not np.all(np.isfinite(x_next)) or np.max(np.abs(x_next[n:])) > DIVERGENCE_SPEED:
-            diverged_at = k
+            step_events.append("diverged")
+            stopped, used, stop_time = "diverged", k + 1, float(t)
+        for name in step_events:
+            faults[name] = faults.get(name, 0) + 1
+        events[k] = ",".join(step_events)
+        if stopped is not None:
             break
-        y_next = plant.measure(x_next, rng)
-        controller.observe(t, y, out.tau, y_next)
-        x, y = x_next, y_next
+        y_next, next_valid = measure(x_next)
+        step_events = [] if next_valid else ["measurement_held"]
+        if y_valid and next_valid:
+            try:
+                controller.observe(t, y, tau, y_next)
+            except Exception as exc:  # noqa: BLE001 - as in compute
+                stopped, error, used, stop_time = "controller_error", f"{type(exc).__name__}: {exc}", k + 1, float(t)
+                faults["controller_error"] += 1
+                events[k] = ",".join([*filter(None, [events[k]]), "controller_error"])
+                break
+        x, y, y_valid = x_next, y_next, next_valid
         if progress is not None:
             progress(k + 1, steps)
-    used = steps if diverged_at is None else diverged_at + 1
     meta = {
         "controller": controller.name,
         "seed": seed,
         "duration": duration,
         "control_period": period,
         "steps": used,
-        "diverged": diverged_at is not None,
-        "diverged_at_s": None if diverged_at is None else float(t_grid[diverged_at]),
+        "diverged": stopped == "diverged",
+        "diverged_at_s": stop_time if stopped == "diverged" else None,
+        "stopped": stopped,
+        "stopped_at_s": stop_time,
+        "error": error,
+        "faults": faults,
     }
     return Trajectory(
         t=t_grid[:used],
         **{name: value[:used] for name, value in rows.items()},
         terminal_violation=violation[:used],
         status=np.asarray(status[:used], dtype=str),
+        events=np.asarray(events[:used], dtype=str),
         timings={key: value[:used] for key, value in timings.items()},
         meta=meta,
     )

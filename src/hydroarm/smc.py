@@ -28,26 +28,25 @@ from hydroarm.arm import Arm
 from hydroarm.config import FrozenModel, per_joint
 from hydroarm.control import ControlOutput, Reference
 
-PositiveOrList = Annotated[float, pydantic.Field(gt=0.0)] | list[Annotated[float, pydantic.Field(gt=0.0)]]
+Gain = Annotated[float, pydantic.Field(gt=0.0, le=1e6)]
+GainOrList = Gain | list[Gain]
+NonNegativeGain = Annotated[float, pydantic.Field(ge=0.0, le=1e6)]
 
 
 class SMCConfig(FrozenModel):
-    """Sliding-mode gains (scalars or one per joint) and the control period (s)."""
+    """Sliding-mode gains (scalars or one per joint, each in (0, 1e6]; ``linear_gain`` from 0,
+    ``boundary_layer`` from 1e-6) and the control period (s, in [1e-4, 1])."""
 
-    control_period: float = pydantic.Field(0.01, gt=0.0, le=1.0)
-    surface_slope: PositiveOrList = pydantic.Field(40.0, description="lambda (1/s)")
-    switching_gain: PositiveOrList = pydantic.Field(50.0, description="k (rad/s^2)")
-    boundary_layer: PositiveOrList = pydantic.Field(2.0, description="phi (rad/s)")
-    linear_gain: float | list[float] = pydantic.Field(30.0, description="k_s (1/s), >= 0")
-    torque_limit: PositiveOrList | None = pydantic.Field(None, description="N m; None: the arm's")
-
-    @pydantic.field_validator("linear_gain")
-    @classmethod
-    def _non_negative(cls, value):
-        values = value if isinstance(value, list) else [value]
-        if any(v < 0.0 for v in values):
-            raise ValueError("must be >= 0")
-        return value
+    control_period: float = pydantic.Field(0.01, ge=1e-4, le=1.0)
+    surface_slope: GainOrList = pydantic.Field(40.0, description="lambda (1/s)")
+    switching_gain: GainOrList = pydantic.Field(50.0, description="k (rad/s^2)")
+    boundary_layer: Annotated[float, pydantic.Field(ge=1e-6, le=1e6)] | list[
+        Annotated[float, pydantic.Field(ge=1e-6, le=1e6)]
+    ] = pydantic.Field(2.0, description="phi (rad/s)")
+    linear_gain: NonNegativeGain | list[NonNegativeGain] = pydantic.Field(30.0, description="k_s (1/s), >= 0")
+    torque_limit: Annotated[float, pydantic.Field(gt=0.0)] | list[Annotated[float, pydantic.Field(gt=0.0)]] | None = (
+        pydantic.Field(None, description="N m; None: the arm's")
+    )
 
 
 class SlidingModeController:

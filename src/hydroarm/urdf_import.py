@@ -54,11 +54,13 @@ import pinocchio as pin
 import pydantic
 
 from hydroarm.arm import Arm, WettedCylinder
-from hydroarm.config import ConfigError, FrozenModel, read_mapping, validate
+from hydroarm.config import ConfigError, FrozenModel, field_error, read_mapping, shown, validate
 
-Vector3 = Annotated[list[float], pydantic.Field(min_length=3, max_length=3)]
-PositiveFloat = Annotated[float, pydantic.Field(gt=0.0)]
+Coordinate = Annotated[float, pydantic.Field(ge=-100.0, le=100.0)]
+Vector3 = Annotated[list[Coordinate], pydantic.Field(min_length=3, max_length=3)]
 Coefficient = Annotated[float, pydantic.Field(ge=0.0, le=10.0)]
+Volume = Annotated[float, pydantic.Field(ge=0.0, le=1e3)]
+TorqueLimit = Annotated[float, pydantic.Field(gt=0.0, le=1e7)]
 
 HYDRO_SUFFIXES = (".hydro.toml", ".hydro.yaml", ".hydro.yml")
 REVOLUTE_JOINTS = ("JointModelRX", "JointModelRY", "JointModelRZ", "JointModelRevoluteUnaligned")
@@ -70,18 +72,19 @@ class CylinderSpec(FrozenModel):
     Give ``start`` and ``end`` (m), or ``length`` (m), ``axis`` (a direction,
     normalised here) and ``offset`` (the centre, m; default the link origin).
     ``cd``/``cm`` override the link's coefficients; ``displaced_volume`` (m^3)
-    its share of the link's.
+    its share of the link's. Ranges: 0 < diameter <= 10 m, 1e-6 <= length <= 100 m,
+    coordinates within +-100 m, 0 <= displaced_volume <= 1000 m^3.
     """
 
-    diameter: PositiveFloat = pydantic.Field(description="m")
+    diameter: float = pydantic.Field(gt=0.0, le=10.0, description="m")
     start: Vector3 | None = None
     end: Vector3 | None = None
-    length: PositiveFloat | None = None
+    length: float | None = pydantic.Field(None, ge=1e-6, le=100.0, description="m")
     axis: Vector3 | None = None
     offset: Vector3 | None = None
     cd: Coefficient | None = None
     cm: Coefficient | None = None
-    displaced_volume: Annotated[float, pydantic.Field(ge=0.0)] | None = pydantic.Field(
+    displaced_volume: Volume | None = pydantic.Field(
         None, description="m^3; default: its share of the link's displaced_volume, or its own volume"
     )
 
@@ -90,17 +93,22 @@ class CylinderSpec(FrozenModel):
         ends = self.start is not None or self.end is not None
         polar = self.length is not None or self.axis is not None or self.offset is not None
         if ends and polar:
-            raise ValueError("give either start/end or length/axis/offset, not both")
+            name = "start" if self.start is not None else "end"
+            raise field_error(name, getattr(self, name), "give either start/end or length/axis/offset, not both")
         if ends:
             if self.start is None or self.end is None:
-                raise ValueError("start and end go together")
+                missing = "start" if self.start is None else "end"
+                raise field_error(missing, None, "start and end go together: give both (m)")
             if np.linalg.norm(np.subtract(self.end, self.start)) <= 1e-9:
-                raise ValueError("start and end coincide: the cylinder has no length")
+                raise field_error("end", self.end, "start and end coincide: the cylinder has no length")
         else:
             if self.length is None or self.axis is None:
-                raise ValueError("missing geometry: give start and end, or length and axis (and offset)")
+                missing = "length" if self.length is None else "axis"
+                raise field_error(
+                    missing, None, "missing geometry: give start and end, or length and axis (and offset)"
+                )
             if np.linalg.norm(self.axis) <= 1e-9:
-                raise ValueError("axis must be a non-zero direction")
+                raise field_error("axis", self.axis, "must be a non-zero direction")
         return self
 
     def endpoints(self) -> tuple[np.ndarray, np.ndarray]:
@@ -124,7 +132,7 @@ class LinkHydroSpec(FrozenModel):
     cylinders: list[CylinderSpec] = pydantic.Field(default_factory=list, max_length=64)
     cd: Coefficient | None = None
     cm: Coefficient | None = None
-    displaced_volume: Annotated[float, pydantic.Field(ge=0.0)] | None = pydantic.Field(
+    displaced_volume: Volume | None = pydantic.Field(
         None, description="m^3 for the whole link; default: the cylinders' volume"
     )
 
@@ -132,7 +140,9 @@ class LinkHydroSpec(FrozenModel):
     def _check(self) -> Self:
         if self.collision is False or self.collision == []:
             if not self.cylinders:
-                raise ValueError("no cylinders: set collision = true or give cylinders")
+                raise field_error(
+                    "collision", self.collision, "no cylinders: set collision = true or give cylinders"
+                )
         return self
 
 
@@ -143,18 +153,22 @@ class HydroSpec(FrozenModel):
     description: str = ""
     source: str = ""
     urdf: str | None = pydantic.Field(None, description="URDF path, relative to this file")
-    gravity: PositiveFloat = pydantic.Field(9.81, le=100.0, description="m/s^2 along -z of the root")
-    torque_limit: list[PositiveFloat] | PositiveFloat | None = None
-    fixed_joints: dict[str, float] = pydantic.Field(default_factory=dict)
+    gravity: float = pydantic.Field(9.81, gt=0.0, le=100.0, description="m/s^2 along -z of the root")
+    torque_limit: list[TorqueLimit] | TorqueLimit | None = pydantic.Field(
+        None, description="N m, one value or one per moving joint; default: the URDF efforts"
+    )
+    fixed_joints: dict[str, Annotated[float, pydantic.Field(ge=-100.0, le=100.0)]] = pydantic.Field(
+        default_factory=dict, description="joint name -> locked position (rad or m)"
+    )
     all_collision_cylinders: bool = False
     links: list[LinkHydroSpec] = pydantic.Field(default_factory=list, max_length=64)
 
     @pydantic.model_validator(mode="after")
     def _check(self) -> Self:
         names = [link.link for link in self.links]
-        repeated = sorted({name for name in names if names.count(name) > 1})
-        if repeated:
-            raise ValueError(f"links listed twice: {repeated}")
+        for index, name in enumerate(names):
+            if name in names[:index]:
+                raise field_error(f"links.{index}.link", name, f"listed twice (links.{names.index(name)} too)")
         return self
 
 
@@ -164,9 +178,12 @@ class HydroSpec(FrozenModel):
 def _floats(text: str | None, count: int, default: float = 0.0) -> np.ndarray:
     if text is None or not text.strip():
         return np.full(count, default)
-    values = np.asarray([float(x) for x in text.split()], dtype=float)
-    if values.shape != (count,):
-        raise ConfigError(f"URDF: expected {count} numbers, got '{text}'")
+    try:
+        values = np.asarray([float(x) for x in text.split()], dtype=float)
+    except ValueError:
+        values = np.zeros(0)
+    if values.shape != (count,) or not np.all(np.isfinite(values)):
+        raise ConfigError(f"URDF: expected {count} finite numbers, got {text!r}")
     return values
 
 
@@ -189,9 +206,8 @@ def urdf_collision_cylinders(root: ET.Element) -> dict[str, list[tuple[int, pin.
             if cylinder is None:
                 rows.append(None)
                 continue
-            rows.append(
-                (index, _origin(collision.find("origin")), float(cylinder.get("radius")), float(cylinder.get("length")))
-            )
+            radius, length = (_floats(cylinder.get(name), 1, math.nan)[0] for name in ("radius", "length"))
+            rows.append((index, _origin(collision.find("origin")), radius, length))
         out[link.get("name")] = rows
     return out
 
@@ -204,7 +220,9 @@ def _prepare_urdf(root: ET.Element, fixed: dict[str, float], source: str) -> tup
     joints = {joint.get("name"): joint for joint in root.findall("joint")}
     for name in fixed:
         if name not in joints:
-            raise ConfigError(f"{source}: fixed_joints.{name}: no joint '{name}' in the URDF")
+            raise ConfigError(
+                f"{source}: fixed_joints.{name}: no joint {name!r} in the URDF: give one of {', '.join(joints)}"
+            )
     continuous = set()
     for name, joint in joints.items():
         kind = joint.get("type")
@@ -299,7 +317,10 @@ def _torque_limit(model: pin.Model, hydro: HydroSpec, source: str) -> np.ndarray
         if limit.size == 1:
             limit = np.full(model.nv, limit[0])
         if limit.shape != (model.nv,):
-            raise ConfigError(f"{source}: torque_limit has {limit.size} values for {model.nv} joints")
+            raise ConfigError(
+                f"{source}: torque_limit has {limit.size} values for {model.nv} joints: "
+                f"{shown(hydro.torque_limit)}; give one value or a list of {model.nv}"
+            )
         return limit
     effort = np.asarray(model.effortLimit, dtype=float).copy()
     if np.any(~np.isfinite(effort)) or np.any(effort <= 0.0):
@@ -331,10 +352,10 @@ def _wetted_cylinders(model: pin.Model, hydro: HydroSpec, collisions: dict, sour
         where = f"{source}: links.{index}" if index is not None else f"{source}: link {spec.link}"
         if spec.link not in collisions:
             known = ", ".join(collisions)
-            raise ConfigError(f"{where}.link = '{spec.link}': no such link in the URDF (links: {known})")
+            raise ConfigError(f"{where}.link = {spec.link!r}: no such link in the URDF (links: {known})")
         frame = _link_frame(model, spec.link)
         if frame is None:
-            raise ConfigError(f"{where}.link = '{spec.link}': Pinocchio has no body frame for this link")
+            raise ConfigError(f"{where}.link = {spec.link!r}: Pinocchio has no body frame for this link")
         pieces = []  # (start, end, diameter, cd, cm, own displaced volume or None) in the link frame
         if spec.collision is not False:
             rows = collisions[spec.link]
@@ -350,6 +371,11 @@ def _wetted_cylinders(model: pin.Model, hydro: HydroSpec, collisions: dict, sour
                         f"({len(rows)} collision elements)"
                     )
                 _, origin, radius, length = rows[k]
+                if not (math.isfinite(radius) and math.isfinite(length) and radius > 0.0 and length > 1e-9):
+                    raise ConfigError(
+                        f"{where}.collision: <collision> {k} of link '{spec.link}' is a cylinder of radius "
+                        f"{radius!r} and length {length!r}: both must be finite and > 0"
+                    )
                 axis = origin.rotation[:, 2]
                 half = 0.5 * length * axis
                 pieces.append((origin.translation - half, origin.translation + half, 2.0 * radius, None, None, None))
@@ -418,7 +444,7 @@ def load_urdf_arm(source: str | Path, hydro: HydroSpec | dict | str | Path | Non
     """
     path = Path(source)
     if not path.is_file():
-        raise ConfigError(f"arm '{source}': no such file")
+        raise ConfigError(f"arm {str(source)!r}: no such file")
     name = path.name.lower()
     hydro_source = str(path)
     if name.endswith(HYDRO_SUFFIXES):
@@ -429,7 +455,7 @@ def load_urdf_arm(source: str | Path, hydro: HydroSpec | dict | str | Path | Non
             raise ConfigError(f"{source}: urdf: missing (the URDF this file describes, relative to it)")
         urdf_path = (path.parent / spec.urdf).resolve()
         if not urdf_path.is_file():
-            raise ConfigError(f"{source}: urdf = '{spec.urdf}': no such file ({urdf_path})")
+            raise ConfigError(f"{source}: urdf = {spec.urdf!r}: no such file ({urdf_path})")
     else:
         urdf_path = path
         if hydro is None:
