@@ -257,7 +257,7 @@ def test_sweep_file_dotted_keys_relative_arm_and_base_file(tmp_path):
 
 
 def test_examples_are_valid():
-    for name in ("sweep.toml", "sweep_random.toml"):
+    for name in ("sweep.toml", "sweep_random.toml", "stress.toml"):
         path = EXAMPLES / name
         plan = plan_sweep(load_sweep(path), path.parent, str(path))
         assert plan.rows

@@ -2,7 +2,8 @@
 
 ``ExperimentConfig`` is what a TOML file (``--config``) and ``--set key=value``
 overrides describe; :func:`run_experiment` builds the arm, the plant and the
-controller from it and runs the closed loop. The control period is set once
+controller from it and runs the closed loop from the task's start (moved by
+a seeded draw if ``initial_state`` asks for it). The control period is set once
 here and passed to every controller.
 """
 
@@ -28,22 +29,79 @@ from hydroarm.smc import SlidingModeController, SMCConfig
 from hydroarm.task import SinusoidReference, paper_reference
 from hydroarm.water import Water
 
+MAX_CONTROL_STEPS = 1_000_000
+"""Most control steps of one run (duration / control_period): every step's row is stored."""
+
 ControllerName = Literal["SMC", "MPC", "GP-MPC"]
 CONTROLLERS: tuple[str, ...] = ("SMC", "MPC", "GP-MPC")
 
+CONTROLLER_SECTIONS: tuple[str, ...] = ("smc", "mpc", "gp", "gpmpc")
+"""The sections of :class:`ExperimentConfig` that only controllers read."""
+
+CONTROLLER_SETTINGS: dict[str, tuple[str, ...]] = {
+    "SMC": ("smc",),
+    "MPC": ("mpc",),
+    "GP-MPC": ("mpc", "gp", "gpmpc"),
+}
+"""The controller sections each controller reads in :func:`build_controller` (keep the
+two in step): a sweep leaves the other sections out of a run's id, so sweeping
+``mpc.r`` runs SMC once."""
+
+
+class InitialState(FrozenModel):
+    """Where a run starts: the task's start x0 (:func:`task_for_arm`) plus a seeded uniform draw.
+
+    Joint i starts at ``q0_i + U(-position_spread, position_spread)`` (rad) and
+    ``v0_i + U(-velocity_spread, velocity_spread)`` (rad/s), drawn from
+    ``numpy.random.default_rng(seed)`` (the n positions, then the n velocities).
+    With both spreads 0 (the default) the start is x0 exactly and nothing is
+    drawn. The draw is not clipped to joint limits. ``seed`` is independent of
+    the measurement-noise seed of the run.
+    """
+
+    position_spread: float = pydantic.Field(0.0, ge=0.0, le=10.0, description="rad")
+    velocity_spread: float = pydantic.Field(0.0, ge=0.0, le=100.0, description="rad/s")
+    seed: int = pydantic.Field(0, ge=0, le=2**63 - 1)
+
+    def apply(self, x0: np.ndarray) -> np.ndarray:
+        """The start state (2n,) from the task's start ``x0`` (2n,) = [q0, v0]."""
+        x0 = np.asarray(x0, dtype=float)
+        if self.position_spread == 0.0 and self.velocity_spread == 0.0:
+            return x0.copy()
+        n = x0.shape[0] // 2
+        rng = np.random.default_rng(self.seed)
+        dq = rng.uniform(-self.position_spread, self.position_spread, n)
+        dv = rng.uniform(-self.velocity_spread, self.velocity_spread, n)
+        return x0 + np.concatenate([dq, dv])
+
 
 class ExperimentConfig(FrozenModel):
-    """Everything that defines one closed-loop run (SPEC defaults)."""
+    """Everything that defines one closed-loop run (SPEC defaults).
+
+    ``initial_state``: a seeded random start around the task's start (default:
+    the task's start exactly, see :class:`InitialState`).
+    """
 
     arm: str = "paper"
     duration: float = pydantic.Field(10.0, gt=0.0, le=3600.0, description="s")
-    control_period: float = pydantic.Field(0.01, gt=0.0, le=1.0, description="T (s), for every controller")
+    control_period: float = pydantic.Field(0.01, ge=1e-4, le=1.0, description="T (s), for every controller")
     water: Water = Water()
     plant: PlantConfig = PlantConfig()
     smc: SMCConfig = SMCConfig()
     mpc: MPCConfig = MPCConfig()
     gp: GPConfig = GPConfig()
     gpmpc: GPMPCConfig = GPMPCConfig()
+    initial_state: InitialState = InitialState()
+
+    @pydantic.model_validator(mode="after")
+    def _bounded_step_count(self) -> ExperimentConfig:
+        steps = self.duration / self.control_period
+        if steps > MAX_CONTROL_STEPS:
+            raise ValueError(
+                f"control_period = {self.control_period!r}: duration / control_period = {steps:.3g} control steps; "
+                f"at most {MAX_CONTROL_STEPS:.0e} (the runner stores every step)"
+            )
+        return self
 
     def digest(self) -> str:
         """A short hash of the settings (to tell a finished run of these settings from others)."""
@@ -107,6 +165,13 @@ def task_for_arm(arm: Arm) -> tuple[SinusoidReference, np.ndarray]:
     return base.scaled(scale, offset=middle), np.concatenate([middle, np.zeros(n)])
 
 
+def start_for_arm(arm: Arm, config: ExperimentConfig) -> tuple[SinusoidReference, np.ndarray]:
+    """The reference and the start state (2n,) of a run of ``config`` on ``arm``:
+    :func:`task_for_arm`'s, moved by ``config.initial_state`` (:class:`InitialState`)."""
+    reference, x0 = task_for_arm(arm)
+    return reference, config.initial_state.apply(x0)
+
+
 def run_experiment(
     config: ExperimentConfig,
     controller: str,
@@ -114,14 +179,15 @@ def run_experiment(
     progress: Callable[[int, int], None] | None = None,
 ) -> Trajectory:
     """Run ``controller`` on the true plant of ``config`` along the paper task
-    (scaled to the arm's joint limits for other arms: :func:`task_for_arm`).
+    (scaled to the arm's joint limits for other arms: :func:`task_for_arm`),
+    from the start of :func:`start_for_arm`.
 
     ``seed`` drives the measurement noise; the trajectory's ``meta`` records the
     settings and their digest.
     """
     arm = load_arm(config.arm)
     plant = UnderwaterPlant(arm, config.water, config.plant)
-    reference, x0 = task_for_arm(arm)
+    reference, x0 = start_for_arm(arm, config)
     controller_object = build_controller(controller, arm, config)
     traj = run_closed_loop(plant, controller_object, reference, config.duration, seed, x0=x0, progress=progress)
     traj.meta["settings"] = config.model_dump(mode="json")

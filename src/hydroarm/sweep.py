@@ -33,7 +33,14 @@ into its output folder:
   atomically after each finished run (an interrupted sweep leaves a readable
   table);
 * ``summary.md``, ``summary.json``, ``ep_boxplot.png``, ``ep_by_<key>.png``,
-  ``ep_distribution.png``: written by :func:`summarise` at the end.
+  ``ep_distribution.png``, ``robustness.png``: written by :func:`summarise` at
+  the end, with a robustness table (per controller: runs within a tracking
+  bound, ``[robustness]`` in the sweep file, runs that stopped, fault counts).
+
+Random starts: ``initial_state.position_spread`` / ``velocity_spread`` in
+``[base]`` and ``"initial_state.seed" = {low = 0, high = 1000000, integer =
+true}`` in ``[parameters]`` give every sample its own start
+(:class:`~hydroarm.experiments.InitialState`).
 
 Model mismatch. The controllers know the arm file (the nominal model); the
 true plant is that arm plus the water. ``water.*`` and ``plant.*`` settings
@@ -62,13 +69,14 @@ import json
 import math
 import multiprocessing
 import os
+import signal
 import tempfile
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal, Protocol, Self
+from typing import Annotated, Any, Literal, Protocol, Self
 
 import numpy as np
 import pinocchio as pin
@@ -76,24 +84,28 @@ import pydantic
 
 from hydroarm.arm import BUILTIN_ARMS, Arm, load_arm
 from hydroarm.config import ConfigError, FrozenModel, read_mapping, validate
-from hydroarm.experiments import CONTROLLERS, ExperimentConfig, build_controller, task_for_arm, with_overrides
+from hydroarm.experiments import (
+    CONTROLLER_SECTIONS,
+    CONTROLLER_SETTINGS,
+    CONTROLLERS,
+    ExperimentConfig,
+    build_controller,
+    start_for_arm,
+    with_overrides,
+)
 
-FORMAT = 1
-"""Version of the run-file layout; a run file of another format is recomputed."""
+FORMAT = 2
+"""Version of the run-file layout; a run file of another format is recomputed.
+2: fault counts, ``stopped`` and the error envelope."""
 
 MAX_RUNS = 100_000
 MISMATCH_PREFIX = "mismatch."
+FAULT_PREFIX = "faults."
+"""Results-table columns of the fault counts: ``faults.<key>``, one per key that occurred."""
 
-CONTROLLER_SETTINGS: dict[str, tuple[str, ...]] = {
-    "SMC": ("smc",),
-    "MPC": ("mpc",),
-    "GP-MPC": ("mpc", "gp", "gpmpc"),
-}
-"""The controller sections of :class:`ExperimentConfig` each controller reads
-(:func:`hydroarm.experiments.build_controller`); the other controllers'
-sections are left out of a run's id, so sweeping ``mpc.r`` runs SMC once."""
-
-CONTROLLER_SECTIONS = ("smc", "mpc", "gp", "gpmpc")
+ENVELOPE_WINDOW = 0.1
+"""s: a run file keeps the largest |q_r - q| over joints per window of this length (at
+least one control step), so the robustness bound can be checked from any time on."""
 
 
 # --- the sweep file -----------------------------------------------------------------
@@ -116,6 +128,21 @@ class Mismatch(FrozenModel):
         return self.mass_scale == 1.0 and self.payload_kg == 0.0
 
 
+class Robustness(FrozenModel):
+    """The tracking bound of the summary's robustness table.
+
+    A run stays within the bound if it ran to the end (not diverged, not stopped
+    by the runner) and from ``after`` s on |q_r - q| < ``max_error`` rad on every
+    joint at every control step (true q). It is checked on the run's error
+    envelope (the largest error over joints per :data:`ENVELOPE_WINDOW` s), so
+    ``after`` is rounded up to a window start. A run that ends before ``after``
+    is never within the bound.
+    """
+
+    max_error: float = pydantic.Field(0.5, gt=0.0, le=100.0, description="rad")
+    after: float = pydantic.Field(2.0, ge=0.0, le=3600.0, description="s")
+
+
 class Range(FrozenModel):
     """A range of values: ``num`` evenly spaced points (grid) or uniform draws (random).
 
@@ -132,7 +159,7 @@ class Range(FrozenModel):
     @pydantic.model_validator(mode="after")
     def _check(self) -> Self:
         if self.high < self.low:
-            raise ValueError(f"high ({self.high}) < low ({self.low})")
+            raise ValueError(f"high ({self.high}) < low ({self.low}): high must be at least low")
         if self.log and self.low <= 0.0:
             raise ValueError(f"log = true needs low > 0 (low = {self.low})")
         return self
@@ -175,13 +202,18 @@ class SweepConfig(FrozenModel):
     mismatch of every run; ``parameters``: dotted key -> list of values or
     :class:`Range`; ``save_trajectories``: also keep ``runs/<id>.npz``;
     ``metric``: the column the summary and the plots compare (default the mean
-    E_p over joints; ``Ep_steady_mean`` leaves out the first 2 s).
+    E_p over joints; ``Ep_steady_mean`` leaves out the first 2 s);
+    ``robustness``: the tracking bound of the summary's robustness table
+    (:class:`Robustness`; an analysis setting: changing it recomputes no run).
     """
 
     name: str = pydantic.Field("sweep", min_length=1, max_length=200)
     description: str = ""
     controllers: list[Literal["SMC", "MPC", "GP-MPC"]] = pydantic.Field(min_length=1)
-    seeds: pydantic.PositiveInt | list[pydantic.NonNegativeInt] = 1
+    seeds: (
+        Annotated[int, pydantic.Field(ge=1, le=MAX_RUNS)]
+        | Annotated[list[pydantic.NonNegativeInt], pydantic.Field(min_length=1, max_length=MAX_RUNS)]
+    ) = 1
     mode: Literal["grid", "random"] = "grid"
     samples: int | None = pydantic.Field(None, ge=1, le=MAX_RUNS)
     sampling_seed: int = pydantic.Field(0, ge=0)
@@ -192,6 +224,7 @@ class SweepConfig(FrozenModel):
     metric: Literal[
         "Ep_mean", "Ep_steady_mean", "rms_mean", "max_error", "torque_rms_mean", "time_to_band_max", "step_ms_median"
     ] = "Ep_mean"
+    robustness: Robustness = Robustness()
 
     @pydantic.field_validator("controllers", mode="before")
     @classmethod
@@ -231,7 +264,10 @@ def validate_sweep(data: Mapping[str, Any], source: str = "sweep", folder: Path 
     """
     data = dict(data)
     if isinstance(data.get("base"), str):
-        data["base"] = read_mapping(_resolve(data["base"], folder))
+        try:
+            data["base"] = read_mapping(_resolve(data["base"], folder))
+        except ConfigError as error:
+            raise ConfigError(f"{source}: base = {data['base']!r}: {error}") from None
     parameters = data.get("parameters", {})
     if isinstance(parameters, Mapping):
         parameters = flatten_parameters(parameters)
@@ -247,16 +283,21 @@ def validate_sweep(data: Mapping[str, Any], source: str = "sweep", folder: Path 
                 try:
                     Range.model_validate(value)
                 except pydantic.ValidationError as error:
-                    problems = [
-                        (".".join(map(str, e["loc"])) + ": " if e["loc"] else "")
-                        + e["msg"].removeprefix("Value error, ")
-                        for e in error.errors()
-                    ]
-                    raise ConfigError(f"{source}: parameters.{key}: " + "; ".join(problems)) from None
+                    problems = "; ".join(_range_problem(e) for e in error.errors())
+                    raise ConfigError(f"{source}: parameters.{key}: {problems}") from None
         data["parameters"] = parameters
     config = validate(SweepConfig, data, source)
     check_sweep(config, source)
     return config
+
+
+def _range_problem(error: Mapping[str, Any]) -> str:
+    """One pydantic error of a :class:`Range` as ``field = value: what is allowed``."""
+    where = ".".join(map(str, error["loc"]))
+    if error["type"] == "extra_forbidden":
+        return f"unknown key '{where}' (a range has low, high, num, log, integer)"
+    message = error["msg"].removeprefix("Value error, ")
+    return f"{where} = {error.get('input')!r}: {message}" if where else message
 
 
 def check_sweep(config: SweepConfig, source: str = "sweep") -> None:
@@ -419,7 +460,10 @@ def plan_sweep(config: SweepConfig, folder: Path | None = None, source: str = "s
     points = sample_points(config)
     size = len(points) * len(config.seed_list) * len(config.controllers)
     if size > MAX_RUNS:
-        raise ConfigError(f"{source}: the sweep has {size} runs; at most {MAX_RUNS}")
+        raise ConfigError(
+            f"{source}: the sweep has {size} runs ({len(points)} parameter points x "
+            f"{len(config.seed_list)} seeds x {len(config.controllers)} controllers); at most {MAX_RUNS}"
+        )
     keys = list(config.parameters)
     arms: dict[str, Arm] = {}
     arm_keys: dict[str, str] = {}  # resolved arm source -> digest
@@ -526,8 +570,63 @@ def _finite(value: Any) -> Any:
     return value
 
 
+def _faults(traj) -> dict[str, int]:
+    """The runner's fault counts (``traj.meta["faults"]``: key -> events over the run); {}
+    from a runner that does not count them."""
+    faults = traj.meta.get("faults") or {}
+    return {str(key): int(value) for key, value in faults.items()}
+
+
+def _stopped(traj) -> str | None:
+    """Why the run ended early (``traj.meta["stopped"]``: "diverged", "controller_error", ...)
+    or None if it ran to the end."""
+    stopped = traj.meta.get("stopped")
+    if stopped is None and traj.diverged:
+        return "diverged"
+    return None if stopped is None else str(stopped)
+
+
+def error_envelope(traj, window: float = ENVELOPE_WINDOW) -> dict:
+    """The largest |q_r - q| over joints per window: ``{"window_s": w, "max_abs_error": [...]}``
+    (rad), window i covering t in [i w, (i + 1) w); w is ``window`` rounded to whole control
+    steps (at least one)."""
+    period = float(traj.meta["control_period"])
+    steps = max(1, int(round(window / period)))
+    error = np.max(np.abs(traj.q_ref - traj.q), axis=1)  # (K,)
+    peaks = [float(np.max(error[k : k + steps])) for k in range(0, len(error), steps)]
+    return {"window_s": steps * period, "max_abs_error": peaks}
+
+
+def steady_max_error(envelope: Mapping[str, Any] | None, after: float) -> float:
+    """The largest |q_r - q| (rad) from ``after`` s on (windows starting at or after it), from
+    :func:`error_envelope`'s dict; inf if an error there was not finite, NaN if no window
+    starts that late."""
+    if not envelope:
+        return math.nan
+    window = float(envelope["window_s"])
+    values = [
+        v if v is not None and math.isfinite(v) else math.inf
+        for i, v in enumerate(envelope["max_abs_error"])
+        if i * window >= after - 1e-9 * max(1.0, after)
+    ]
+    return float(max(values)) if values else math.nan
+
+
+def assess(record: Mapping[str, Any], robustness: Robustness) -> dict:
+    """A run file against the tracking bound: ``stopped`` (None if it ran to the end),
+    ``steady_max_error`` (rad, NaN if it ended before ``robustness.after``) and ``within_bound``."""
+    summary = record["summary"]
+    stopped = summary.get("stopped")
+    if stopped is None and summary.get("diverged"):
+        stopped = "diverged"
+    error = steady_max_error(record.get("envelope"), robustness.after)
+    within = stopped is None and math.isfinite(error) and error < robustness.max_error
+    return {"stopped": stopped, "steady_max_error": error, "within_bound": bool(within)}
+
+
 def _scalars(metrics: dict, traj) -> dict:
-    """One number per metric: means over joints (max for the error and the settling time)."""
+    """One number per metric: means over joints (max for the error and the settling time),
+    plus how the run ended and its fault count."""
     ttb = metrics["time_to_band"]
     total = traj.timings.get("total")
     return {
@@ -539,6 +638,8 @@ def _scalars(metrics: dict, traj) -> dict:
         "time_to_band_max": float(np.max(ttb)) if all(math.isfinite(x) for x in ttb) else math.nan,
         "diverged": bool(metrics["diverged"]),
         "diverged_at_s": traj.meta.get("diverged_at_s"),
+        "stopped": _stopped(traj),
+        "faults_total": sum(_faults(traj).values()),
         "step_ms_median": float(np.nanmedian(total) * 1e3)
         if total is not None and np.isfinite(total).any()
         else math.nan,
@@ -546,7 +647,8 @@ def _scalars(metrics: dict, traj) -> dict:
 
 
 def execute_run(task: RunTask, arm: Arm | None = None) -> dict:
-    """Run one task: the plant gets the perturbed arm, the controller the nominal one.
+    """Run one task: the plant gets the perturbed arm, the controller the nominal one; the
+    run starts at :func:`~hydroarm.experiments.start_for_arm`'s state.
 
     Returns ``{"record": <the run file's content>, "trajectory": <.npz bytes or None>}``;
     the driver writes both (so workers need no shared disk, e.g. on a Ray cluster).
@@ -561,7 +663,7 @@ def execute_run(task: RunTask, arm: Arm | None = None) -> dict:
     config = ExperimentConfig.model_validate(task.settings)
     mismatch = Mismatch.model_validate(task.mismatch)
     plant = UnderwaterPlant(perturbed_arm(arm, mismatch), config.water, config.plant)
-    reference, x0 = task_for_arm(arm)
+    reference, x0 = start_for_arm(arm, config)
     controller = build_controller(task.controller, arm, config)
     traj: Trajectory = run_closed_loop(plant, controller, reference, config.duration, task.seed, x0=x0)
     metrics = tracking_metrics(traj)
@@ -575,6 +677,9 @@ def execute_run(task: RunTask, arm: Arm | None = None) -> dict:
         "mismatch": task.mismatch,
         "metrics": metrics,
         "summary": _scalars(metrics, traj),
+        "faults": _faults(traj),
+        "error": traj.meta.get("error"),  # why the runner stopped it (a controller error), or None
+        "envelope": error_envelope(traj),
         "n_joints": arm.n_joints,
         "wall_s": time.perf_counter() - start,
         "hydroarm": __version__,
@@ -593,7 +698,12 @@ _WORKER_ARMS: dict[str, Arm] = {}
 
 
 def _init_worker(arms: dict[str, Arm]) -> None:
-    """Process-pool initializer: the arms arrive once per worker, not once per task."""
+    """Process-pool initializer: the arms arrive once per worker, not once per task.
+
+    Workers ignore SIGINT: Ctrl-C reaches the whole process group, and only the main
+    process handles it (cancels what has not started, lets running runs finish and
+    save), so no worker dies mid-write or prints a traceback."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     _WORKER_ARMS.clear()
     _WORKER_ARMS.update(arms)
 
@@ -757,8 +867,12 @@ def _flat(data: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
 
 SUMMARY_COLUMNS = (
     "Ep_mean", "Ep_steady_mean", "rms_mean", "max_error", "torque_rms_mean", "time_to_band_max",
-    "diverged", "diverged_at_s", "step_ms_median",
+    "diverged", "diverged_at_s", "stopped", "faults_total", "step_ms_median",
 )  # fmt: skip
+
+BOUND_COLUMNS = ("steady_max_error", "within_bound")
+"""The run against the sweep's tracking bound (:func:`assess`): recomputed from the run
+file whenever the table is written, so a changed ``[robustness]`` recomputes no run."""
 
 
 PER_JOINT = ("Ep", "Ep_steady", "rms", "max", "torque_rms", "time_to_band")
@@ -773,21 +887,34 @@ def _cell(value: Any) -> Any:
     return value
 
 
-def table_columns(plan_keys: list[str], settings_keys: list[str], joints: int) -> list[str]:
-    """``id, controller, seed, point, <swept keys>, <metrics>, Ep_1.., <every other setting>``."""
+def table_columns(
+    plan_keys: list[str], settings_keys: list[str], joints: int, fault_keys: Sequence[str] = ()
+) -> list[str]:
+    """``id, controller, seed, point, <swept keys>, <metrics>, <bound>, wall_s, faults.<key>..,
+    Ep_1.., <every other setting>``."""
     per_joint = [f"{name}_{j + 1}" for name in PER_JOINT for j in range(joints)]
     rest = [k for k in settings_keys if k not in plan_keys]
-    return ["id", "controller", "seed", "point", *plan_keys, *SUMMARY_COLUMNS, "wall_s", *per_joint, *rest]
+    faults = [f"{FAULT_PREFIX}{key}" for key in fault_keys]
+    return [
+        "id", "controller", "seed", "point", *plan_keys, *SUMMARY_COLUMNS, *BOUND_COLUMNS, "wall_s",
+        *faults, *per_joint, *rest,
+    ]  # fmt: skip
 
 
-def table_row(row: PlanRow, record: Mapping[str, Any], settings: Mapping[str, Any]) -> dict[str, Any]:
-    """One CSV row: the row's settings (as written in the sweep) and the run's metrics."""
+def table_row(
+    row: PlanRow, record: Mapping[str, Any], settings: Mapping[str, Any], robustness: Robustness = Robustness()
+) -> dict[str, Any]:
+    """One CSV row: the row's settings (as written in the sweep), the run's metrics, the run
+    against the tracking bound and its fault counts (``faults.<key>``)."""
     out: dict[str, Any] = {"id": row.id, "controller": row.controller, "seed": row.seed, "point": row.point}
     out.update(settings)
     out.update({key: _cell(value) for key, value in row.params.items()})
     summary = record["summary"]
     out.update({key: _cell(summary.get(key)) for key in SUMMARY_COLUMNS})
+    verdict = assess(record, robustness)
+    out.update({key: _cell(_finite(verdict[key])) for key in BOUND_COLUMNS})
     out["wall_s"] = record.get("wall_s", "")
+    out.update({f"{FAULT_PREFIX}{key}": value for key, value in (record.get("faults") or {}).items()})
     for key in PER_JOINT:
         for j, value in enumerate(record["metrics"].get(key, [])):
             out[f"{key}_{j + 1}"] = _cell(value)
@@ -805,24 +932,30 @@ class ResultsTable:
 
     def __init__(self, plan: Plan, path: Path):
         self.plan, self.path = plan, path
-        joints = max(arm.n_joints for arm in plan.arms.values())
-        settings_keys = list(_row_settings(plan.rows[0])) if plan.rows else []
-        self.columns = table_columns(plan.keys, settings_keys, joints)
+        self.joints = max(arm.n_joints for arm in plan.arms.values())
+        self.settings_keys = list(_row_settings(plan.rows[0])) if plan.rows else []
         self.rows: dict[int, dict] = {}
+        self.fault_keys: set[str] = set()  # a column per fault that occurred (count > 0) in a finished run
         self.by_id: dict[str, list[PlanRow]] = {}
         for row in plan.rows:
             self.by_id.setdefault(row.id, []).append(row)
 
     def add(self, record: Mapping[str, Any]) -> None:
         for row in self.by_id.get(record["id"], []):
-            self.rows[row.index] = table_row(row, record, _row_settings(row))
+            self.rows[row.index] = table_row(row, record, _row_settings(row), self.plan.config.robustness)
+            self.fault_keys.update(key for key, count in (record.get("faults") or {}).items() if count > 0)
+
+    @property
+    def columns(self) -> list[str]:
+        return table_columns(self.plan.keys, self.settings_keys, self.joints, sorted(self.fault_keys))
 
     def write(self) -> None:
+        zeros = {f"{FAULT_PREFIX}{key}": 0 for key in self.fault_keys}
         buffer = io.StringIO()
         writer = csv.DictWriter(buffer, fieldnames=self.columns, extrasaction="ignore", lineterminator="\n")
         writer.writeheader()
         for index in sorted(self.rows):
-            writer.writerow(self.rows[index])
+            writer.writerow({**zeros, **self.rows[index]})
         _atomic_write(self.path, buffer.getvalue())
 
 
@@ -984,6 +1117,54 @@ METRICS = {
 """The columns a summary can compare (``metric`` in the sweep file): label, unit."""
 
 
+def robustness_table(rows: list[dict], controllers: list[str], robustness: Robustness) -> dict:
+    """Per controller, the runs against the tracking bound (:class:`Robustness`) and the faults.
+
+    ``rows``: plan rows with their run file (``record``, None if not finished).
+    Per controller: ``rows`` = ``within`` + ``outside`` (ran to the end, error
+    not within the bound) + ``stopped`` (ended early; ``stopped_by`` counts the
+    reasons: diverged, controller_error, ...) + ``unfinished`` (failed or not
+    run yet); ``short``: runs (among ``outside``) that ended before ``after``;
+    ``steady_max_error`` (rad, the largest |q_r - q| from ``after`` on) and
+    ``Ep_steady`` (rad^2, mean over joints of E_p after 2 s): mean, median, p90,
+    min, max over the runs that ran to the end; ``runs_with_faults`` and
+    ``faults``: key -> {"runs": runs with that fault, "events": total count}.
+    """
+    table: dict[str, dict] = {}
+    for name in controllers:
+        mine = [r for r in rows if r["controller"] == name]
+        done = [r["record"] for r in mine if r["record"] is not None]
+        verdicts = [assess(record, robustness) for record in done]
+        ran = [(record, v) for record, v in zip(done, verdicts) if v["stopped"] is None]
+        within = sum(v["within_bound"] for v in verdicts)
+        stopped_by: dict[str, int] = {}
+        for v in verdicts:
+            if v["stopped"] is not None:
+                stopped_by[v["stopped"]] = stopped_by.get(v["stopped"], 0) + 1
+        faults: dict[str, dict[str, int]] = {}
+        for record in done:
+            for key, count in (record.get("faults") or {}).items():
+                if count > 0:
+                    entry = faults.setdefault(key, {"runs": 0, "events": 0})
+                    entry["runs"] += 1
+                    entry["events"] += int(count)
+        table[name] = {
+            "rows": len(mine),
+            "finished": len(done),
+            "within": within,
+            "outside": len(ran) - within,
+            "stopped": sum(stopped_by.values()),
+            "stopped_by": dict(sorted(stopped_by.items())),
+            "unfinished": len(mine) - len(done),
+            "short": sum(math.isnan(v["steady_max_error"]) for _, v in ran),
+            "steady_max_error": _stats([v["steady_max_error"] for _, v in ran]),
+            "Ep_steady": _stats([record["summary"].get("Ep_steady_mean") for record, _ in ran]),
+            "runs_with_faults": sum(bool(any(c > 0 for c in (r.get("faults") or {}).values())) for r in done),
+            "faults": dict(sorted(faults.items())),
+        }
+    return {"bound": robustness.model_dump(), "controllers": table}
+
+
 def summarise(out_dir: str | Path, metric: str | None = None) -> dict:
     """Write ``summary.md``, ``summary.json`` and the plots of a sweep folder; return the summary.
 
@@ -991,7 +1172,9 @@ def summarise(out_dir: str | Path, metric: str | None = None) -> dict:
     the mean E_p over joints). Per controller: rows, finished, diverged runs and
     mean/median/p90/min/max of the metric; per swept parameter with at most
     ``MAX_GROUPS`` values that are not drawn from a range: the same per value
-    and controller (the others are plotted as a scatter).
+    and controller (the others are plotted as a scatter); ``robustness``: the
+    runs against the sweep's tracking bound and the fault counts per controller
+    (:func:`robustness_table`).
     """
     out = Path(out_dir)
     plan, rows = _load_rows(out)
@@ -999,6 +1182,7 @@ def summarise(out_dir: str | Path, metric: str | None = None) -> dict:
     if metric not in METRICS:
         raise ConfigError(f"metric '{metric}': must be one of {', '.join(METRICS)}")
     controllers = plan["sweep"]["controllers"]
+    robustness = validate(Robustness, plan["sweep"].get("robustness", {}), f"{out}/sweep.json: robustness")
     finished = [r for r in rows if r["record"] is not None]
 
     def group(selected: list[dict]) -> dict:
@@ -1043,10 +1227,17 @@ def summarise(out_dir: str | Path, metric: str | None = None) -> dict:
         "parameters": plan["parameters"],
         "varying": varying,
         "by_parameter": by_parameter,
+        "robustness": robustness_table(rows, controllers, robustness),
     }
     failed_path = out / "failed.json"
     summary["failed_runs"] = json.loads(failed_path.read_text()) if failed_path.is_file() else []
     summary["plots"] = _plots(out, controllers, finished, varying, continuous, metric)
+    plot = _robustness_plot(out, controllers, finished, robustness)
+    if plot:
+        summary["plots"]["robustness"] = plot
+    plot = _robustness_by_parameter_plot(out, controllers, finished, varying, robustness)
+    if plot:
+        summary["plots"]["robustness_by_parameter"] = plot
     _atomic_write(out / "summary.json", json.dumps(_finite(summary), indent=1))
     _atomic_write(out / "summary.md", _markdown(summary, plan))
     return summary
@@ -1084,6 +1275,9 @@ def _markdown(summary: dict, plan: dict) -> str:
     for name in ("ep_boxplot", "ep_distribution"):
         if name in summary["plots"]:
             lines += [f"![{name}]({summary['plots'][name]})", ""]
+    lines += _robustness_markdown(
+        summary["robustness"], summary["plots"].get("robustness"), summary["plots"].get("robustness_by_parameter")
+    )
     for key, entry in summary["by_parameter"].items():
         lines += [f"## By `{key}`", ""]
         if not entry["grouped"]:
@@ -1104,6 +1298,58 @@ def _markdown(summary: dict, plan: dict) -> str:
         lines += [f"- `{f['id']}` {f['controller']} seed {f['seed']}: {f['error']}" for f in summary["failed_runs"]]
         lines.append("")
     return "\n".join(lines)
+
+
+def _robustness_markdown(robustness: dict, plot: str | None, by_parameter: str | None = None) -> list[str]:
+    """The robustness section of summary.md: runs within the bound, faults, the plot."""
+    bound, table = robustness["bound"], robustness["controllers"]
+    after, limit = bound["after"], bound["max_error"]
+    lines = [
+        "## Robustness: runs within the tracking bound",
+        "",
+        f"Within the bound: the run ran to the end (not diverged, not stopped) and from t = {after:g} s on "
+        f"|q_r - q| < {limit:g} rad on every joint at every control step (true q). rows = within + outside + "
+        "stopped + not finished. The error columns are over the runs that ran to the end: the largest "
+        f"|q_r - q| from {after:g} s on (rad) and the mean over joints of E_p after 2 s (rad^2).",
+        "",
+        "| controller | rows | within bound | outside | stopped | not finished | max error: median | p90 "
+        "| E_p after 2 s: median | p90 | runs with faults |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for name, s in table.items():
+        why = ", ".join(f"{k} {v}" for k, v in s["stopped_by"].items())
+        stopped = f"{s['stopped']} ({why})" if why else "0"
+        lines.append(
+            f"| {name} | {s['rows']} | {s['within']} | {s['outside']} | {stopped} | {s['unfinished']} | "
+            f"{_fmt(s['steady_max_error']['median'])} | {_fmt(s['steady_max_error']['p90'])} | "
+            f"{_fmt(s['Ep_steady']['median'])} | {_fmt(s['Ep_steady']['p90'])} | {s['runs_with_faults']} |"
+        )
+    lines.append("")
+    short = sum(s["short"] for s in table.values())
+    if short:
+        lines += [f"{short} runs ended before {after:g} s: they cannot be within the bound (`[robustness] after`).", ""]
+    keys = sorted({key for s in table.values() for key in s["faults"]})
+    if keys:
+        lines += [
+            "Faults the runner counted (runs with the fault / events over those runs):",
+            "",
+            "| fault | " + " | ".join(table) + " |",
+            "|---" * (len(table) + 1) + "|",
+        ]
+        for key in keys:
+            cells = [
+                f"{s['faults'][key]['runs']} / {s['faults'][key]['events']}" if key in s["faults"] else "0"
+                for s in table.values()
+            ]
+            lines.append(f"| {key} | " + " | ".join(cells) + " |")
+        lines.append("")
+    else:
+        lines += ["No fault was counted in any finished run.", ""]
+    if plot:
+        lines += [f"![fraction of runs within a bound]({plot})", ""]
+    if by_parameter:
+        lines += [f"![the largest error after {after:g} s by parameter]({by_parameter})", ""]
+    return lines
 
 
 def _safe(key: str) -> str:
@@ -1203,6 +1449,99 @@ def _plots(
         plt.close(fig)
         plots[name] = f"{name}.png"
     return plots
+
+
+def _robustness_plot(out: Path, controllers: list[str], finished: list[dict], robustness: Robustness) -> str | None:
+    """robustness.png: per controller, the fraction of finished runs that ran to the end with
+    the largest |q_r - q| from ``after`` on below x (a run that stopped never counts), and the
+    sweep's bound; returns the file name (None if no run finished)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    curves = {}
+    for name in controllers:
+        verdicts = [assess(r["record"], robustness) for r in finished if r["controller"] == name]
+        errors = [v["steady_max_error"] for v in verdicts if v["stopped"] is None]
+        curves[name] = (np.sort([e for e in errors if math.isfinite(e)]), len(verdicts))
+    values = np.concatenate([c[0] for c in curves.values()]) if curves else np.zeros(0)
+    if values.size == 0:
+        return None
+    fig, ax = plt.subplots(figsize=(6.4, 4.2))
+    low, high = min(values.min(), robustness.max_error), max(values.max(), robustness.max_error)
+    for name, (errors, count) in curves.items():
+        if count == 0:
+            continue
+        xs = np.r_[low, errors, high]
+        fraction = np.r_[0.0, np.arange(1, errors.size + 1), errors.size] / count
+        ax.step(xs, fraction, where="post", label=f"{name} ({count} runs)", color=COLOURS.get(name))
+    bound = f"bound {robustness.max_error:g} rad"
+    ax.axvline(robustness.max_error, color="black", linestyle="--", linewidth=1, label=bound)
+    if low > 0.0 and high / low > 20.0:
+        ax.set_xscale("log")
+    ax.set_ylim(0.0, 1.02)
+    ax.set_xlabel(f"largest |q_r - q| over joints from t = {robustness.after:g} s on (rad)")
+    ax.set_ylabel("fraction of runs within x")
+    ax.set_title("runs within a tracking bound (stopped runs never are)")
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(out / "robustness.png", dpi=110)
+    plt.close(fig)
+    return "robustness.png"
+
+
+def _robustness_by_parameter_plot(
+    out: Path, controllers: list[str], finished: list[dict], varying: list[str], robustness: Robustness
+) -> str | None:
+    """robustness_by_parameter.png: one panel per swept parameter, the largest |q_r - q| from
+    ``after`` on of every finished run against the parameter's value (runs that stopped as
+    crosses above the rest), and the bound; returns the file name (None if nothing to plot)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    if not varying or not finished:
+        return None
+    points = [(row, assess(row["record"], robustness)) for row in finished]
+    errors = [v["steady_max_error"] for _, v in points if v["stopped"] is None and math.isfinite(v["steady_max_error"])]
+    top = max([*errors, robustness.max_error]) * 1.25  # where runs that stopped are drawn
+    columns = min(3, len(varying))
+    rows_count = math.ceil(len(varying) / columns)
+    fig, axes = plt.subplots(rows_count, columns, figsize=(4.2 * columns, 3.3 * rows_count), squeeze=False)
+    for ax, key in zip(axes.ravel(), varying):
+        values = [row["params"][key] for row, _ in points]
+        numeric = all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in values)
+        labels = [] if numeric else _unique([_label(v) for v in values])
+        for c, name in enumerate(controllers):
+            mine = [(row, v) for row, v in points if row["controller"] == name]
+            xs = [row["params"][key] if numeric else labels.index(_label(row["params"][key])) for row, _ in mine]
+            ran = [(x, v["steady_max_error"]) for x, (_, v) in zip(xs, mine) if v["stopped"] is None]
+            stopped = [x for x, (_, v) in zip(xs, mine) if v["stopped"] is not None]
+            colour = COLOURS.get(name)
+            ax.scatter([x for x, _ in ran], [y for _, y in ran], s=10, alpha=0.6, color=colour, label=name)
+            if stopped:
+                ax.scatter(stopped, [top * (1.0 + 0.04 * c)] * len(stopped), s=18, marker="x", color=colour)
+        if not numeric:
+            ax.set_xticks(range(len(labels)), [_short(label) for label in labels], rotation=20)
+        ax.axhline(robustness.max_error, color="black", linestyle="--", linewidth=1)
+        ax.set_xlabel(key)
+        ax.set_ylabel(f"max |q_r - q| after {robustness.after:g} s (rad)", fontsize=8)
+        ax.grid(True, alpha=0.3)
+    for ax in axes.ravel()[len(varying) :]:
+        ax.axis("off")
+    axes[0, 0].legend(fontsize=7)
+    fig.suptitle(
+        f"largest error after {robustness.after:g} s per run; dashed: bound {robustness.max_error:g} rad; "
+        "crosses at the top: runs that stopped (one row per controller)",
+        fontsize=9,
+    )
+    fig.tight_layout()
+    fig.savefig(out / "robustness_by_parameter.png", dpi=110)
+    plt.close(fig)
+    return "robustness_by_parameter.png"
 
 
 def _continuous(plan: dict, rows: list[dict]) -> set[str]:
