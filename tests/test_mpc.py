@@ -15,7 +15,9 @@ from hydroarm.mpc import (
     QPResult,
     condense,
     euler_step,
+    linearise,
     linearise_euler,
+    linearise_taylor2,
     lqr_gain,
     make_box_qp_solver,
     solve_riccati,
@@ -122,7 +124,8 @@ def test_condensed_matrices_equal_the_stacked_prediction():
     np.testing.assert_allclose(qp.terminal_error(du), (phi @ du + free)[-nx:], rtol=1e-12)
 
 
-def test_unconstrained_lti_first_move_is_the_lqr_move(arm):
+@pytest.mark.parametrize("discretisation", ["euler", "taylor2"])
+def test_unconstrained_lti_first_move_is_the_lqr_move(arm, discretisation):
     """Constant reference (LTI), huge limits: du_0 = -K e_0 (DARE gain) to 1e-6.
 
     The terminal weight is the DARE's P, so the cost-to-go is exact and any
@@ -130,9 +133,9 @@ def test_unconstrained_lti_first_move_is_the_lqr_move(arm):
     """
     q0 = np.array([0.3, -0.8, 1.2, 0.4, -0.6, 0.2])
     reference = constant_reference(q0)
-    mpc = LinearMPC(arm, MPCConfig(horizon=30, torque_limit=1e9))
+    mpc = LinearMPC(arm, MPCConfig(horizon=30, torque_limit=1e9, discretisation=discretisation))
     u_ref = arm.inverse_dynamics(q0, np.zeros(6), np.zeros(6))
-    A, B, _ = linearise_euler(arm, q0, np.zeros(6), u_ref, T)
+    A, B, _ = linearise(arm, q0, np.zeros(6), u_ref, T, discretisation)
     gain = solve_riccati(A, B, mpc.Q, mpc.R).K
     rng = np.random.default_rng(2)
     for _ in range(3):
@@ -218,6 +221,34 @@ def test_linearisation_equals_finite_differences_of_the_euler_step(arm):
         fd_b = np.column_stack([(step(x, tau + h * e) - step(x, tau - h * e)) / (2 * h) for e in np.eye(n)])
         assert np.abs(A - fd_a).max() <= 1e-6 * np.abs(A).max()
         assert np.abs(B - fd_b).max() <= 1e-6 * np.abs(B).max()
+
+
+def taylor2_step(arm, x: np.ndarray, tau: np.ndarray, period: float) -> np.ndarray:
+    """Constant acceleration over the step: q + T v + T^2/2 a, v + T a (written out here)."""
+    n = arm.n_joints
+    acceleration = arm.forward_dynamics(x[:n], x[n:], tau)
+    return np.concatenate([x[:n] + period * x[n:] + 0.5 * period**2 * acceleration, x[n:] + period * acceleration])
+
+
+def test_taylor2_linearisation_equals_finite_differences_of_its_step(arm):
+    rng = np.random.default_rng(9)
+    n = arm.n_joints
+    for _ in range(3):
+        q, v = rng.uniform(-3, 3, n), rng.uniform(-2, 2, n)
+        tau = rng.uniform(-50, 50, n)
+        x = np.concatenate([q, v])
+        A, B, x_next = linearise_taylor2(arm, q, v, tau, T)
+        np.testing.assert_allclose(x_next, taylor2_step(arm, x, tau, T), rtol=1e-10, atol=1e-10)
+        h = 1e-6
+        step = lambda x_, tau_: taylor2_step(arm, x_, tau_, T)  # noqa: E731
+        fd_a = np.column_stack([(step(x + h * e, tau) - step(x - h * e, tau)) / (2 * h) for e in np.eye(2 * n)])
+        fd_b = np.column_stack([(step(x, tau + h * e) - step(x, tau - h * e)) / (2 * h) for e in np.eye(n)])
+        assert np.abs(A - fd_a).max() <= 1e-6 * np.abs(A).max()
+        assert np.abs(B - fd_b).max() <= 1e-6 * np.abs(B).max()
+        # only the position rows differ from Euler's, by T/2 times the velocity rows
+        A_e, B_e, _ = linearise_euler(arm, q, v, tau, T)
+        np.testing.assert_array_equal(A[n:], A_e[n:])
+        np.testing.assert_allclose(B[:n], 0.5 * T * B_e[n:], rtol=1e-14)
 
 
 def test_sliding_horizon_linearises_one_new_index_per_step(arm, monkeypatch):
@@ -316,7 +347,7 @@ def start_up_qp(mpc: LinearMPC, reference):
     for k in range(horizon + 1):
         q, v, a = reference.sample(k * T)
         tau = arm.inverse_dynamics(q, v, a)
-        a_mat, b_mat, nxt = linearise_euler(arm, q, v, tau, T)
+        a_mat, b_mat, nxt = linearise(arm, q, v, tau, T, mpc.config.discretisation)
         A.append(a_mat), B.append(b_mat), x_next.append(nxt)
         x_ref.append(np.concatenate([q, v])), u_ref.append(tau)
     P = solve_riccati(A[-1], B[-1], mpc.Q, mpc.R).P
@@ -346,7 +377,7 @@ def test_solver_failure_falls_back_to_lqr_then_to_the_shifted_plan(arm, monkeypa
     assert np.all(np.abs(out.tau) <= 50.0)
     q, v, a = reference.sample(0.0)
     u_ref = arm.inverse_dynamics(q, v, a)
-    A, B, _ = linearise_euler(arm, q, v, u_ref, T)
+    A, B, _ = linearise(arm, q, v, u_ref, T, mpc.config.discretisation)
     _, _, _, P = start_up_qp(mpc, reference)
     expected = np.clip(u_ref - lqr_gain(A, B, mpc.R, P) @ (y - np.concatenate([q, v])), -50, 50)
     np.testing.assert_allclose(out.tau, expected, rtol=1e-8, atol=1e-8)
@@ -446,5 +477,5 @@ def test_bad_config_values_name_the_field(data, field):
 @pytest.mark.parametrize("field", ["q_position", "q_velocity", "r", "torque_limit"])
 def test_per_joint_lists_must_match_the_arm(arm, field):
     LinearMPC(arm, MPCConfig(**{field: [1.0] * 6}))
-    with pytest.raises(ConfigError, match=f"{field} has 4 values for 6 joints"):
+    with pytest.raises(ConfigError, match=rf"{field} = \[1.0, 1.0, 1.0, 1.0\]: 4 values for 6 joints"):
         LinearMPC(arm, MPCConfig(**{field: [1.0] * 4}))

@@ -54,8 +54,10 @@ deviation du = u - u_r (n,):
   checked against the box).
 * Failures: a solver that does not report an optimal solution (or returns
   non-finite or out-of-bounds moves) triggers, in order, the shifted previous
-  plan (``status="qp_failed_shift"``) and the saturated LQR law
-  ``u = u_r - K e`` (``status="qp_failed_lqr"``). The returned torque is always
+  plan (``status="qp_failed_shift"``), the saturated LQR law
+  ``u = u_r - K e`` (``status="qp_failed_lqr"``) and, if the gain cannot be
+  computed, the saturated reference torque (``status="qp_failed_reference"``);
+  each failure is a fault event (``ControlOutput.events``). The returned torque is always
   clipped to the limits as a last guard (counted in ``LinearMPC.clip_count``).
 
 Sign convention: ``K = (R + B' P B)^-1 B' P A`` and the LQR move is ``du = -K e``.
@@ -96,11 +98,15 @@ class MPCConfig(FrozenModel):
     Defaults are the paper's (Section 4) where it gives them: Q = diag(300 x n,
     0.01 x n), R = 0.1 I, |u| <= 500 N m (the paper arm's limit, read from the
     arm file when ``torque_limit`` is None); N = 10 and T = 10 ms are SPEC's
-    choices (the paper gives neither).
+    choices (the paper gives neither). ``discretisation`` departs from the
+    paper's Euler step by default: the second-order Taylor step (the held torque
+    also moves the position within the step) has the same nominal E_p but keeps
+    the light wrist stable on a plant up to about 27 % lighter than the model, where
+    Euler's gains diverge at 11 % (docs/deviations.md, docs/robustness.md).
     """
 
     horizon: int = pydantic.Field(10, ge=1, le=200, description="prediction horizon N (steps)")
-    control_period: float = pydantic.Field(0.01, gt=0.0, le=1.0, description="T (s)")
+    control_period: float = pydantic.Field(0.01, ge=1e-4, le=1.0, description="T (s)")
     q_position: PositiveFloat | PositiveList = pydantic.Field(
         300.0, description="Q weight on joint position error (1/rad^2)"
     )
@@ -119,12 +125,31 @@ class MPCConfig(FrozenModel):
         300.0, gt=0.0, le=1e12, description="linear penalty rho_s on the terminal slack"
     )
     solver: Literal["daqp", "osqp", "quadprog", "clarabel"] = "daqp"
+    discretisation: Literal["euler", "taylor2"] = pydantic.Field(
+        "taylor2",
+        description="prediction model: second-order Taylor (ZOH-consistent, default) or explicit Euler (paper)",
+    )
     riccati_tolerance: float = pydantic.Field(
         1e-12, gt=0.0, le=1e-3, description="doubling stops when the relative change of P is below"
     )
     riccati_max_iterations: int = pydantic.Field(
         60, ge=1, le=1000, description="cap on doubling iterations (then scipy's DARE)"
     )
+
+    @pydantic.model_validator(mode="after")
+    def _check_ranges(self) -> MPCConfig:
+        """Weights within [1e-6, 1e8] (q_velocity from 0), r within [1e-6, 1e6], torque_limit
+        <= 1e12 N m: beyond these the Riccati equation and the QP lose all precision."""
+        from hydroarm.config import field_error
+
+        for name, low, high in (("q_position", 1e-6, 1e8), ("q_velocity", 0.0, 1e8), ("r", 1e-6, 1e6),
+                                ("torque_limit", 0.0, 1e12)):  # fmt: skip
+            value = getattr(self, name)
+            for k, entry in enumerate(value if isinstance(value, list) else [value]):
+                if entry is not None and not low <= entry <= high:
+                    where = f"{name}.{k}" if isinstance(value, list) else name
+                    raise field_error(where, entry, f"must be >= {low:g} and <= {high:g}")
+        return self
 
 
 # --------------------------------------------------------------------------------------
@@ -183,6 +208,58 @@ def _fill_linearisation(q, v, qdd, dqdd_dq, dqdd_dv, minv_upper, period, a_mat, 
         x_next[i] = q[i] + period * v[i]
         x_next[n + i] = v[i] + period * qdd[i]
     return x_next
+
+
+def linearise(
+    arm: Arm, q: np.ndarray, v: np.ndarray, tau: np.ndarray, period: float, discretisation: str = "taylor2"
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(A, B, x_next)`` of the MPC's prediction model (``MPCConfig.discretisation``)."""
+    if discretisation == "euler":
+        return linearise_euler(arm, q, v, tau, period)
+    if discretisation == "taylor2":
+        return linearise_taylor2(arm, q, v, tau, period)
+    raise ConfigError(f"discretisation = {discretisation!r}: must be 'euler' or 'taylor2'")
+
+
+def linearise_taylor2(
+    arm: Arm, q: np.ndarray, v: np.ndarray, tau: np.ndarray, period: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Second-order Taylor discretisation of the dry dynamics at (q, v, tau): ``(A, B, x_next)``.
+
+    ``q+ = q + T v + T^2/2 q''``, ``v+ = v + T q''`` with ``q'' = ABA(q, v, tau)``:
+    exact for a constant acceleration over the step, i.e. the torque held by the
+    zero-order hold also moves the position within the step (Euler's position row
+    ignores it). ``A`` (2n, 2n), ``B`` (2n, n) are its Jacobians (analytical ABA
+    derivatives). Compared with :func:`linearise_euler` only the top (position)
+    rows differ: ``[I + T^2/2 dq''/dq, T I + T^2/2 dq''/dv]`` and ``T^2/2 M^-1``.
+    """
+    n = arm.n_joints
+    a_mat = np.zeros((2 * n, 2 * n))
+    b_mat = np.zeros((2 * n, n))
+    x_next = _linearise_into_taylor2(arm, q, v, tau, period, a_mat, b_mat)
+    return a_mat, b_mat, x_next
+
+
+def _linearise_into_taylor2(arm, q, v, tau, period, a_mat, b_mat) -> np.ndarray:
+    """Write A and B of :func:`linearise_taylor2` into ``a_mat``, ``b_mat`` (every block); return x_next."""
+    x_next = _linearise_into(arm, q, v, tau, period, a_mat, b_mat, fixed_part=False)
+    _add_position_curvature(period, a_mat, b_mat)
+    n = arm.n_joints
+    x_next[:n] += 0.5 * period * (x_next[n:] - v)  # + T^2/2 q'', with T q'' = v+ - v
+    return x_next
+
+
+@numba.njit(cache=True)
+def _add_position_curvature(period, a_mat, b_mat):  # pragma: no cover - compiled
+    """Turn Euler's A and B (all rows filled) into the second-order Taylor ones:
+    position rows += T/2 x (velocity rows minus their identity block)."""
+    n = b_mat.shape[1]
+    half = 0.5 * period
+    for i in range(n):
+        for j in range(n):
+            a_mat[i, j] += half * a_mat[n + i, j]
+            a_mat[i, n + j] += half * (a_mat[n + i, n + j] - (1.0 if i == j else 0.0))
+            b_mat[i, j] = half * b_mat[n + i, j]
 
 
 def _linearise_into_reference(arm, q, v, tau, period, a_mat, b_mat, fixed_part=True) -> np.ndarray:
@@ -784,7 +861,7 @@ class LinearMPC:
     returns a :class:`~hydroarm.control.ControlOutput` whose ``tau`` (n,) N m
     always satisfies ``|tau_i| <= u_max_i``. ``status`` is ``"ok"``,
     ``"terminal_soft_fallback"`` (hard terminal set infeasible, soft used),
-    ``"qp_failed_shift"`` or ``"qp_failed_lqr"``; ``terminal_violation`` is
+    ``"qp_failed_shift"``, ``"qp_failed_lqr"`` or ``"qp_failed_reference"``; ``terminal_violation`` is
     ``max(e_N' P e_N - alpha, 0)`` of the plan used (the optimal slack; 0 when
     the terminal set is off); ``timings`` (s): ``linearise``, ``riccati``,
     ``qp_update``, ``qp_solve`` (with fallbacks), ``total``.
@@ -898,6 +975,8 @@ class LinearMPC:
             if d.shape != (n,) or not np.all(np.isfinite(d)):
                 raise ValueError(f"feedforward_acceleration must be finite with shape ({n},)")
             offsets[:, n:] += period * d
+            if cfg.discretisation == "taylor2":  # the extra acceleration also moves the position
+                offsets[:, :n] += 0.5 * period**2 * d
         e0 = y - self._x_ref[0]
         t_lin = time.perf_counter()
 
@@ -922,11 +1001,13 @@ class LinearMPC:
             warm = warm.ravel() - u_ref_flat
         t_upd = time.perf_counter()
 
-        # Solve, with fallbacks.
+        # Solve, with fallbacks; every fault is an event of this step.
         status = "ok"
+        events: list[str] = []
         result = self._solve(qp, lb, ub, P, warm, cfg.terminal_set)
         if cfg.terminal_set == "hard" and not result.ok:
             status = "terminal_soft_fallback"
+            events.append("terminal_soft_fallback")
             result = self._solve(qp, lb, ub, P, warm, "soft")
         self.last_message = result.message
         if result.ok and _valid_moves(result.x, lb, ub):
@@ -935,13 +1016,16 @@ class LinearMPC:
             self._plan_index = k
         else:
             self.fallback_count += 1
+            events.append(qp_failure_event(result))
             du, status = self._fallback(k, u_refs, P, e0)
         tau = u_refs[0] + du[:n]
         t_sol = time.perf_counter()
 
         # Last guard, and the terminal-set violation (the optimal slack) of the plan used.
-        if np.any(np.abs(tau) > self.torque_limit * (1.0 + CLIP_TOLERANCE)):
+        if not np.all(np.abs(tau) <= self.torque_limit * (1.0 + CLIP_TOLERANCE)):  # NaN included
             self.clip_count += 1
+            events.append("torque_clipped")
+            tau = np.where(np.isfinite(tau), tau, 0.0)
         tau = np.clip(tau, -self.torque_limit, self.torque_limit)
         violation = 0.0
         if cfg.terminal_set != "off":
@@ -955,7 +1039,9 @@ class LinearMPC:
             "qp_solve": t_sol - t_upd,
             "total": end - start,
         }
-        return ControlOutput(tau=tau, status=status, timings=timings, terminal_violation=violation)
+        return ControlOutput(
+            tau=tau, status=status, timings=timings, terminal_violation=violation, events=tuple(events)
+        )
 
     # --- internals -------------------------------------------------------------------
     def _slide(self, k: int, reference: Reference) -> None:
@@ -976,9 +1062,14 @@ class LinearMPC:
             q = np.asarray(q, dtype=float)
             v = np.asarray(v, dtype=float)
             u_ref = self.arm.inverse_dynamics(q, v, np.asarray(a, dtype=float))
-            self._x_next[slot] = _linearise_into(
-                self.arm, q, v, u_ref, self.control_period, self._a[slot], self._b[slot]
-            )
+            if self.config.discretisation == "euler":
+                self._x_next[slot] = _linearise_into(
+                    self.arm, q, v, u_ref, self.control_period, self._a[slot], self._b[slot]
+                )
+            else:
+                self._x_next[slot] = _linearise_into_taylor2(
+                    self.arm, q, v, u_ref, self.control_period, self._a[slot], self._b[slot]
+                )
             self._x_ref[slot, : self.n] = q
             self._x_ref[slot, self.n :] = v
             self._u_ref[slot] = u_ref
@@ -1005,16 +1096,44 @@ class LinearMPC:
         return np.concatenate([self._plan[shift:], np.repeat(self._plan[-1:], shift, axis=0)])
 
     def _fallback(self, k: int, u_refs: np.ndarray, P: np.ndarray, e0: np.ndarray):
-        """Moves (N n,) and status: the shifted previous plan, else the saturated LQR law."""
+        """Moves (N n,) and status: the shifted previous plan (``qp_failed_shift``), else the
+        saturated LQR law (``qp_failed_lqr``), else, if even the LQR gain cannot be
+        computed, the saturated reference torque (``qp_failed_reference``)."""
         plan = self._shifted_plan(k)
         if plan is not None:
             plan = np.clip(plan, -self.torque_limit, self.torque_limit)
             return (plan - u_refs).ravel(), "qp_failed_shift"
-        gain = lqr_gain(self._a[0], self._b[0], self.R, P)
-        tau = np.clip(u_refs[0] - gain @ e0, -self.torque_limit, self.torque_limit)
+        status = "qp_failed_lqr"
+        try:
+            tau = u_refs[0] - lqr_gain(self._a[0], self._b[0], self.R, P) @ e0
+        except (np.linalg.LinAlgError, ValueError):
+            tau = np.full(self.n, np.nan)
+        if not np.all(np.isfinite(tau)):  # degenerate weights: the reference torque alone
+            tau, status = u_refs[0].copy(), "qp_failed_reference"
+        tau = np.clip(np.where(np.isfinite(tau), tau, 0.0), -self.torque_limit, self.torque_limit)
         du = np.zeros(u_refs.size)
         du[: self.n] = tau - u_refs[0]
-        return du, "qp_failed_lqr"
+        return du, status
+
+
+_QP_FAILURES = (
+    # (words in the solver's message, event): DAQP exit flags, OSQP and Clarabel statuses
+    (("exitflag -4", "maximum iterations", "maxiterations", "maxtime"), "qp_iteration_limit"),
+    (("exitflag -1", "primal infeasible", "primalinfeasible", "infeasible"), "qp_infeasible"),
+)
+
+
+def qp_failure_event(result: QPResult) -> str:
+    """The fault event of a failed solve: ``"qp_iteration_limit"``, ``"qp_infeasible"``,
+    ``"qp_invalid_solution"`` (reported solved, but not finite or outside the box)
+    or ``"qp_failed"`` (anything else, e.g. the solver raised)."""
+    if result.ok:
+        return "qp_invalid_solution"
+    message = result.message.lower().replace("_", "")
+    for words, event in _QP_FAILURES:
+        if any(word in message for word in words):
+            return event
+    return "qp_failed"
 
 
 def _valid_moves(x: np.ndarray | None, lb: np.ndarray, ub: np.ndarray) -> bool:

@@ -28,6 +28,7 @@ import math
 import multiprocessing
 import os
 import platform
+import signal
 import time
 from collections.abc import Callable
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
@@ -90,6 +91,8 @@ def ablation_cases(base: ExperimentConfig) -> list[tuple[str, str, dict]]:
         cases.append(("MPC horizon N", str(horizon), {"mpc.horizon": horizon}))
     for r in (0.1, 1e-3):
         cases.append(("R", f"{r:g}", {"mpc.r": r}))
+    for discretisation in ("euler", "taylor2"):
+        cases.append(("MPC prediction model", discretisation, {"mpc.discretisation": discretisation}))
     for period in (0.005, 0.01, 0.02):
         cases.append(("control period T (s)", f"{period:g}", {"control_period": period}))
     uniform = {"water.current.model": "uniform", "water.current.mean": [0.3, 0.2, 0.0],
@@ -149,6 +152,12 @@ def _run_one(spec: RunSpec, path: str, queue) -> str:
 ProgressHook = Callable[[str, int, int], None]
 
 
+def _ignore_sigint() -> None:
+    """Worker initializer: Ctrl-C reaches the whole process group; only the main process
+    handles it (running runs finish and are saved, the rest is cancelled)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
 def execute(runs: list[RunSpec], run_dir: Path, workers: int, on_progress: ProgressHook | None = None) -> dict[str, Trajectory]:
     """Run what is not finished yet (in ``workers`` processes), return every trajectory by key."""
     run_dir.mkdir(parents=True, exist_ok=True)
@@ -167,7 +176,7 @@ def execute(runs: list[RunSpec], run_dir: Path, workers: int, on_progress: Progr
     context = multiprocessing.get_context("spawn")
     with context.Manager() as manager:
         queue = manager.Queue()
-        with ProcessPoolExecutor(max_workers=max(1, workers), mp_context=context) as pool:
+        with ProcessPoolExecutor(max_workers=max(1, workers), mp_context=context, initializer=_ignore_sigint) as pool:
             futures = {pool.submit(_run_one, spec, str(run_dir / f"{spec.key}.npz"), queue): spec for spec in todo}
             pending = set(futures)
             try:
@@ -198,6 +207,20 @@ def gain_percent(baseline: list[float], improved: list[float]) -> list[float]:
     return [100.0 * (b - i) / b if b > 0 else 0.0 for b, i in zip(baseline, improved)]
 
 
+def fault_totals(trajs: list[Trajectory]) -> dict[str, int]:
+    """The runs' fault events (``meta["faults"]``) summed, only those that occurred; a run
+    that stopped early adds ``stopped:<why>``."""
+    totals: dict[str, int] = {}
+    for traj in trajs:
+        for name, count in (traj.meta.get("faults") or {}).items():
+            if count:
+                totals[name] = totals.get(name, 0) + int(count)
+        if traj.meta.get("stopped"):
+            key = f"stopped:{traj.meta['stopped']}"
+            totals[key] = totals.get(key, 0) + 1
+    return totals
+
+
 def summarise(runs: list[RunSpec], results: dict[str, Trajectory]) -> dict:
     """metrics.json: per case and controller, E_p per joint (mean over seeds) and more."""
     metrics: dict = {}
@@ -221,6 +244,7 @@ def summarise(runs: list[RunSpec], results: dict[str, Trajectory]) -> dict:
                 "time_to_band": np.mean([m["time_to_band"] for m in per_seed], axis=0).tolist(),
                 "seeds": [s.seed for s in runs if s.case == case and s.controller == name],
                 "diverged": any(m["diverged"] for m in per_seed),
+                "faults": fault_totals(trajs),
                 "step_ms_median": float(np.median(np.concatenate([t.timings["total"] for t in trajs])) * 1e3),
                 "step_ms_p99": float(np.percentile(np.concatenate([t.timings["total"] for t in trajs]), 99) * 1e3),
             }
@@ -261,6 +285,7 @@ def summarise(runs: list[RunSpec], results: dict[str, Trajectory]) -> dict:
             "Ep_steady_mean": float(np.mean(m["Ep_steady"])),
             "step_ms_median": float(np.median(traj.timings["total"]) * 1e3),
             "diverged": m["diverged"],
+            "faults": fault_totals([traj]),
         }
     for rows in ablation.values():
         for row in rows.values():

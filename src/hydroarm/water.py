@@ -41,8 +41,15 @@ import pydantic
 
 from hydroarm.arm import Arm
 from hydroarm.config import FrozenModel
+from hydroarm.integrator import rk4_second_order_stage
 
-Vector3 = Annotated[list[float], pydantic.Field(min_length=3, max_length=3)]
+MAX_CURRENT_SPEED = 20.0
+"""m/s: bound on every component of a uniform current's mean and amplitude."""
+
+Velocity3 = Annotated[
+    list[Annotated[float, pydantic.Field(ge=-MAX_CURRENT_SPEED, le=MAX_CURRENT_SPEED)]],
+    pydantic.Field(min_length=3, max_length=3),
+]
 
 PAPER_CURRENT_AMPLITUDE_DEG_S = (0.5, 0.3, 0.4, 0.2, 0.1, 0.0)
 PAPER_CURRENT_OMEGA = (0.1 * math.pi, 0.3 * math.pi, 0.2 * math.pi, 0.4 * math.pi, 0.5 * math.pi, 0.0)
@@ -63,8 +70,8 @@ class CurrentConfig(FrozenModel):
     reference_period: float = pydantic.Field(
         0.01, gt=0.0, le=1.0, description="T_ref (s): the paper's simulation cycle"
     )
-    mean: Vector3 = pydantic.Field([0.0, 0.0, 0.0], description="uniform current, m/s")
-    amplitude: Vector3 = pydantic.Field([0.0, 0.0, 0.0], description="uniform current, m/s")
+    mean: Velocity3 = pydantic.Field([0.0, 0.0, 0.0], description="uniform current, m/s, each within +-20")
+    amplitude: Velocity3 = pydantic.Field([0.0, 0.0, 0.0], description="uniform current, m/s, each within +-20")
     frequency_hz: float = pydantic.Field(0.0, ge=0.0, le=100.0)
     phase: float = 0.0
 
@@ -462,9 +469,9 @@ def rk4_stage_kernel(
     The caller evaluates Pinocchio (CRBA -> ``mass_upper``, NLE -> ``nonlinear``,
     Jacobians and their time variation -> ``jac``, ``djac``) at the stage state
     ``xs = [q, v]`` (2n,) and time ``t``; this evaluates the current at ``t`` and
-    :func:`underwater_dynamics_kernel`, stores the stage derivative ``ks[stage] =
-    [v, q'']`` and disturbance ``dists[stage]``, and overwrites ``xs`` with the next
-    stage's state: ``x + h/2 k1``, ``x + h/2 k2``, ``x + h k3``; after the last stage
+    :func:`underwater_dynamics_kernel`, stores the disturbance ``dists[stage]`` and
+    leaves the RK4 bookkeeping to :func:`hydroarm.integrator.rk4_second_order_stage`
+    (``ks[stage] = [v, q'']``, ``xs`` the next stage's state); after the last stage
     (3) ``x`` itself becomes ``x + h/6 (k1 + 2 k2 + 2 k3 + k4)`` (``xs`` too) and
     ``average`` gets ``d1 + 2 d2 + 2 d3 + d4``. Same operations, in the same order,
     as :func:`hydroarm.integrator.rk4_step` driven by ``_RK4Model.step`` (the
@@ -490,20 +497,13 @@ def rk4_stage_kernel(
         joint_ids, start, axis, length, support, drag_per_length, mass_per_length, buoyancy_force,
         nodes, weights, use_drag, use_added_mass, use_buoyancy,
     )  # fmt: skip
-    k = ks[stage]
     for i in range(n):
-        k[i] = xs[n + i]
-        k[n + i] = acc[i]
         dists[stage, i] = disturbance[i]
+    rk4_second_order_stage(stage, h, x, xs, ks, acc)
     if stage < 3:
-        scale = h if stage == 2 else 0.5 * h
-        for i in range(2 * n):
-            xs[i] = x[i] + scale * k[i]
         return
-    sixth = h / 6.0
     for i in range(2 * n):
-        x[i] = x[i] + sixth * (ks[0, i] + 2.0 * ks[1, i] + 2.0 * ks[2, i] + ks[3, i])
-        xs[i] = x[i]
+        x[i] = xs[i]
     for i in range(n):
         average[i] += dists[0, i] + 2.0 * dists[1, i] + 2.0 * dists[2, i] + dists[3, i]
 
