@@ -1,22 +1,31 @@
 """The ``hydroarm`` command line: reproduce the paper, run one experiment, list arms, export URDF.
 
 Exit codes: 0 success, 1 a run failed, 2 bad input (a clear message naming the
-field, no traceback), 130 interrupted (finished runs are kept on disk).
+field, no traceback), 130 interrupted by Ctrl-C / SIGINT, 143 terminated by
+SIGTERM (in both cases finished runs are kept on disk and the same command
+resumes from them).
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
+import signal
 import sys
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
-from hydroarm.config import ConfigError, load_model
+from hydroarm.config import ConfigError, check_joint_counts, load_model, shown
+
+if TYPE_CHECKING:  # imported lazily at run time: `hydroarm --help` stays fast
+    from hydroarm.arm import Arm
+    from hydroarm.experiments import ExperimentConfig
 
 app = typer.Typer(
     add_completion=False,
@@ -27,8 +36,70 @@ console = Console(stderr=True)
 
 
 def _fail(message: str, code: int = 2) -> None:
-    console.print(f"[bold red]error:[/] {message}")
+    console.print(f"[bold red]error:[/] {escape(message)}")
     raise typer.Exit(code)
+
+
+def _check_out(out: Path) -> None:
+    """``--out`` must be a folder or not exist yet (it is created only once the settings are valid)."""
+    if out.exists() and not out.is_dir():
+        _fail(f"--out '{out}': exists and is not a folder")
+
+
+def check_settings_for_arm(config: ExperimentConfig, arm: Arm, source: str = "settings") -> None:
+    """What the settings' types cannot say until the arm is known; raises :class:`ConfigError`.
+
+    Every per-joint list (``smc.*``, ``mpc.*``) must have one value per joint; the GP's
+    ``theta0`` (d + 2 values), ``input_scale`` (d) and ``output_scale`` (1 or n) must fit
+    the d GP inputs of ``gpmpc.features`` on the arm's n joints; ``plant.friction`` must
+    suit the RK4 step on this arm (:class:`~hydroarm.plant.UnderwaterPlant` checks it).
+    Nothing is run (with friction, the plant is built: about a millisecond).
+    """
+    from hydroarm.gpmpc import feature_size
+    from hydroarm.plant import UnderwaterPlant
+
+    n = arm.n_joints
+    try:
+        check_joint_counts(config, n)
+        if config.plant.friction > 0.0:
+            UnderwaterPlant(arm, config.water, config.plant)
+    except ConfigError as error:
+        raise ConfigError(f"{source}: {error}") from None
+    gp = config.gp
+    d = feature_size(config.gpmpc.features, n)
+    inputs = f"gpmpc.features = '{config.gpmpc.features}' gives d = {d} GP inputs on {n} joints"
+    for name, value, allowed in (
+        ("theta0", gp.theta0, (d + 2,)),
+        ("input_scale", gp.input_scale, (d,)),
+        ("output_scale", gp.output_scale, (1, n)),
+    ):
+        if value is not None and len(value) not in allowed:
+            wanted = " or ".join(str(k) for k in allowed)
+            raise ConfigError(f"{source}: gp.{name} = {shown(value)}: {len(value)} values: give {wanted} ({inputs})")
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised in the main thread like Ctrl-C so the same cleanup runs."""
+
+
+@contextlib.contextmanager
+def _sigterm_as_interrupt():
+    """Turn SIGTERM into :class:`Terminated` while a long command runs."""
+
+    def handler(signum, frame):
+        raise Terminated()
+
+    previous = signal.signal(signal.SIGTERM, handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def _interrupted(error: KeyboardInterrupt, out: Path) -> None:
+    """Say where the finished runs are and exit 130 (SIGINT) or 143 (SIGTERM)."""
+    console.print(f"[yellow]interrupted:[/] finished runs are kept in {out / 'runs'}; run the same command to resume")
+    raise typer.Exit(143 if isinstance(error, Terminated) else 130)
 
 
 def _parse_value(text: str) -> Any:
@@ -80,11 +151,12 @@ def reproduce(
     from hydroarm.experiments import with_overrides
     from hydroarm.reproduce import reproduce as run
 
+    _check_out(out)
     try:
         config = _experiment_config(config_file, overrides or [])
         if arm is not None:
             config = with_overrides(config, {"arm": arm})
-        load_arm(config.arm)
+        check_settings_for_arm(config, load_arm(config.arm))
     except ConfigError as error:
         _fail(str(error))
     with Progress(
@@ -103,10 +175,10 @@ def reproduce(
                 progress.update(task, completed=k, total=total)
 
         try:
-            metrics = run(out, quick=quick, noisy_seeds=seeds, ablation=ablation, workers=workers, config=config, on_progress=hook)
-        except KeyboardInterrupt:
-            console.print("[yellow]interrupted:[/] finished runs are kept in " f"{out / 'runs'}; run the same command to resume")
-            raise typer.Exit(130) from None
+            with _sigterm_as_interrupt():
+                metrics = run(out, quick=quick, noisy_seeds=seeds, ablation=ablation, workers=workers, config=config, on_progress=hook)
+        except KeyboardInterrupt as error:
+            _interrupted(error, out)
         except ConfigError as error:
             _fail(str(error))
     if as_json:
@@ -130,8 +202,13 @@ def reproduce(
 @app.command()
 def run(
     controller: Annotated[str, typer.Option("--controller", help="smc, mpc or gp-mpc.")] = "gp-mpc",
-    arm: Annotated[str, typer.Option("--arm", help="Built-in arm name or arm file.")] = "paper",
-    noise: Annotated[float, typer.Option("--noise", min=0.0, max=10.0, help="Measurement noise variance.")] = 0.0,
+    arm: Annotated[
+        str | None, typer.Option("--arm", help="Built-in arm name or arm file (default: the settings' arm, paper).")
+    ] = None,
+    noise: Annotated[
+        float | None,
+        typer.Option("--noise", min=0.0, max=10.0, help="Measurement noise variance (default: plant.noise_variance, 0)."),
+    ] = None,
     seed: Annotated[int, typer.Option("--seed", min=0, help="Noise seed.")] = 0,
     out: Annotated[Path, typer.Option("--out", help="Output folder.")] = Path("run"),
     config_file: ConfigOption = None,
@@ -150,10 +227,13 @@ def run(
     names = {c.lower(): c for c in CONTROLLERS}
     if controller.lower() not in names:
         _fail(f"--controller '{controller}': must be one of {', '.join(names)}")
+    _check_out(out)
     try:
         config = _experiment_config(config_file, overrides or [])
-        config = with_overrides(config, {"arm": arm, "plant.noise_variance": noise})
+        options = {"arm": arm, "plant.noise_variance": noise}
+        config = with_overrides(config, {key: value for key, value in options.items() if value is not None})
         arm_model = load_arm(config.arm)
+        check_settings_for_arm(config, arm_model)
     except ConfigError as error:
         _fail(str(error))
     name = names[controller.lower()]
@@ -275,8 +355,17 @@ def sweep(
 
     if not sweep_file.is_file():
         _fail(f"SWEEP_FILE '{sweep_file}': no such file")
+    _check_out(out)
     try:  # every setting and arm checked before the progress bar starts
-        plan_sweep(load_sweep(sweep_file), sweep_file.parent, str(sweep_file))
+        plan = plan_sweep(load_sweep(sweep_file), sweep_file.parent, str(sweep_file))
+        checked = set()
+        for row in plan.rows:
+            arm_key = plan.tasks[row.id].arm_key
+            if (id(row.config), arm_key) not in checked:
+                checked.add((id(row.config), arm_key))
+                where = ", ".join(f"{key} = {value!r}" for key, value in row.params.items())
+                source = f"{sweep_file}: the runs with {where}" if where else f"{sweep_file}: base"
+                check_settings_for_arm(row.config, plan.arms[arm_key], source)
         if ray or ray_address:
             from hydroarm.sweep import import_ray
 
@@ -290,13 +379,13 @@ def sweep(
             progress.update(task, completed=done, total=total, description=label[:50])
 
         try:
-            summary = run_sweep(sweep_file, out, workers=workers, ray_address=ray_address or ('local' if ray else None), on_progress=hook,
-                                save_trajectories=True if trajectories else None)
+            with _sigterm_as_interrupt():
+                summary = run_sweep(sweep_file, out, workers=workers, ray_address=ray_address or ('local' if ray else None), on_progress=hook,
+                                    save_trajectories=True if trajectories else None)
         except ConfigError as error:
             _fail(str(error))
-        except KeyboardInterrupt:
-            console.print(f"[yellow]interrupted:[/] finished runs are kept in {out / 'runs'}; run the same command to resume")
-            raise typer.Exit(130) from None
+        except KeyboardInterrupt as error:
+            _interrupted(error, out)
     if as_json:
         print(json.dumps(summary))
     else:
