@@ -51,6 +51,15 @@ def interrupt(process: subprocess.Popen, sig: int, whole_group: bool) -> tuple[i
     return process.returncode, output
 
 
+def resume(args: list[str], cwd: Path) -> None:
+    """Run the same command again, to completion."""
+    result = subprocess.run(
+        [sys.executable, "-m", "hydroarm.cli", *args], cwd=cwd, capture_output=True, timeout=TIMEOUT,
+        env=dict(os.environ, MPLBACKEND="Agg"),
+    )  # fmt: skip
+    assert result.returncode == 0, result.stderr.decode()[-2000:]
+
+
 def snapshot(files: list[Path]) -> dict[str, tuple[int, int]]:
     return {f.name: (f.stat().st_ino, f.stat().st_mtime_ns) for f in files}
 
@@ -76,11 +85,7 @@ def test_reproduce_interrupted_by_ctrl_c_resumes(tmp_path):
     assert not (tmp_path / "out" / "metrics.json").exists()
     before = snapshot(finished)
 
-    rerun = subprocess.run(
-        [sys.executable, "-m", "hydroarm.cli", *args], cwd=tmp_path, capture_output=True, timeout=TIMEOUT,
-        env=dict(os.environ, MPLBACKEND="Agg"),
-    )  # fmt: skip
-    assert rerun.returncode == 0, rerun.stderr.decode()[-2000:]
+    resume(args, tmp_path)
     after = snapshot(sorted(runs.glob("*.npz")))
     assert {name: after[name] for name in before} == before  # not recomputed, not rewritten
     assert len(after) > len(before)
@@ -120,11 +125,7 @@ def test_sweep_interrupted_resumes(tmp_path, sig, whole_group, code):
     assert len(table) - 1 >= len(finished) - 2  # the table follows the finished runs (atomic rewrites)
     before = snapshot(finished)
 
-    rerun = subprocess.run(
-        [sys.executable, "-m", "hydroarm.cli", *args], cwd=tmp_path, capture_output=True, timeout=TIMEOUT,
-        env=dict(os.environ, MPLBACKEND="Agg"),
-    )  # fmt: skip
-    assert rerun.returncode == 0, rerun.stderr.decode()[-2000:]
+    resume(args, tmp_path)
     after = snapshot(sorted(runs.glob("*.json")))
     assert len(after) == 16
     assert {name: after[name] for name in before} == before
