@@ -61,7 +61,7 @@ FAULT_EVENTS: dict[str, str] = {
     "diverged": "the plant state blew up: the run was stopped (runner)",
 }
 """Every fault a run can meet, and how it was handled (``Trajectory.meta["faults"]``
-counts each one; docs/robustness.md)."""
+counts each one; docs/reliability.md)."""
 
 
 @runtime_checkable

@@ -194,5 +194,4 @@ class GPMPC:
         if not (np.all(np.isfinite(residual)) and np.all(np.isfinite(features))):
             self._pending_events.append("gp_sample_rejected")  # e.g. a blown-up step: not learned
             return
-        self.gp.add(features, residual)
-        self._collect_gp_events()
+        self.gp.add(features, residual)  # its GP faults are reported by the next compute

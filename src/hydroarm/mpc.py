@@ -892,6 +892,7 @@ class LinearMPC:
         self.torque_limit = per_joint(limit, n, "torque_limit")
         self._limit_stacked = np.tile(self.torque_limit, cfg.horizon)
         self._solver = make_box_qp_solver(cfg.solver)
+        self._linearise_into = {"euler": _linearise_into, "taylor2": _linearise_into_taylor2}[cfg.discretisation]
         if cfg.terminal_set != "off":
             try:
                 import clarabel  # noqa: F401
@@ -1062,14 +1063,9 @@ class LinearMPC:
             q = np.asarray(q, dtype=float)
             v = np.asarray(v, dtype=float)
             u_ref = self.arm.inverse_dynamics(q, v, np.asarray(a, dtype=float))
-            if self.config.discretisation == "euler":
-                self._x_next[slot] = _linearise_into(
-                    self.arm, q, v, u_ref, self.control_period, self._a[slot], self._b[slot]
-                )
-            else:
-                self._x_next[slot] = _linearise_into_taylor2(
-                    self.arm, q, v, u_ref, self.control_period, self._a[slot], self._b[slot]
-                )
+            self._x_next[slot] = self._linearise_into(
+                self.arm, q, v, u_ref, self.control_period, self._a[slot], self._b[slot]
+            )
             self._x_ref[slot, : self.n] = q
             self._x_ref[slot, self.n :] = v
             self._u_ref[slot] = u_ref

@@ -202,7 +202,7 @@ def run_closed_loop(
             except Exception as exc:  # noqa: BLE001 - as in compute
                 stopped, error, used, stop_time = "controller_error", f"{type(exc).__name__}: {exc}", k + 1, float(t)
                 faults["controller_error"] += 1
-                events[k] = ",".join([*filter(None, [events[k]]), "controller_error"])
+                events[k] = ",".join(filter(None, (events[k], "controller_error")))
                 break
         x, y, y_valid = x_next, y_next, next_valid
         if progress is not None:
