@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import math
 
-import daqp
 import numpy as np
 import pytest
 
@@ -14,7 +13,17 @@ import hydroarm
 from hydroarm.control import FAULT_EVENTS, ControlOutput
 from hydroarm.experiments import ExperimentConfig, build_controller
 from hydroarm.gp import GPConfig
-from hydroarm.mpc import DaqpBoxSolver, MPCConfig, QPResult, qp_failure_event
+from hydroarm.mpc import (
+    SOLVERS,
+    DaqpBoxSolver,
+    MPCConfig,
+    OsqpBoxSolver,
+    QPResult,
+    condense,
+    make_box_qp_solver,
+    qp_failure_event,
+    solve_terminal_qp,
+)
 from hydroarm.plant import PlantConfig, UnderwaterPlant
 from hydroarm.simulate import Trajectory, run_closed_loop, tracking_metrics
 from hydroarm.water import Water
@@ -127,23 +136,15 @@ def test_gp_cholesky_failure_is_recovered_and_counted(arm, reference, retries, e
     assert np.all(np.isfinite(traj.disturbance_estimate))
 
 
-class IterationLimitedDaqp(DaqpBoxSolver):
-    """DAQP allowed a single active-set iteration: it hits its limit whenever more
-    than one bound changes."""
-
-    def solve(self, H, g, lb, ub, x0=None) -> QPResult:
-        m = g.shape[0]
-        x, _, flag, info = daqp.solve(H, g, np.zeros((0, m)), ub, lb, np.zeros(m, dtype=np.int32), iter_limit=1)
-        return QPResult(np.asarray(x), flag == 1, f"daqp exitflag {flag}, {info['iterations']} iterations")
-
-
 class RaisingSolver:
     def solve(self, H, g, lb, ub, x0=None) -> QPResult:
         raise RuntimeError("solver crashed")
 
 
 @pytest.mark.parametrize(
-    "solver, event", [(IterationLimitedDaqp(), "qp_iteration_limit"), (RaisingSolver(), "qp_failed")]
+    "solver, event",
+    [(DaqpBoxSolver(iteration_factor=0), "qp_iteration_limit"), (OsqpBoxSolver(max_iterations=2), "qp_iteration_limit"),
+     (RaisingSolver(), "qp_failed")],  # fmt: skip
 )
 def test_qp_failures_fall_back_within_limits(arm, reference, solver, event):
     """Start-up from rest, far from q_r(0), with 40 N m limits: the torques saturate,
@@ -168,15 +169,55 @@ def test_infeasible_hard_terminal_set_falls_back_to_soft(arm, reference):
     assert_within_limits(traj, mpc.torque_limit)
 
 
-def test_qp_failure_events_from_solver_messages():
-    assert qp_failure_event(QPResult(None, False, "daqp exitflag -4, 60 iterations")) == "qp_iteration_limit"
-    assert qp_failure_event(QPResult(None, False, "daqp exitflag -1, 3 iterations")) == "qp_infeasible"
-    assert qp_failure_event(QPResult(None, False, "osqp maximum iterations reached")) == "qp_iteration_limit"
-    assert qp_failure_event(QPResult(None, False, "osqp primal infeasible")) == "qp_infeasible"
-    assert qp_failure_event(QPResult(None, False, "clarabel MaxIterations")) == "qp_iteration_limit"
-    assert qp_failure_event(QPResult(None, False, "clarabel PrimalInfeasible")) == "qp_infeasible"
-    assert qp_failure_event(QPResult(None, False, "solver raised RuntimeError()")) == "qp_failed"
-    assert qp_failure_event(QPResult(np.full(3, np.nan), True, "daqp exitflag 1")) == "qp_invalid_solution"
+def _box_qp(m: int = 12, seed: int = 0):
+    """A strictly convex box QP whose optimum has active bounds."""
+    rng = np.random.default_rng(seed)
+    a = rng.normal(size=(m, m))
+    return a @ a.T + np.eye(m), 100.0 * rng.normal(size=m), -np.ones(m), np.ones(m)
+
+
+@pytest.mark.parametrize("name", SOLVERS)
+def test_every_solver_reports_a_structured_status(name):
+    """Each adapter reads its solver's own status codes: solved, infeasible (crossed
+    bounds, refused before the solver runs: OSQP's update would keep its old data
+    silently), and the fault event each status maps to."""
+    H, g, lb, ub = _box_qp()
+    solver = make_box_qp_solver(name)
+    solved = solver.solve(H, g, lb, ub)
+    assert solved.status == "solved" and solved.ok and qp_failure_event(solved) == "qp_invalid_solution"
+    assert np.all(solved.x >= lb - 1e-6) and np.all(solved.x <= ub + 1e-6)
+    crossed = lb.copy()
+    crossed[3] = 2.0
+    infeasible = solver.solve(H, g, crossed, ub)
+    assert infeasible.status == "infeasible" and not infeasible.ok
+    assert qp_failure_event(infeasible) == "qp_infeasible"
+    assert "lb[3]" in infeasible.message
+
+
+@pytest.mark.parametrize("solver", [DaqpBoxSolver(iteration_factor=0), OsqpBoxSolver(max_iterations=2)])
+def test_iteration_limits_are_reported_as_such(solver):
+    H, g, lb, ub = _box_qp()
+    result = solver.solve(H, g, lb, ub)
+    assert result.status == "iteration_limit", result.message
+    assert qp_failure_event(result) == "qp_iteration_limit"
+
+
+def test_unreachable_terminal_set_is_infeasible_for_clarabel():
+    """The hard terminal set e_N' P e_N <= alpha with alpha far below what the box allows."""
+    horizon, nx, nu = 3, 2, 1
+    A = np.repeat(np.array([[[1.0, 0.1], [0.0, 1.0]]]), horizon, axis=0)
+    B = np.repeat(np.array([[[0.005], [0.1]]]), horizon, axis=0)
+    qp = condense(A, B, np.zeros((horizon, nx)), np.ones(nx), np.ones(nu), np.eye(nx), np.array([10.0, 0.0]))
+    box = np.full(horizon * nu, 0.1)
+    result, _ = solve_terminal_qp(qp, -box, box, np.eye(nx), 1e-6, None)
+    assert result.status == "infeasible", result.message
+    assert qp_failure_event(result) == "qp_infeasible"
+
+
+def test_qp_status_is_checked_and_every_event_is_documented():
+    with pytest.raises(ValueError, match="status"):
+        QPResult(None, "maybe", "")
+    assert qp_failure_event(QPResult(None, "failed", "solver raised RuntimeError()")) == "qp_failed"
     for event in ("qp_iteration_limit", "qp_infeasible", "qp_failed", "qp_invalid_solution"):
         assert event in FAULT_EVENTS
 
@@ -184,7 +225,7 @@ def test_qp_failure_events_from_solver_messages():
 def test_a_solution_with_nan_is_not_used(arm, reference):
     class NanSolver:
         def solve(self, H, g, lb, ub, x0=None):
-            return QPResult(np.full(g.shape, np.nan), True, "claims solved")
+            return QPResult(np.full(g.shape, np.nan), "solved", "claims solved")
 
     mpc = controller("MPC", arm)
     mpc._solver = NanSolver()

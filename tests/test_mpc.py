@@ -369,7 +369,7 @@ def test_terminal_set_is_met_when_starting_on_the_reference(arm, mode):
 def test_solver_failure_falls_back_to_lqr_then_to_the_shifted_plan(arm, monkeypatch):
     reference = paper_reference()
     mpc = LinearMPC(arm, MPCConfig(torque_limit=50.0))
-    failing = lambda *args: QPResult(None, False, "forced failure")  # noqa: E731
+    failing = lambda *args: QPResult(None, "failed", "forced failure")  # noqa: E731
     monkeypatch.setattr(mpc._solver, "solve", failing)
     y = paper_state(0.0) + 0.3
     out = mpc.compute(0.0, y, reference)

@@ -641,13 +641,40 @@ def condense_reference(
 # --------------------------------------------------------------------------------------
 # Box-constrained QP solvers: min 1/2 x'Hx + g'x  s.t.  lb <= x <= ub
 # --------------------------------------------------------------------------------------
+QP_STATUSES = ("solved", "iteration_limit", "infeasible", "failed")
+"""What a box-QP solve ended with, read from each solver's own status codes."""
+
+
 @dataclass(frozen=True)
 class QPResult:
-    """``x`` (m,) or None; ``ok``: the solver reported an optimal solution; ``message``."""
+    """``x`` (m,) or None; ``status``, one of :data:`QP_STATUSES` (``"solved"``: the solver
+    reported an optimal solution); ``message``: the solver's own words, for people."""
 
     x: np.ndarray | None
-    ok: bool
+    status: str
     message: str
+
+    def __post_init__(self) -> None:
+        if self.status not in QP_STATUSES:
+            raise ValueError(f"status = {self.status!r}: must be one of {', '.join(QP_STATUSES)}")
+
+    @property
+    def ok(self) -> bool:
+        return self.status == "solved"
+
+
+def _crossed_bounds(lb: np.ndarray, ub: np.ndarray) -> QPResult | None:
+    """An ``"infeasible"`` result if some ``lb_i > ub_i`` (checked before any solver runs:
+    OSQP's update would refuse such data silently and return the previous solution)."""
+    crossed = np.flatnonzero(~(lb <= ub))
+    if crossed.size == 0:
+        return None
+    i = int(crossed[0])
+    return QPResult(None, "infeasible", f"lb[{i}] = {lb[i]:g} > ub[{i}] = {ub[i]:g}")
+
+
+_DAQP_STATUS = {1: "solved", -4: "iteration_limit", -1: "infeasible"}
+"""DAQP exit flags (1 optimal, -1 primal infeasible, -4 iteration limit); others: failed."""
 
 
 class DaqpBoxSolver:
@@ -666,6 +693,9 @@ class DaqpBoxSolver:
         self._sense: np.ndarray | None = None
 
     def solve(self, H, g, lb, ub, x0=None) -> QPResult:
+        crossed = _crossed_bounds(lb, ub)
+        if crossed is not None:
+            return crossed
         m = g.shape[0]
         if self._empty is None or self._empty.shape[1] != m:
             self._empty = np.zeros((0, m))
@@ -675,7 +705,7 @@ class DaqpBoxSolver:
             iter_limit=self.iteration_factor * m,
         )  # fmt: skip
         message = f"daqp exitflag {flag}, {info['iterations']} iterations"
-        return QPResult(np.asarray(x), flag == 1, message)
+        return QPResult(np.asarray(x), _DAQP_STATUS.get(int(flag), "failed"), message)
 
 
 class OsqpBoxSolver:
@@ -701,6 +731,9 @@ class OsqpBoxSolver:
         import osqp
         import scipy.sparse as sp
 
+        crossed = _crossed_bounds(lb, ub)
+        if crossed is not None:
+            return crossed
         m = g.shape[0]
         if self._solver is None or self._size != m:
             rows, cols = np.triu_indices(m)
@@ -720,8 +753,21 @@ class OsqpBoxSolver:
         if x0 is not None:
             self._solver.warm_start(x=x0)
         result = self._solver.solve(raise_error=False)
-        status = str(result.info.status)
-        return QPResult(np.asarray(result.x), status == "solved", f"osqp {status}")
+        return QPResult(np.asarray(result.x), _osqp_status(result.info.status_val), f"osqp {result.info.status}")
+
+
+def _osqp_status(value: int) -> str:
+    """Our status of an OSQP ``status_val`` (its ``SolverStatus`` constants)."""
+    import osqp
+
+    codes = osqp.SolverStatus
+    if value == codes.OSQP_SOLVED:
+        return "solved"
+    if value in (codes.OSQP_MAX_ITER_REACHED, codes.OSQP_TIME_LIMIT_REACHED):
+        return "iteration_limit"
+    if value in (codes.OSQP_PRIMAL_INFEASIBLE, codes.OSQP_PRIMAL_INFEASIBLE_INACCURATE):
+        return "infeasible"
+    return "failed"
 
 
 class QuadprogBoxSolver:
@@ -732,13 +778,17 @@ class QuadprogBoxSolver:
     def solve(self, H, g, lb, ub, x0=None) -> QPResult:
         import quadprog
 
+        crossed = _crossed_bounds(lb, ub)
+        if crossed is not None:
+            return crossed
         m = g.shape[0]
         constraints = np.hstack([np.eye(m), -np.eye(m)])
         try:
             x = quadprog.solve_qp(H, -g, constraints, np.concatenate([lb, -ub]), 0)[0]
-        except ValueError as error:
-            return QPResult(None, False, f"quadprog {error}")
-        return QPResult(np.asarray(x), True, "quadprog optimal")
+        except ValueError as error:  # quadprog reports only by exception text
+            status = "infeasible" if "inconsistent" in str(error) else "failed"
+            return QPResult(None, status, f"quadprog {error}")
+        return QPResult(np.asarray(x), "solved", "quadprog optimal")
 
 
 class ClarabelBoxSolver:
@@ -750,6 +800,9 @@ class ClarabelBoxSolver:
         import clarabel
         import scipy.sparse as sp
 
+        crossed = _crossed_bounds(lb, ub)
+        if crossed is not None:
+            return crossed
         m = g.shape[0]
         eye = sp.identity(m, format="csc")
         constraints = sp.vstack([eye, -eye], format="csc")
@@ -758,7 +811,7 @@ class ClarabelBoxSolver:
             np.concatenate([ub, -lb]), [clarabel.NonnegativeConeT(2 * m)], _clarabel_settings(),
         )  # fmt: skip
         solution = solver.solve()
-        return QPResult(np.asarray(solution.x), _clarabel_ok(solution), f"clarabel {solution.status}")
+        return QPResult(np.asarray(solution.x), _clarabel_status(solution), f"clarabel {solution.status}")
 
 
 def _clarabel_settings():
@@ -771,11 +824,19 @@ def _clarabel_settings():
     return settings
 
 
-def _clarabel_ok(solution) -> bool:
-    """Solved, or solved to Clarabel's reduced accuracy (AlmostSolved, gap ~5e-5)."""
+def _clarabel_status(solution) -> str:
+    """Our status of a Clarabel solution: solved also to its reduced accuracy
+    (AlmostSolved, gap ~5e-5)."""
     import clarabel
 
-    return solution.status in (clarabel.SolverStatus.Solved, clarabel.SolverStatus.AlmostSolved)
+    codes = clarabel.SolverStatus
+    if solution.status in (codes.Solved, codes.AlmostSolved):
+        return "solved"
+    if solution.status in (codes.MaxIterations, codes.MaxTime):
+        return "iteration_limit"
+    if solution.status in (codes.PrimalInfeasible, codes.AlmostPrimalInfeasible):
+        return "infeasible"
+    return "failed"
 
 
 def make_box_qp_solver(name: str):
@@ -845,10 +906,10 @@ def solve_terminal_qp(
         _clarabel_settings(),
     )  # fmt: skip
     solution = solver.solve()
-    ok = _clarabel_ok(solution)
+    status = _clarabel_status(solution)
     x = np.asarray(solution.x)
-    slack = float(max(x[m], 0.0)) if soft and ok else 0.0
-    return QPResult(x[:m], ok, f"clarabel {solution.status}"), slack
+    slack = float(max(x[m], 0.0)) if soft and status == "solved" else 0.0
+    return QPResult(x[:m], status, f"clarabel {solution.status}"), slack
 
 
 # --------------------------------------------------------------------------------------
@@ -1080,7 +1141,7 @@ class LinearMPC:
             penalty = None if terminal_set == "hard" else cfg.terminal_slack_penalty
             return solve_terminal_qp(qp, lb, ub, P, cfg.terminal_alpha, penalty)[0]
         except Exception as error:  # a crashing solver is a failed solve
-            return QPResult(None, False, f"solver raised {error!r}")
+            return QPResult(None, "failed", f"solver raised {error!r}")
 
     def _shifted_plan(self, k: int) -> np.ndarray | None:
         """The last successful plan (N, n) shifted to start at index k (last move held)."""
@@ -1112,24 +1173,20 @@ class LinearMPC:
         return du, status
 
 
-_QP_FAILURES = (
-    # (words in the solver's message, event): DAQP exit flags, OSQP and Clarabel statuses
-    (("exitflag -4", "maximum iterations", "maxiterations", "maxtime"), "qp_iteration_limit"),
-    (("exitflag -1", "primal infeasible", "primalinfeasible", "infeasible"), "qp_infeasible"),
-)
+_QP_FAILURE_EVENTS = {
+    "solved": "qp_invalid_solution",
+    "iteration_limit": "qp_iteration_limit",
+    "infeasible": "qp_infeasible",
+    "failed": "qp_failed",
+}
 
 
 def qp_failure_event(result: QPResult) -> str:
-    """The fault event of a failed solve: ``"qp_iteration_limit"``, ``"qp_infeasible"``,
-    ``"qp_invalid_solution"`` (reported solved, but not finite or outside the box)
-    or ``"qp_failed"`` (anything else, e.g. the solver raised)."""
-    if result.ok:
-        return "qp_invalid_solution"
-    message = result.message.lower().replace("_", "")
-    for words, event in _QP_FAILURES:
-        if any(word in message for word in words):
-            return event
-    return "qp_failed"
+    """The fault event of a solve that was not used, from ``result.status``:
+    ``"qp_iteration_limit"``, ``"qp_infeasible"``, ``"qp_failed"`` (anything else, e.g.
+    the solver raised) or ``"qp_invalid_solution"`` (reported solved, but not finite or
+    outside the box)."""
+    return _QP_FAILURE_EVENTS[result.status]
 
 
 def _valid_moves(x: np.ndarray | None, lb: np.ndarray, ub: np.ndarray) -> bool:
