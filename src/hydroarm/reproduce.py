@@ -41,7 +41,7 @@ from hydroarm import figures
 from hydroarm.animate import animate
 from hydroarm.arm import load_arm
 from hydroarm.experiments import ExperimentConfig, run_experiment, with_overrides
-from hydroarm.simulate import Trajectory, tracking_metrics
+from hydroarm.simulate import Trajectory, fault_counts, stop_reason, tracking_metrics
 
 CONTROLLERS = ("SMC", "MPC", "GP-MPC")
 NOISE_VARIANCE = 0.001
@@ -212,12 +212,12 @@ def fault_totals(trajs: list[Trajectory]) -> dict[str, int]:
     that stopped early adds ``stopped:<why>``."""
     totals: dict[str, int] = {}
     for traj in trajs:
-        for name, count in (traj.meta.get("faults") or {}).items():
+        for name, count in fault_counts(traj).items():
             if count:
-                totals[name] = totals.get(name, 0) + int(count)
-        if traj.meta.get("stopped"):
-            key = f"stopped:{traj.meta['stopped']}"
-            totals[key] = totals.get(key, 0) + 1
+                totals[name] = totals.get(name, 0) + count
+        stopped = stop_reason(traj)
+        if stopped:
+            totals[f"stopped:{stopped}"] = totals.get(f"stopped:{stopped}", 0) + 1
     return totals
 
 

@@ -231,6 +231,22 @@ def run_closed_loop(
     )
 
 
+def fault_counts(traj: Trajectory) -> dict[str, int]:
+    """The run's fault events counted over the run (``traj.meta["faults"]``: event -> count;
+    events listed in :data:`hydroarm.control.FAULT_EVENTS`); {} from a runner that did not
+    count them."""
+    return {str(name): int(count) for name, count in (traj.meta.get("faults") or {}).items()}
+
+
+def stop_reason(traj: Trajectory) -> str | None:
+    """Why the run ended early (``traj.meta["stopped"]``: ``"diverged"``,
+    ``"controller_error"``, ...), or None if it ran to the end."""
+    stopped = traj.meta.get("stopped")
+    if stopped is None and traj.diverged:
+        return "diverged"
+    return None if stopped is None else str(stopped)
+
+
 def tracking_metrics(traj: Trajectory, steady_after: float = 2.0, band: float = 0.05) -> dict:
     """SPEC section 4 metrics, per joint, on the true q.
 

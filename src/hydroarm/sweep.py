@@ -93,6 +93,7 @@ from hydroarm.experiments import (
     start_for_arm,
     with_overrides,
 )
+from hydroarm.simulate import fault_counts, stop_reason
 
 FORMAT = 2
 """Version of the run-file layout; a run file of another format is recomputed.
@@ -570,22 +571,6 @@ def _finite(value: Any) -> Any:
     return value
 
 
-def _faults(traj) -> dict[str, int]:
-    """The runner's fault counts (``traj.meta["faults"]``: key -> events over the run); {}
-    from a runner that does not count them."""
-    faults = traj.meta.get("faults") or {}
-    return {str(key): int(value) for key, value in faults.items()}
-
-
-def _stopped(traj) -> str | None:
-    """Why the run ended early (``traj.meta["stopped"]``: "diverged", "controller_error", ...)
-    or None if it ran to the end."""
-    stopped = traj.meta.get("stopped")
-    if stopped is None and traj.diverged:
-        return "diverged"
-    return None if stopped is None else str(stopped)
-
-
 def error_envelope(traj, window: float = ENVELOPE_WINDOW) -> dict:
     """The largest |q_r - q| over joints per window: ``{"window_s": w, "max_abs_error": [...]}``
     (rad), window i covering t in [i w, (i + 1) w); w is ``window`` rounded to whole control
@@ -638,8 +623,8 @@ def _scalars(metrics: dict, traj) -> dict:
         "time_to_band_max": float(np.max(ttb)) if all(math.isfinite(x) for x in ttb) else math.nan,
         "diverged": bool(metrics["diverged"]),
         "diverged_at_s": traj.meta.get("diverged_at_s"),
-        "stopped": _stopped(traj),
-        "faults_total": sum(_faults(traj).values()),
+        "stopped": stop_reason(traj),
+        "faults_total": sum(fault_counts(traj).values()),
         "step_ms_median": float(np.nanmedian(total) * 1e3)
         if total is not None and np.isfinite(total).any()
         else math.nan,
@@ -677,7 +662,7 @@ def execute_run(task: RunTask, arm: Arm | None = None) -> dict:
         "mismatch": task.mismatch,
         "metrics": metrics,
         "summary": _scalars(metrics, traj),
-        "faults": _faults(traj),
+        "faults": fault_counts(traj),
         "error": traj.meta.get("error"),  # why the runner stopped it (a controller error), or None
         "envelope": error_envelope(traj),
         "n_joints": arm.n_joints,
