@@ -36,9 +36,16 @@ from hypothesis import strategies as st
 from typer.testing import CliRunner
 
 from hydroarm.arm import builtin_arm_path, load_arm
-from hydroarm.cli import app, check_settings_for_arm
+from hydroarm.cli import app
 from hydroarm.config import ConfigError, read_mapping, shown, validate
-from hydroarm.experiments import CONTROLLERS, ExperimentConfig, build_controller, task_for_arm
+from hydroarm.experiments import (
+    CONTROLLERS,
+    ExperimentConfig,
+    build_controller,
+    check_settings_for_arm,
+    run_experiment,
+    task_for_arm,
+)
 from hydroarm.gp import GPConfig
 from hydroarm.plant import PlantConfig, UnderwaterPlant
 from hydroarm.sweep import plan_sweep, validate_sweep
@@ -617,6 +624,18 @@ def test_gp_vector_of_the_wrong_length_is_refused_before_any_run(field):
     config = validate(ExperimentConfig, data, "settings")
     with pytest.raises(ConfigError, match=rf"settings: gp\.{field} = \(1\.0, .*: \d+ values: give"):
         check_settings_for_arm(config, _arm("paper"))
+
+
+def test_run_experiment_checks_the_settings_against_the_arm_before_running():
+    """The Python API refuses what the CLI refuses: a per-joint list for the wrong number of
+    joints, even for a controller that does not use it, before any step is run."""
+    data = copy.deepcopy(EXPERIMENT)
+    data["smc"]["surface_slope"] = [1.0] * 4
+    config = validate(ExperimentConfig, data, "settings")
+    steps = []
+    with pytest.raises(ConfigError, match=r"settings: smc\.surface_slope = .*4 values for 6 joints"):
+        run_experiment(config, "MPC", progress=lambda done, total: steps.append(done))
+    assert steps == []
 
 
 @pytest.mark.parametrize("field", ["theta0", "input_scale", "output_scale"])

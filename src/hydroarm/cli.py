@@ -13,7 +13,7 @@ import json
 import signal
 import sys
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Any
+from typing import Annotated, Any
 
 import typer
 from rich.console import Console
@@ -21,11 +21,7 @@ from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
-from hydroarm.config import ConfigError, check_joint_counts, load_model, shown
-
-if TYPE_CHECKING:  # imported lazily at run time: `hydroarm --help` stays fast
-    from hydroarm.arm import Arm
-    from hydroarm.experiments import ExperimentConfig
+from hydroarm.config import ConfigError, load_model
 
 app = typer.Typer(
     add_completion=False,
@@ -44,38 +40,6 @@ def _check_out(out: Path) -> None:
     """``--out`` must be a folder or not exist yet (it is created only once the settings are valid)."""
     if out.exists() and not out.is_dir():
         _fail(f"--out '{out}': exists and is not a folder")
-
-
-def check_settings_for_arm(config: ExperimentConfig, arm: Arm, source: str = "settings") -> None:
-    """What the settings' types cannot say until the arm is known; raises :class:`ConfigError`.
-
-    Every per-joint list (``smc.*``, ``mpc.*``) must have one value per joint; the GP's
-    ``theta0`` (d + 2 values), ``input_scale`` (d) and ``output_scale`` (1 or n) must fit
-    the d GP inputs of ``gpmpc.features`` on the arm's n joints; ``plant.friction`` must
-    suit the RK4 step on this arm (:class:`~hydroarm.plant.UnderwaterPlant` checks it).
-    Nothing is run (with friction, the plant is built: about a millisecond).
-    """
-    from hydroarm.gpmpc import feature_size
-    from hydroarm.plant import UnderwaterPlant
-
-    n = arm.n_joints
-    try:
-        check_joint_counts(config, n)
-        if config.plant.friction > 0.0:
-            UnderwaterPlant(arm, config.water, config.plant)
-    except ConfigError as error:
-        raise ConfigError(f"{source}: {error}") from None
-    gp = config.gp
-    d = feature_size(config.gpmpc.features, n)
-    inputs = f"gpmpc.features = '{config.gpmpc.features}' gives d = {d} GP inputs on {n} joints"
-    for name, value, allowed in (
-        ("theta0", gp.theta0, (d + 2,)),
-        ("input_scale", gp.input_scale, (d,)),
-        ("output_scale", gp.output_scale, (1, n)),
-    ):
-        if value is not None and len(value) not in allowed:
-            wanted = " or ".join(str(k) for k in allowed)
-            raise ConfigError(f"{source}: gp.{name} = {shown(value)}: {len(value)} values: give {wanted} ({inputs})")
 
 
 class Terminated(KeyboardInterrupt):
@@ -148,7 +112,7 @@ def reproduce(
     Examples: hydroarm reproduce --out results;  hydroarm reproduce --arm alpha5 --out alpha5
     """
     from hydroarm.arm import load_arm
-    from hydroarm.experiments import with_overrides
+    from hydroarm.experiments import check_settings_for_arm, with_overrides
     from hydroarm.reproduce import reproduce as run
 
     _check_out(out)
@@ -221,7 +185,7 @@ def run(
     """
     from hydroarm import figures
     from hydroarm.arm import load_arm
-    from hydroarm.experiments import CONTROLLERS, run_experiment, with_overrides
+    from hydroarm.experiments import CONTROLLERS, check_settings_for_arm, run_experiment, with_overrides
     from hydroarm.simulate import tracking_metrics
 
     names = {c.lower(): c for c in CONTROLLERS}
@@ -351,6 +315,7 @@ def sweep(
 
     Examples: hydroarm sweep examples/sweep.toml --out sweep1;  hydroarm sweep examples/sweep.toml --out sweep1 --ray
     """
+    from hydroarm.experiments import check_settings_for_arm
     from hydroarm.sweep import load_sweep, plan_sweep, run_sweep
 
     if not sweep_file.is_file():

@@ -19,9 +19,9 @@ from typing import Any, Literal
 import pydantic
 
 from hydroarm.arm import Arm, load_arm
-from hydroarm.config import ConfigError, FrozenModel, validate
+from hydroarm.config import ConfigError, FrozenModel, check_joint_counts, shown, validate
 from hydroarm.gp import GPConfig
-from hydroarm.gpmpc import GPMPC, GPMPCConfig
+from hydroarm.gpmpc import GPMPC, GPMPCConfig, feature_size
 from hydroarm.mpc import LinearMPC, MPCConfig
 from hydroarm.plant import PlantConfig, UnderwaterPlant
 from hydroarm.simulate import Trajectory, run_closed_loop
@@ -125,6 +125,35 @@ def with_overrides(config: ExperimentConfig, overrides: dict[str, Any]) -> Exper
     return validate(ExperimentConfig, data, "settings")
 
 
+def check_settings_for_arm(config: ExperimentConfig, arm: Arm, source: str = "settings") -> None:
+    """What the settings' types cannot say until the arm is known; raises :class:`ConfigError`.
+
+    Every per-joint list (``smc.*``, ``mpc.*``) must have one value per joint; the GP's
+    ``theta0`` (d + 2 values), ``input_scale`` (d) and ``output_scale`` (1 or n) must fit
+    the d GP inputs of ``gpmpc.features`` on the arm's n joints; ``plant.friction`` must
+    suit the RK4 step on this arm (:class:`~hydroarm.plant.UnderwaterPlant` checks it).
+    Nothing is run (with friction, the plant is built: about a millisecond).
+    """
+    n = arm.n_joints
+    try:
+        check_joint_counts(config, n)
+        if config.plant.friction > 0.0:
+            UnderwaterPlant(arm, config.water, config.plant)
+    except ConfigError as error:
+        raise ConfigError(f"{source}: {error}") from None
+    gp = config.gp
+    d = feature_size(config.gpmpc.features, n)
+    inputs = f"gpmpc.features = '{config.gpmpc.features}' gives d = {d} GP inputs on {n} joints"
+    for name, value, allowed in (
+        ("theta0", gp.theta0, (d + 2,)),
+        ("input_scale", gp.input_scale, (d,)),
+        ("output_scale", gp.output_scale, (1, n)),
+    ):
+        if value is not None and len(value) not in allowed:
+            wanted = " or ".join(str(k) for k in allowed)
+            raise ConfigError(f"{source}: gp.{name} = {shown(value)}: {len(value)} values: give {wanted} ({inputs})")
+
+
 def build_controller(name: str, arm: Arm, config: ExperimentConfig):
     """The controller ``name`` (SMC, MPC, GP-MPC) on ``arm`` with the experiment's settings."""
     period = {"control_period": config.control_period}
@@ -186,6 +215,7 @@ def run_experiment(
     settings and their digest.
     """
     arm = load_arm(config.arm)
+    check_settings_for_arm(config, arm)
     plant = UnderwaterPlant(arm, config.water, config.plant)
     reference, x0 = start_for_arm(arm, config)
     controller_object = build_controller(controller, arm, config)
