@@ -6,10 +6,12 @@ whose message names the field (as a dotted path such as ``links.2.mass``), the
 value given and what is allowed; never a traceback from deep inside NumPy or
 Pinocchio.
 
-Types are not coerced across kinds: a boolean where a number is expected
-(``horizon = true``), a number where a boolean is expected (``drag = 1``) or a
-string where a number or a boolean is expected (``r = "0.1"``) is an error,
-although pydantic's lax mode would accept it (see :class:`FrozenModel`).
+Types are not coerced across kinds: the models validate in pydantic's strict
+mode (see :class:`FrozenModel`), so a boolean where a number is expected
+(``horizon = true``), a number where a boolean is expected (``drag = 1``), a
+string where a number or a boolean is expected (``r = "0.1"``) or a float where
+an integer is expected (``horizon = 10.0``) is an error. An integer is still a
+valid float (``rho = 1000``).
 """
 
 from __future__ import annotations
@@ -63,24 +65,37 @@ def field_error(field: str, value: Any, reason: str, prefix: str = "") -> Config
     return ConfigError(f"{prefix}{field} = {shown(value)}: {reason}", field=field, value=value, reason=reason)
 
 
-# --- no coercion across kinds ---------------------------------------------------------
+# --- the base of every config model -------------------------------------------------
+
+
+class FrozenModel(pydantic.BaseModel):
+    """Base of every config model: immutable, unknown keys rejected, NaN and infinities
+    rejected, and validated in pydantic's strict mode (``strict=True``).
+
+    Strict mode refuses what lax mode would convert: a boolean or a string for a
+    number, a number or a string for a boolean, a float for an integer (``10.0``),
+    a list for a tuple, a string for a ``Path``. It still accepts an int for a float
+    and a mapping for a nested model. A field that must take a list for a tuple or a
+    string for a ``Path`` (as TOML, YAML and ``--set`` give them) relaxes itself only,
+    its items staying strict: ``Annotated[tuple[pydantic.StrictFloat, ...],
+    pydantic.Strict(False)]``. No config model has such a field today; the stdlib
+    dataclass :class:`~hydroarm.gp.GPConfig` (the ``gp`` section) carries its own
+    pydantic config and strict field types, as strict mode would accept only a
+    ``GPConfig`` instance for it, not a mapping.
+
+    NumPy scalars: floating and integer ones are valid floats (as is ``numpy.bool_``,
+    which strict mode does not tell from a number); NumPy integers and booleans are not
+    valid ints or booleans (give ``int(x)``, ``bool(x)``).
+    """
+
+    model_config = pydantic.ConfigDict(
+        extra="forbid", frozen=True, allow_inf_nan=False, validate_default=True, strict=True
+    )
+
+
+# --- messages -----------------------------------------------------------------------
 
 _NUMBER_TYPES = (int, float)
-
-
-def _kind(value: Any) -> str | None:
-    """"bool", "number", "str", "list", "dict" or None (anything else: not checked)."""
-    if isinstance(value, (bool, np.bool_)):
-        return "bool"
-    if isinstance(value, (int, float, np.integer, np.floating)):
-        return "number"
-    if isinstance(value, str):
-        return "str"
-    if isinstance(value, (list, tuple)):
-        return "list"
-    if isinstance(value, Mapping):
-        return "dict"
-    return None
 
 
 def _members(annotation: Any) -> list[Any]:
@@ -92,97 +107,6 @@ def _members(annotation: Any) -> list[Any]:
         return [m for arg in typing.get_args(annotation) for m in _members(arg)]
     return [annotation]
 
-
-def _kinds(annotation: Any) -> set[str] | None:
-    """The kinds of value an annotation accepts (None: any kind, e.g. ``Any``)."""
-    out: set[str] = set()
-    for member in _members(annotation):
-        origin = typing.get_origin(member)
-        if member is Any or member is object:
-            return None
-        if member is bool:
-            out.add("bool")
-        elif member in _NUMBER_TYPES:
-            out.add("number")
-        elif member is str:
-            out.add("str")
-        elif origin is typing.Literal:
-            out.update(_kind(value) or "other" for value in typing.get_args(member))
-        elif origin in (list, tuple, set, frozenset) or member in (list, tuple):
-            out.add("list")
-        elif origin is dict or member is dict:
-            out.add("dict")
-        elif member is type(None):
-            out.add("none")
-        else:  # a model, a dataclass, a Path...: pydantic checks it
-            return None
-    return out
-
-
-def _item_annotations(annotation: Any, value: Any) -> list[tuple[str, Any, Any]]:
-    """(key, item, annotation of the item) for the items of a list/dict ``value`` under ``annotation``."""
-    pairs: list[tuple[str, Any, Any]] = []
-    for member in _members(annotation):
-        origin = typing.get_origin(member)
-        args = [a for a in typing.get_args(member) if a is not Ellipsis]
-        if isinstance(value, (list, tuple)) and origin in (list, tuple, set, frozenset) and args:
-            if origin is tuple and len(args) == len(value) and len(args) > 1:
-                pairs += [(f"{k}", item, ann) for k, (item, ann) in enumerate(zip(value, args))]
-            else:
-                item_type = typing.Union[tuple(args)] if len(args) > 1 else args[0]
-                pairs += [(f"{k}", item, item_type) for k, item in enumerate(value)]
-        elif isinstance(value, Mapping) and origin is dict and len(args) == 2:
-            pairs += [(f"{key}", item, args[1]) for key, item in value.items()]
-        elif isinstance(value, Mapping) and dataclasses.is_dataclass(member):
-            hints = typing.get_type_hints(member)
-            pairs += [(f"{key}", item, hints[key]) for key, item in value.items() if key in hints]
-    return pairs
-
-
-_KIND_NAMES = {"bool": "a boolean", "number": "a number", "str": "a string"}
-_COERCED = {("bool", "number"), ("number", "bool"), ("str", "number"), ("str", "bool")}
-"""(given, expected) pairs that pydantic's lax mode would silently convert."""
-
-
-def _coercion(value: Any, annotation: Any, path: str = "") -> tuple[str, Any, str] | None:
-    """Where ``value`` holds a kind that ``annotation`` would accept only by coercion:
-    ``(path of the item, the item, what is allowed)``; else None."""
-    kinds = _kinds(annotation)
-    given = _kind(value)
-    if kinds is not None and given is not None and given not in kinds:
-        wanted = sorted(kinds & {"number", "bool"})
-        if wanted and (given, wanted[0]) in _COERCED:
-            expected = " or ".join(_KIND_NAMES[k] for k in wanted)
-            return path, value, f"Input should be {expected}, not {_KIND_NAMES[given]}"
-    for key, item, item_type in _item_annotations(annotation, value):
-        problem = _coercion(item, item_type, f"{path}.{key}" if path else key)
-        if problem is not None:
-            return problem
-    return None
-
-
-class FrozenModel(pydantic.BaseModel):
-    """Base of every config model: immutable, unknown keys rejected, NaN rejected,
-    no coercion of booleans/strings to numbers or of numbers/strings to booleans."""
-
-    model_config = pydantic.ConfigDict(
-        extra="forbid", frozen=True, allow_inf_nan=False, validate_default=True
-    )
-
-    @pydantic.field_validator("*", mode="before")
-    @classmethod
-    def _no_coercion(cls, value: Any, info: pydantic.ValidationInfo) -> Any:
-        field = cls.model_fields.get(info.field_name) if info.field_name else None
-        problem = _coercion(value, field.annotation) if field is not None else None
-        if problem is not None:
-            path, item, reason = problem
-            if not path:
-                raise ValueError(reason)
-            raise ConfigError(f"{path} = {shown(item)}: {reason}", field=path, value=item, reason=reason)
-        return value
-
-
-# --- messages -----------------------------------------------------------------------
 
 _TYPE_ERRORS = ("_type", "_parsing", "is_instance_of", "none_required")
 _UNKNOWN = object()  # tags an unknown key's line
@@ -276,11 +200,14 @@ def format_validation_error(
             where = where + tuple(cause.field.split("."))
             value, message = cause.value, cause.reason
         items.append((where, item["type"], value, message))
-    # Drop the wrong-type errors of union alternatives when another alternative got further.
+    # Drop the wrong-type errors of union alternatives when another alternative got further:
+    # to a range error of the same value, or into its items (``r = [true]`` for
+    # ``float | list[float]`` is reported at ``r.0``, not also as "not a number" at ``r``).
     specific = {where for where, kind, _, _ in items if not _is_type_error(kind)}
+    deeper = {where[:k] for where, _, _, _ in items for k in range(len(where))}
 
     def superseded(where: tuple, kind: str) -> bool:
-        return _is_type_error(kind) and any(other[: len(where)] == where for other in specific)
+        return _is_type_error(kind) and (where in deeper or any(other[: len(where)] == where for other in specific))
 
     kept = [entry for entry in items if not superseded(entry[0], entry[1])] or items
     # Merge the alternatives reported for one location; collapse one problem repeated over list items.
@@ -383,7 +310,8 @@ def is_per_joint(annotation: Any) -> bool:
     members = _members(annotation)
     scalar = any(m in _NUMBER_TYPES for m in members)
     listed = any(
-        typing.get_origin(m) is list and _kinds(typing.get_args(m)[0]) == {"number"} for m in members
+        typing.get_origin(m) is list and all(item in _NUMBER_TYPES for item in _members(typing.get_args(m)[0]))
+        for m in members
     )
     return scalar and listed
 

@@ -137,10 +137,12 @@ from __future__ import annotations
 import math
 from dataclasses import asdict, dataclass
 from functools import cached_property
-from typing import NamedTuple
+from typing import Annotated, NamedTuple
 
 import numba
 import numpy as np
+import pydantic
+from pydantic import StrictBool, StrictFloat, StrictInt
 from scipy.linalg import cho_factor, cho_solve, solve_triangular
 from scipy.linalg.lapack import dpotrf, dtrtri
 
@@ -895,6 +897,14 @@ def _check_log_bounds(field_name: str, bounds) -> None:
     _require(ok, field_name, "must be a tuple (low, high) of finite natural-log values with low < high", bounds)
 
 
+LogBounds = Annotated[tuple[StrictFloat, StrictFloat], pydantic.Strict(False)]
+"""A (low, high) pair of `GPConfig`: a list is accepted (TOML, YAML and ``--set`` have no
+tuples), its items are strict (``[true, 1.0]`` is refused)."""
+
+Floats = Annotated[tuple[StrictFloat, ...], pydantic.Strict(False)]
+"""A vector of `GPConfig`: a list is accepted, its items are strict (see `LogBounds`)."""
+
+
 @dataclass(frozen=True)
 class GPConfig:
     """Validated, immutable settings of `SlidingWindowGP` (paper Algorithm 1 + our safeguards).
@@ -941,25 +951,36 @@ class GPConfig:
             since the last factorisation (int >= 2); measured break-even ~20.
         refactor_every: force a full refactorisation after this many
             consecutive incremental updates (int >= 1).
+
+    As the ``gp`` section of the experiment settings (a mapping validated by pydantic, see
+    `hydroarm.config.FrozenModel`), unknown keys, NaN and infinities are refused and every
+    field is strict (``StrictInt``, ``StrictFloat``, ``StrictBool``: no boolean or string
+    for a number, no number or string for a boolean, no float for an int); the tuples also
+    take lists (`LogBounds`, `Floats`). The pydantic config below is not strict itself:
+    in strict mode pydantic accepts only a ``GPConfig`` instance for a dataclass, not a
+    mapping. Constructing a ``GPConfig`` directly does not go through pydantic:
+    ``__post_init__`` checks every field.
     """
 
-    window: int = 10
-    hyper_steps: int = 1
-    learning_rate: float = 0.1
-    max_log_step: float = 1.0
-    max_step_halvings: int = 1
-    grad_tol: float = 0.0
-    log_sf2_bounds: tuple[float, float] = (math.log(1e-4), math.log(1e8))
-    log_sn2_bounds: tuple[float, float] = (math.log(1e-6), math.log(1e6))
-    log_lengthscale_bounds: tuple[float, float] = (math.log(1e-2), math.log(1e3))
-    theta0: tuple[float, ...] | None = None
-    normalize_y: bool = False
-    input_scale: tuple[float, ...] | None = None
-    output_scale: tuple[float, ...] | None = None
-    jitter: float = 1e-10
-    max_jitter_retries: int = 4
-    incremental_min_window: int = 30
-    refactor_every: int = 100
+    __pydantic_config__ = pydantic.ConfigDict(extra="forbid", allow_inf_nan=False)  # not a field: no annotation
+
+    window: StrictInt = 10
+    hyper_steps: StrictInt = 1
+    learning_rate: StrictFloat = 0.1
+    max_log_step: StrictFloat = 1.0
+    max_step_halvings: StrictInt = 1
+    grad_tol: StrictFloat = 0.0
+    log_sf2_bounds: LogBounds = (math.log(1e-4), math.log(1e8))
+    log_sn2_bounds: LogBounds = (math.log(1e-6), math.log(1e6))
+    log_lengthscale_bounds: LogBounds = (math.log(1e-2), math.log(1e3))
+    theta0: Floats | None = None
+    normalize_y: StrictBool = False
+    input_scale: Floats | None = None
+    output_scale: Floats | None = None
+    jitter: StrictFloat = 1e-10
+    max_jitter_retries: StrictInt = 4
+    incremental_min_window: StrictInt = 30
+    refactor_every: StrictInt = 100
 
     def __post_init__(self) -> None:
         """Check every field; a bad one raises ``hydroarm.config.ConfigError`` (a ValueError)
