@@ -666,10 +666,9 @@ class QPResult:
 def _crossed_bounds(lb: np.ndarray, ub: np.ndarray) -> QPResult | None:
     """An ``"infeasible"`` result if some ``lb_i > ub_i`` (checked before any solver runs:
     OSQP's update would refuse such data silently and return the previous solution)."""
-    crossed = np.flatnonzero(~(lb <= ub))
-    if crossed.size == 0:
+    if (lb <= ub).all():  # every step of the MPC: the cheap test first
         return None
-    i = int(crossed[0])
+    i = int(np.flatnonzero(~(lb <= ub))[0])
     return QPResult(None, "infeasible", f"lb[{i}] = {lb[i]:g} > ub[{i}] = {ub[i]:g}")
 
 

@@ -217,7 +217,8 @@ def fault_totals(trajs: list[Trajectory]) -> dict[str, int]:
                 totals[name] = totals.get(name, 0) + count
         stopped = stop_reason(traj)
         if stopped:
-            totals[f"stopped:{stopped}"] = totals.get(f"stopped:{stopped}", 0) + 1
+            key = f"stopped:{stopped}"
+            totals[key] = totals.get(key, 0) + 1
     return totals
 
 
