@@ -1,4 +1,4 @@
-"""Timing of hydroarm.gp.SlidingWindowGP: window update and whole GP control step.
+"""Timing of hydroarm.control.gp.SlidingWindowGP: window update and whole GP control step.
 
 1. ``window_update``: with fixed hyperparameters (hyper_steps = 0), the cost of
    ``add(x, y)`` (the window slides by one sample) followed by ``predict(x*)``,
@@ -31,8 +31,8 @@ import time  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from hydroarm import gp as gp_module  # noqa: E402
-from hydroarm.gp import GPConfig, SlidingWindowGP  # noqa: E402
+from hydroarm.control import gp as gp_module  # noqa: E402
+from hydroarm.control.gp import GPConfig, SlidingWindowGP  # noqa: E402
 
 try:
     from threadpoolctl import threadpool_limits
@@ -152,7 +152,7 @@ def main() -> None:
             limiter.unregister()
 
     report = {
-        "what": "hydroarm.gp SlidingWindowGP timings (median microseconds)",
+        "what": "hydroarm.control.gp SlidingWindowGP timings (median microseconds)",
         "machine": {
             "python": platform.python_version(),
             "numpy": np.__version__,

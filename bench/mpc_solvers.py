@@ -3,7 +3,7 @@
 1. Runs ``LinearMPC`` (DAQP) in closed loop on the paper task (underwater
    plant from rest at q = 0, or the dry nominal model) and records every
    condensed QP ``(H, g, lb, ub, warm start)`` and the per-phase step timings.
-2. Solves that same sequence with every solver of ``hydroarm.mpc`` (DAQP warm
+2. Solves that same sequence with every solver of ``hydroarm.control.mpc`` (DAQP warm
    and cold, OSQP warm-started with eps 1e-9 and polishing, quadprog, Clarabel),
    after one warm-up pass, timing each solve with ``time.perf_counter_ns``;
    reports median / p90 / p99 / max (us), failures, and the largest difference
@@ -38,7 +38,7 @@ import scipy.linalg  # noqa: E402
 from threadpoolctl import threadpool_limits  # noqa: E402
 
 import hydroarm  # noqa: E402
-from hydroarm.mpc import (  # noqa: E402
+from hydroarm.control.mpc import (  # noqa: E402
     LinearMPC,
     MPCConfig,
     condense,
@@ -46,8 +46,8 @@ from hydroarm.mpc import (  # noqa: E402
     make_box_qp_solver,
     solve_riccati,
 )
-from hydroarm.plant import NominalModel, UnderwaterPlant  # noqa: E402
-from hydroarm.task import paper_reference  # noqa: E402
+from hydroarm.model.plant import NominalModel, UnderwaterPlant  # noqa: E402
+from hydroarm.model.task import paper_reference  # noqa: E402
 
 
 def percentiles(samples_ns) -> dict[str, float]:

@@ -7,13 +7,13 @@ import pytest
 from PIL import Image
 
 import hydroarm
-from hydroarm.animate import animate, reach, render_frame
+from hydroarm.studies.animate import animate, reach, render_frame
 from hydroarm.config import ConfigError
-from hydroarm.plant import UnderwaterPlant
-from hydroarm.simulate import Trajectory, run_closed_loop
-from hydroarm.smc import SlidingModeController
-from hydroarm.task import paper_reference
-from hydroarm.water import Water
+from hydroarm.model.plant import UnderwaterPlant
+from hydroarm.studies.runner import Trajectory, run_closed_loop
+from hydroarm.control.smc import SlidingModeController
+from hydroarm.model.task import paper_reference
+from hydroarm.model.water import Water
 
 
 @pytest.fixture(scope="module")

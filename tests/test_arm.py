@@ -10,7 +10,7 @@ import pinocchio as pin
 import pytest
 
 import hydroarm
-from hydroarm.arm import ArmSpec, builtin_arm_path, load_arm_spec
+from hydroarm.model.arm import ArmSpec, builtin_arm_path, load_arm_spec
 from hydroarm.config import ConfigError, validate
 
 RNG = np.random.default_rng(20231641)

@@ -10,12 +10,12 @@ import numpy as np
 import pytest
 
 import hydroarm
-from hydroarm import gp as gp_module
-from hydroarm import mpc as mpc_module
+from hydroarm.control import gp as gp_module
+from hydroarm.control import mpc as mpc_module
 from hydroarm.benchmark import _missing, growth_exponent, run_benchmarks, stats_ms, validate_report
-from hydroarm.plant import PlantConfig, UnderwaterPlant
-from hydroarm.task import paper_reference
-from hydroarm.water import CurrentConfig, Water
+from hydroarm.model.plant import PlantConfig, UnderwaterPlant
+from hydroarm.model.task import paper_reference
+from hydroarm.model.water import CurrentConfig, Water
 
 HEADLINE = ("speedup_vs_do_mpc", "speedup_vs_cvxpy", "gp_speedup_vs_sklearn")
 
@@ -254,7 +254,7 @@ def test_a_missing_peer_is_skipped_with_a_reason(monkeypatch):
 
 
 def test_compiled_nominal_rk4_step_is_bit_identical(arm):
-    from hydroarm.experiments import ExperimentConfig, build_controller
+    from hydroarm.studies.experiment import ExperimentConfig, build_controller
 
     controller = build_controller("GP-MPC", arm, ExperimentConfig())
     rng = np.random.default_rng(3)

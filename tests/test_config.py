@@ -18,13 +18,13 @@ import numpy as np
 import pydantic
 import pytest
 
-from hydroarm.arm import builtin_arm_path, load_arm
+from hydroarm.model.arm import builtin_arm_path, load_arm
 from hydroarm.cli import _experiment_config
 from hydroarm.config import ConfigError, FrozenModel, load_model, validate
-from hydroarm.experiments import ExperimentConfig, with_overrides
-from hydroarm.gp import GPConfig
-from hydroarm.sweep import validate_sweep
-from hydroarm.water import Water
+from hydroarm.studies.experiment import ExperimentConfig, with_overrides
+from hydroarm.control.gp import GPConfig
+from hydroarm.studies.sweep import validate_sweep
+from hydroarm.model.water import Water
 
 
 def refused(data: dict, model=ExperimentConfig, source: str = "settings") -> str:

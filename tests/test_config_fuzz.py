@@ -35,10 +35,10 @@ from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 from typer.testing import CliRunner
 
-from hydroarm.arm import builtin_arm_path, load_arm
+from hydroarm.model.arm import builtin_arm_path, load_arm
 from hydroarm.cli import app
 from hydroarm.config import ConfigError, read_mapping, shown, validate
-from hydroarm.experiments import (
+from hydroarm.studies.experiment import (
     CONTROLLERS,
     ExperimentConfig,
     build_controller,
@@ -46,10 +46,10 @@ from hydroarm.experiments import (
     run_experiment,
     task_for_arm,
 )
-from hydroarm.gp import GPConfig
-from hydroarm.plant import PlantConfig, UnderwaterPlant
-from hydroarm.sweep import plan_sweep, validate_sweep
-from hydroarm.water import CurrentConfig, Water
+from hydroarm.control.gp import GPConfig
+from hydroarm.model.plant import PlantConfig, UnderwaterPlant
+from hydroarm.studies.sweep import plan_sweep, validate_sweep
+from hydroarm.model.water import CurrentConfig, Water
 
 # The same examples on every run (CI); HYDROARM_FUZZ_EXAMPLES=1000 searches deeper with fresh
 # random examples (the defaults keep this file well under 60 s).

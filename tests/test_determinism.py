@@ -13,11 +13,11 @@ import sys
 
 import numpy as np
 
-from hydroarm.simulate import Trajectory
+from hydroarm.studies.runner import Trajectory
 
 SCRIPT = r"""
 import sys
-from hydroarm.experiments import ExperimentConfig, run_experiment, with_overrides
+from hydroarm.studies.experiment import ExperimentConfig, run_experiment, with_overrides
 
 config = with_overrides(ExperimentConfig(), {
     "duration": 1.5, "plant.noise_variance": 1e-3, "water.current.scale": 2.0,

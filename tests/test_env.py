@@ -8,9 +8,9 @@ import pytest
 gymnasium = pytest.importorskip("gymnasium")
 
 import hydroarm  # noqa: E402  (registers the environment)
-from hydroarm.env import ControllerPolicy, UnderwaterArmEnv  # noqa: E402
-from hydroarm.experiments import ExperimentConfig, run_experiment, with_overrides  # noqa: E402
-from hydroarm.simulate import tracking_metrics  # noqa: E402
+from hydroarm.envs.underwater_arm import ControllerPolicy, UnderwaterArmEnv  # noqa: E402
+from hydroarm.studies.experiment import ExperimentConfig, run_experiment, with_overrides  # noqa: E402
+from hydroarm.studies.runner import tracking_metrics  # noqa: E402
 
 
 def test_passes_gymnasium_env_checker():

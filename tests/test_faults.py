@@ -1,5 +1,5 @@
 """Numerical faults inside the closed loop (issue 7, item 2): each one is caught
-where it happens, recovered from as documented (hydroarm.control.FAULT_EVENTS),
+where it happens, recovered from as documented (hydroarm.control.interface.FAULT_EVENTS),
 counted in the trajectory record and never hidden."""
 
 from __future__ import annotations
@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 
 import hydroarm
-from hydroarm.control import FAULT_EVENTS, ControlOutput
-from hydroarm.experiments import ExperimentConfig, build_controller
-from hydroarm.gp import GPConfig
-from hydroarm.mpc import (
+from hydroarm.control.interface import FAULT_EVENTS, ControlOutput
+from hydroarm.studies.experiment import ExperimentConfig, build_controller
+from hydroarm.control.gp import GPConfig
+from hydroarm.control.mpc import (
     SOLVERS,
     DaqpBoxSolver,
     MPCConfig,
@@ -24,9 +24,9 @@ from hydroarm.mpc import (
     qp_failure_event,
     solve_terminal_qp,
 )
-from hydroarm.plant import PlantConfig, UnderwaterPlant
-from hydroarm.simulate import Trajectory, run_closed_loop, tracking_metrics
-from hydroarm.water import Water
+from hydroarm.model.plant import PlantConfig, UnderwaterPlant
+from hydroarm.studies.runner import Trajectory, run_closed_loop, tracking_metrics
+from hydroarm.model.water import Water
 
 DURATION = 1.0  # s: 100 control steps, enough for the GP window to fill and the faults to recur
 
@@ -297,7 +297,7 @@ def test_a_clean_run_records_no_fault(arm, reference):
 def test_lqr_fallback_that_cannot_be_computed_uses_the_reference_torque(arm, reference, monkeypatch):
     """If even the LQR gain fails (singular R + B'PB from degenerate weights), the MPC
     falls back to the saturated reference torque instead of raising."""
-    import hydroarm.mpc as mpc_module
+    import hydroarm.control.mpc as mpc_module
 
     def singular(*args):
         raise np.linalg.LinAlgError("Singular matrix")

@@ -1,4 +1,4 @@
-"""Tests of hydroarm.gp: reference checks against scikit-learn, gradients against
+"""Tests of hydroarm.control.gp: reference checks against scikit-learn, gradients against
 finite differences, and the safeguards of the sliding-window estimator."""
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 from sklearn.gaussian_process import GaussianProcessRegressor
 from sklearn.gaussian_process.kernels import RBF, ConstantKernel, WhiteKernel
 
-from hydroarm.gp import (
+from hydroarm.control.gp import (
     GPConfig,
     SlidingWindowGP,
     log_marginal_likelihood,

@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 
 import hydroarm
-from hydroarm.experiments import ExperimentConfig, run_experiment, with_overrides
-from hydroarm.gp import GPConfig
-from hydroarm.gpmpc import GPMPC, GPMPCConfig
-from hydroarm.mpc import LinearMPC
-from hydroarm.simulate import run_closed_loop, tracking_metrics
+from hydroarm.studies.experiment import ExperimentConfig, run_experiment, with_overrides
+from hydroarm.control.gp import GPConfig
+from hydroarm.control.gpmpc import GPMPC, GPMPCConfig
+from hydroarm.control.mpc import LinearMPC
+from hydroarm.studies.runner import run_closed_loop, tracking_metrics
 
 
 @pytest.fixture(scope="module")

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from hydroarm.simulate import Trajectory
+from hydroarm.studies.runner import Trajectory
 
 TIMEOUT = 300  # s: generous for a shared 2-core machine; the commands take ~5-40 s
 

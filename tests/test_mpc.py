@@ -9,7 +9,7 @@ import scipy.linalg
 
 import hydroarm
 from hydroarm.config import ConfigError, validate
-from hydroarm.mpc import (
+from hydroarm.control.mpc import (
     LinearMPC,
     MPCConfig,
     QPResult,
@@ -23,8 +23,8 @@ from hydroarm.mpc import (
     solve_riccati,
     solve_terminal_qp,
 )
-from hydroarm.plant import NominalModel
-from hydroarm.task import SinusoidReference, paper_reference
+from hydroarm.model.plant import NominalModel
+from hydroarm.model.task import SinusoidReference, paper_reference
 
 T = 0.01
 
@@ -294,7 +294,7 @@ def test_torque_limits_always_hold(arm):
 def test_timings_and_interface(arm):
     mpc = LinearMPC(arm)
     assert mpc.name == "MPC" and mpc.control_period == T
-    assert isinstance(mpc, hydroarm.control.Controller)
+    assert isinstance(mpc, hydroarm.control.interface.Controller)
     out = mpc.compute(0.0, np.zeros(12), paper_reference())
     assert {"linearise", "qp_update", "qp_solve", "total"} <= set(out.timings)
     assert all(value >= 0.0 for value in out.timings.values())

@@ -10,8 +10,8 @@ import pytest
 mujoco = pytest.importorskip("mujoco")
 
 import hydroarm  # noqa: E402
-from hydroarm.arm import ArmSpec, build_arm  # noqa: E402
-from hydroarm.mujoco_water import (  # noqa: E402
+from hydroarm.model.arm import ArmSpec, build_arm  # noqa: E402
+from hydroarm.model.mujoco_water import (  # noqa: E402
     MujocoWater,
     arm_to_mjcf,
     axial_flow_fraction,
@@ -21,7 +21,7 @@ from hydroarm.mujoco_water import (  # noqa: E402
     hydroarm_drag,
     lumped_drag_ratio,
 )
-from hydroarm.water import CurrentConfig, Water  # noqa: E402
+from hydroarm.model.water import CurrentConfig, Water  # noqa: E402
 
 RNG = np.random.default_rng(7)
 PI = math.pi

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 import hydroarm
-from hydroarm.plant import NominalModel, PlantConfig, UnderwaterPlant
-from hydroarm.water import CurrentConfig, Water, paper_current_acceleration
+from hydroarm.model.plant import NominalModel, PlantConfig, UnderwaterPlant
+from hydroarm.model.water import CurrentConfig, Water, paper_current_acceleration
 
 
 @pytest.fixture(scope="module")

@@ -11,8 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hydroarm.reproduce import FIGURES, RunSpec, load_finished
-from hydroarm.experiments import ExperimentConfig
+from hydroarm.studies.reproduce import FIGURES, RunSpec, load_finished
+from hydroarm.studies.experiment import ExperimentConfig
 
 ENV = {**os.environ, "MPLBACKEND": "Agg"}
 
@@ -83,7 +83,7 @@ def test_rerun_loads_finished_runs_and_recomputes_a_corrupt_one(quick_run):
 def test_a_run_with_other_settings_is_not_reused(tmp_path):
     config = ExperimentConfig(duration=0.05)
     spec = RunSpec("clean", "SMC", 0, config)
-    from hydroarm.experiments import run_experiment
+    from hydroarm.studies.experiment import run_experiment
 
     path = tmp_path / f"{spec.key}.npz"
     run_experiment(config, "SMC", 0).save(path)

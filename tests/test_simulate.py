@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 import hydroarm
-from hydroarm.plant import PlantConfig
-from hydroarm.simulate import Trajectory, run_closed_loop, tracking_metrics
-from hydroarm.smc import SlidingModeController, SMCConfig
+from hydroarm.model.plant import PlantConfig
+from hydroarm.studies.runner import Trajectory, run_closed_loop, tracking_metrics
+from hydroarm.control.smc import SlidingModeController, SMCConfig
 
 
 @pytest.fixture(scope="module")
@@ -85,7 +85,7 @@ def test_divergence_stops_cleanly(arm):
             pass
 
         def compute(self, t, y, reference):
-            from hydroarm.control import ControlOutput
+            from hydroarm.control.interface import ControlOutput
 
             return ControlOutput(tau=np.array([0, 0, 0, 0, 0, 500.0]))
 

@@ -11,9 +11,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hydroarm.arm import load_arm
+from hydroarm.model.arm import load_arm
 from hydroarm.config import ConfigError, read_mapping
-from hydroarm.experiments import (
+from hydroarm.studies.experiment import (
     ExperimentConfig,
     InitialState,
     build_controller,
@@ -22,9 +22,9 @@ from hydroarm.experiments import (
     task_for_arm,
     with_overrides,
 )
-from hydroarm.plant import UnderwaterPlant
-from hydroarm.simulate import run_closed_loop
-from hydroarm.sweep import (
+from hydroarm.model.plant import UnderwaterPlant
+from hydroarm.studies.runner import run_closed_loop
+from hydroarm.studies.sweep import (
     Robustness,
     SerialExecutor,
     error_envelope,
@@ -107,7 +107,7 @@ def test_initial_state_is_validated():
 
 def test_the_environment_starts_from_the_initial_state():
     pytest.importorskip("gymnasium")
-    from hydroarm.env import UnderwaterArmEnv
+    from hydroarm.envs.underwater_arm import UnderwaterArmEnv
 
     assert np.array_equal(UnderwaterArmEnv().reset(seed=0)[1]["x"], np.zeros(12))
     config = with_overrides(ExperimentConfig(), {"initial_state.position_spread": 0.3, "initial_state.seed": 4})

@@ -1,4 +1,4 @@
-"""Sweeps (hydroarm.sweep): planning and validation, local and Ray execution, resuming,
+"""Sweeps (hydroarm.studies.sweep): planning and validation, local and Ray execution, resuming,
 model mismatch, the results table and the summary."""
 
 from __future__ import annotations
@@ -12,12 +12,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hydroarm.arm import load_arm
+from hydroarm.model.arm import load_arm
 from hydroarm.config import ConfigError
-from hydroarm.experiments import ExperimentConfig, build_controller, run_experiment, task_for_arm, with_overrides
-from hydroarm.plant import UnderwaterPlant
-from hydroarm.simulate import Trajectory, run_closed_loop, tracking_metrics
-from hydroarm.sweep import (
+from hydroarm.studies.experiment import ExperimentConfig, build_controller, run_experiment, task_for_arm, with_overrides
+from hydroarm.model.plant import UnderwaterPlant
+from hydroarm.studies.runner import Trajectory, run_closed_loop, tracking_metrics
+from hydroarm.studies.sweep import (
     Mismatch,
     SerialExecutor,
     SweepConfig,

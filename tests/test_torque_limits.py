@@ -9,13 +9,13 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import hydroarm
-from hydroarm.experiments import ExperimentConfig, build_controller
-from hydroarm.gp import GPConfig
-from hydroarm.mpc import MPCConfig
-from hydroarm.plant import PlantConfig, UnderwaterPlant
-from hydroarm.simulate import run_closed_loop
-from hydroarm.smc import SMCConfig
-from hydroarm.water import CurrentConfig, Water
+from hydroarm.studies.experiment import ExperimentConfig, build_controller
+from hydroarm.control.gp import GPConfig
+from hydroarm.control.mpc import MPCConfig
+from hydroarm.model.plant import PlantConfig, UnderwaterPlant
+from hydroarm.studies.runner import run_closed_loop
+from hydroarm.control.smc import SMCConfig
+from hydroarm.model.water import CurrentConfig, Water
 
 UR5_LIMITS = [150.0, 150.0, 150.0, 28.0, 28.0, 28.0]
 

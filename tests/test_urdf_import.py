@@ -10,14 +10,14 @@ import pinocchio as pin
 import pytest
 
 import hydroarm
-from hydroarm.arm import BUILTIN_ARMS, builtin_arm_path, load_arm_spec
+from hydroarm.model.arm import BUILTIN_ARMS, builtin_arm_path, load_arm_spec
 from hydroarm.config import ConfigError
-from hydroarm.experiments import ExperimentConfig, build_controller
-from hydroarm.plant import UnderwaterPlant
-from hydroarm.simulate import run_closed_loop
-from hydroarm.task import SinusoidReference
-from hydroarm.urdf_import import arm_from_urdf, hydro_spec_of, load_urdf_arm
-from hydroarm.water import CurrentConfig, Water, WaterModel, added_mass_matrix, hydrodynamic_torques
+from hydroarm.studies.experiment import ExperimentConfig, build_controller
+from hydroarm.model.plant import UnderwaterPlant
+from hydroarm.studies.runner import run_closed_loop
+from hydroarm.model.task import SinusoidReference
+from hydroarm.model.urdf_import import arm_from_urdf, hydro_spec_of, load_urdf_arm
+from hydroarm.model.water import CurrentConfig, Water, WaterModel, added_mass_matrix, hydrodynamic_torques
 
 RNG = np.random.default_rng(2023_1641)
 

@@ -9,11 +9,11 @@ Quick tour::
     plant = hydroarm.UnderwaterPlant(arm, water)
 """
 
-from hydroarm.arm import Arm, ArmSpec, WettedCylinder, load_arm
+from hydroarm.model.arm import Arm, ArmSpec, WettedCylinder, load_arm
 from hydroarm.config import ConfigError
-from hydroarm.plant import NominalModel, PlantConfig, StepInfo, UnderwaterPlant
-from hydroarm.task import SinusoidReference, paper_reference
-from hydroarm.water import (
+from hydroarm.model.plant import NominalModel, PlantConfig, StepInfo, UnderwaterPlant
+from hydroarm.model.task import SinusoidReference, paper_reference
+from hydroarm.model.water import (
     CurrentConfig,
     HydroTorques,
     Water,
@@ -48,6 +48,6 @@ try:  # Gymnasium is optional (pip install hydroarm[gym])
 except ImportError:  # pragma: no cover - depends on the environment
     pass
 else:
-    from hydroarm.env import register as _register_env
+    from hydroarm.envs.underwater_arm import register as _register_env
 
     _register_env()

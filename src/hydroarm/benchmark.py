@@ -157,10 +157,10 @@ class _TimedController:
 
 
 def _setup():
-    from hydroarm.arm import load_arm
-    from hydroarm.experiments import ExperimentConfig
-    from hydroarm.plant import UnderwaterPlant
-    from hydroarm.task import paper_reference
+    from hydroarm.model.arm import load_arm
+    from hydroarm.studies.experiment import ExperimentConfig
+    from hydroarm.model.plant import UnderwaterPlant
+    from hydroarm.model.task import paper_reference
 
     config = ExperimentConfig()
     arm = load_arm(config.arm)
@@ -169,8 +169,8 @@ def _setup():
 
 def _closed_loop(name: str, duration: float, seed: int = 0, on_compute=None):
     """(trajectory, observe times (s), wall time (s), controller) of one run on the true plant."""
-    from hydroarm.experiments import build_controller
-    from hydroarm.simulate import run_closed_loop
+    from hydroarm.studies.experiment import build_controller
+    from hydroarm.studies.runner import run_closed_loop
 
     config, arm, plant, reference = _setup()
     controller = _TimedController(build_controller(name, arm, config))
@@ -260,7 +260,7 @@ def _mpc_snapshot_hook(snapshots: list):
 # --------------------------------------------------------------------------------------
 def _our_qp(mpc, snapshot) -> tuple[np.ndarray, float]:
     """Condense + DAQP on a snapshot: (first torque, seconds)."""
-    from hydroarm.mpc import DaqpBoxSolver, condense
+    from hydroarm.control.mpc import DaqpBoxSolver, condense
 
     solver = DaqpBoxSolver()
     start = time.perf_counter_ns()
@@ -490,8 +490,8 @@ def record_gp_stream(duration: float = 10.0) -> list:
 
         gp.add, gp.predict = recording_add, recording_predict
 
-    from hydroarm.experiments import build_controller
-    from hydroarm.simulate import run_closed_loop
+    from hydroarm.studies.experiment import build_controller
+    from hydroarm.studies.runner import run_closed_loop
 
     config, arm, plant, reference = _setup()
     controller = build_controller("GP-MPC", arm, config)
@@ -503,7 +503,7 @@ def record_gp_stream(duration: float = 10.0) -> list:
 def _replay_ours(events, gp_config, n_inputs: int, n_outputs: int, max_steps: int | None = None):
     """Replay the stream on a fresh SlidingWindowGP: per step (add + update + predict) seconds,
     the windows (X, Y, theta, x*) at each timed step and our predictive means."""
-    from hydroarm.gp import SlidingWindowGP
+    from hydroarm.control.gp import SlidingWindowGP
 
     gp = SlidingWindowGP(n_inputs, n_outputs, gp_config)
     pending_add = 0
@@ -544,7 +544,7 @@ def _sklearn_kernel(theta: np.ndarray, gp_config, fixed: bool):
 
 def bench_gp_peers(events: list, quick: bool) -> dict:
     """Our GP step vs scikit-learn and GPyTorch on the same closed-loop windows."""
-    from hydroarm.experiments import ExperimentConfig
+    from hydroarm.studies.experiment import ExperimentConfig
 
     gp_config = ExperimentConfig().gp
     n_inputs, n_outputs = events[0][1].size, events[0][2].size
@@ -706,7 +706,7 @@ def _time_calls(function, args_list, repeat: int = 1) -> list[float]:
 def bench_plant(recorded: dict, quick: bool) -> dict:
     import pinocchio as pin
 
-    from hydroarm.plant import NominalModel
+    from hydroarm.model.plant import NominalModel
 
     config, arm, plant, _ = _setup()
     traj = recorded["GP-MPC"]["traj"]
@@ -752,9 +752,9 @@ def bench_plant(recorded: dict, quick: bool) -> dict:
 # 3. Scaling
 # --------------------------------------------------------------------------------------
 def bench_scaling(events: list, recorded: dict, quick: bool) -> dict:
-    from hydroarm.experiments import ExperimentConfig
-    from hydroarm.mpc import LinearMPC
-    from hydroarm.plant import UnderwaterPlant
+    from hydroarm.studies.experiment import ExperimentConfig
+    from hydroarm.control.mpc import LinearMPC
+    from hydroarm.model.plant import UnderwaterPlant
 
     config, arm, _, reference = _setup()
     n_inputs, n_outputs = events[0][1].size, events[0][2].size
@@ -824,8 +824,8 @@ def profile_closed_loop(duration: float = 3.0, top: int = 15) -> dict:
     import cProfile
     import pstats
 
-    from hydroarm.experiments import build_controller
-    from hydroarm.simulate import run_closed_loop
+    from hydroarm.studies.experiment import build_controller
+    from hydroarm.studies.runner import run_closed_loop
 
     config, arm, plant, reference = _setup()
     controller = build_controller("GP-MPC", arm, config)
@@ -1020,7 +1020,7 @@ EXPLANATIONS = {
         "iterations of 12 x 12 products), DAQP (~55 us) and Pinocchio's ABA derivatives "
         "(~6 us). The rest is Python glue: ~80 us of small NumPy calls in the GP's "
         "accept/reject logic and window bookkeeping, the reference sampling "
-        "(hydroarm.task, ~20 us per call, NumPy on 6 x 2 arrays), the copies in "
+        "(hydroarm.model.task, ~20 us per call, NumPy on 6 x 2 arrays), the copies in "
         "Arm.forward_dynamics_derivatives (~20 us of its 25 us) and the nominal RK4 step "
         "of observe (~40 us). What would move it: the GP's accept/reject loop inside the "
         "kernel (one call per update), a scalar fast path for the reference, copy-free "

@@ -74,7 +74,7 @@ def _parse_value(text: str) -> Any:
 
 
 def _experiment_config(config_file: Path | None, overrides: list[str]):
-    from hydroarm.experiments import ExperimentConfig, with_overrides
+    from hydroarm.studies.experiment import ExperimentConfig, with_overrides
 
     config = load_model(ExperimentConfig, config_file) if config_file else ExperimentConfig()
     pairs = {}
@@ -111,9 +111,9 @@ def reproduce(
 
     Examples: hydroarm reproduce --out results;  hydroarm reproduce --arm alpha5 --out alpha5
     """
-    from hydroarm.arm import load_arm
-    from hydroarm.experiments import check_settings_for_arm, with_overrides
-    from hydroarm.reproduce import reproduce as run
+    from hydroarm.model.arm import load_arm
+    from hydroarm.studies.experiment import check_settings_for_arm, with_overrides
+    from hydroarm.studies.reproduce import reproduce as run
 
     _check_out(out)
     try:
@@ -183,10 +183,10 @@ def run(
 
     Example: hydroarm run --controller gp-mpc --arm paper --noise 0.001 --seed 3 --out DIR
     """
-    from hydroarm import figures
-    from hydroarm.arm import load_arm
-    from hydroarm.experiments import CONTROLLERS, check_settings_for_arm, run_experiment, with_overrides
-    from hydroarm.simulate import tracking_metrics
+    from hydroarm.studies import figures
+    from hydroarm.model.arm import load_arm
+    from hydroarm.studies.experiment import CONTROLLERS, check_settings_for_arm, run_experiment, with_overrides
+    from hydroarm.studies.runner import tracking_metrics
 
     names = {c.lower(): c for c in CONTROLLERS}
     if controller.lower() not in names:
@@ -234,9 +234,9 @@ def animate(
 
     Example: hydroarm animate results/runs/clean__GP-MPC__seed0.npz --out arm.gif
     """
-    from hydroarm.animate import animate as render
-    from hydroarm.arm import load_arm
-    from hydroarm.simulate import Trajectory
+    from hydroarm.studies.animate import animate as render
+    from hydroarm.model.arm import load_arm
+    from hydroarm.studies.runner import Trajectory
 
     if not run_file.is_file():
         _fail(f"RUN_FILE '{run_file}': no such file")
@@ -255,7 +255,7 @@ def animate(
 @app.command()
 def arms(as_json: Annotated[bool, typer.Option("--json")] = False) -> None:
     """List the built-in arms."""
-    from hydroarm.arm import BUILTIN_ARMS, load_arm
+    from hydroarm.model.arm import BUILTIN_ARMS, load_arm
 
     rows = []
     for name in BUILTIN_ARMS:
@@ -282,7 +282,7 @@ def export_urdf(
 
     Example: hydroarm export-urdf paper --out paper.urdf
     """
-    from hydroarm.arm import load_arm
+    from hydroarm.model.arm import load_arm
 
     try:
         text = load_arm(arm).to_urdf()
@@ -315,8 +315,8 @@ def sweep(
 
     Examples: hydroarm sweep examples/sweep.toml --out sweep1;  hydroarm sweep examples/sweep.toml --out sweep1 --ray
     """
-    from hydroarm.experiments import check_settings_for_arm
-    from hydroarm.sweep import load_sweep, plan_sweep, run_sweep
+    from hydroarm.studies.experiment import check_settings_for_arm
+    from hydroarm.studies.sweep import load_sweep, plan_sweep, run_sweep
 
     if not sweep_file.is_file():
         _fail(f"SWEEP_FILE '{sweep_file}': no such file")
@@ -332,7 +332,7 @@ def sweep(
                 source = f"{sweep_file}: the runs with {where}" if where else f"{sweep_file}: base"
                 check_settings_for_arm(row.config, plan.arms[arm_key], source)
         if ray or ray_address:
-            from hydroarm.sweep import import_ray
+            from hydroarm.studies.sweep import import_ray
 
             import_ray()
     except ConfigError as error:

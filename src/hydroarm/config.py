@@ -79,7 +79,7 @@ class FrozenModel(pydantic.BaseModel):
     string for a ``Path`` (as TOML, YAML and ``--set`` give them) relaxes itself only,
     its items staying strict: ``Annotated[tuple[pydantic.StrictFloat, ...],
     pydantic.Strict(False)]``. No config model has such a field today; the stdlib
-    dataclass :class:`~hydroarm.gp.GPConfig` (the ``gp`` section) carries its own
+    dataclass :class:`~hydroarm.control.gp.GPConfig` (the ``gp`` section) carries its own
     pydantic config and strict field types, as strict mode would accept only a
     ``GPConfig`` instance for it, not a mapping.
 

@@ -23,7 +23,7 @@ deviation du = u - u_r (n,):
   algorithm (:func:`solve_riccati`; ~10 iterations, quadratically convergent,
   history-free, compiled by numba: ~0.06 ms against ~1.2 ms for scipy's
   ``solve_discrete_are``, which is the fallback). The first call in a fresh
-  environment JIT-compiles it (~7 s, then cached on disk like hydroarm.water).
+  environment JIT-compiles it (~7 s, then cached on disk like hydroarm.model.water).
 * Condensed QP in the stacked moves dU (N n,): ``min 1/2 dU' H dU + g' dU``
   subject to ``-u_max - u_r <= dU <= u_max - u_r`` (:func:`condense`); the QP
   objective equals the MPC cost minus the constant terms. The condensing runs
@@ -77,9 +77,9 @@ import numpy as np
 import pydantic
 import scipy.linalg
 
-from hydroarm.arm import Arm
+from hydroarm.model.arm import Arm
 from hydroarm.config import ConfigError, FrozenModel, per_joint
-from hydroarm.control import ControlOutput, Reference
+from hydroarm.control.interface import ControlOutput, Reference
 
 SOLVERS = ("daqp", "osqp", "quadprog", "clarabel")
 
@@ -918,7 +918,7 @@ class LinearMPC:
     """Linear time-varying MPC about the reference, with the controller interface.
 
     ``LinearMPC(arm, config)``; ``compute(t, y, reference, feedforward_acceleration=None)``
-    returns a :class:`~hydroarm.control.ControlOutput` whose ``tau`` (n,) N m
+    returns a :class:`~hydroarm.control.interface.ControlOutput` whose ``tau`` (n,) N m
     always satisfies ``|tau_i| <= u_max_i``. ``status`` is ``"ok"``,
     ``"terminal_soft_fallback"`` (hard terminal set infeasible, soft used),
     ``"qp_failed_shift"``, ``"qp_failed_lqr"`` or ``"qp_failed_reference"``; ``terminal_violation`` is

@@ -34,12 +34,12 @@ import numpy as np
 import pinocchio as pin
 import pydantic
 
-from hydroarm.arm import Arm
+from hydroarm.model.arm import Arm
 from hydroarm.config import FrozenModel
-from hydroarm.control import ControlOutput, Reference
-from hydroarm.gp import GPConfig, SlidingWindowGP
-from hydroarm.integrator import rk4_second_order_stage, rk4_step
-from hydroarm.mpc import LinearMPC
+from hydroarm.control.interface import ControlOutput, Reference
+from hydroarm.control.gp import GPConfig, SlidingWindowGP
+from hydroarm.model.integrator import rk4_second_order_stage, rk4_step
+from hydroarm.control.mpc import LinearMPC
 
 Features = Literal["state", "state+nominal", "state+torque"]
 

@@ -1,6 +1,6 @@
 """Figures of a run or a comparison, one panel per joint (the paper's Figures 4-15).
 
-Every function takes trajectories (:class:`hydroarm.simulate.Trajectory`) and a
+Every function takes trajectories (:class:`hydroarm.studies.runner.Trajectory`) and a
 path, writes a PNG and returns the path. Headless (Agg backend).
 """
 
@@ -14,7 +14,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from hydroarm.simulate import Trajectory  # noqa: E402
+from hydroarm.studies.runner import Trajectory  # noqa: E402
 
 COLOURS = {"SMC": "tab:green", "MPC": "tab:blue", "GP-MPC": "tab:red", "reference": "black"}
 

@@ -59,8 +59,8 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
-from hydroarm.arm import Arm
-from hydroarm.water import Water, WaterModel, current_velocity, revolute_axes
+from hydroarm.model.arm import Arm
+from hydroarm.model.water import Water, WaterModel, current_velocity, revolute_axes
 
 TINY_MASS = 1e-6  # kg: given to massless moving bodies (MuJoCo skips fluid forces on them)
 

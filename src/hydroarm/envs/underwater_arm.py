@@ -17,7 +17,7 @@
   default); ``reset(options={"x0": x0})`` starts at ``x0`` instead.
 
 Seeded through ``reset(seed=...)``: the noise stream is the same as
-:func:`hydroarm.simulate.run_closed_loop`'s with that seed, so a controller
+:func:`hydroarm.studies.runner.run_closed_loop`'s with that seed, so a controller
 driven through :class:`ControllerPolicy` reproduces the runner exactly.
 """
 
@@ -29,12 +29,12 @@ import gymnasium
 import numpy as np
 from gymnasium import spaces
 
-from hydroarm.arm import load_arm
-from hydroarm.control import Controller
-from hydroarm.experiments import ExperimentConfig, build_controller, with_overrides
-from hydroarm.plant import UnderwaterPlant
-from hydroarm.simulate import DIVERGENCE_SPEED
-from hydroarm.task import paper_reference
+from hydroarm.model.arm import load_arm
+from hydroarm.control.interface import Controller
+from hydroarm.studies.experiment import ExperimentConfig, build_controller, with_overrides
+from hydroarm.model.plant import UnderwaterPlant
+from hydroarm.studies.runner import DIVERGENCE_SPEED
+from hydroarm.model.task import paper_reference
 
 VELOCITY_WEIGHT = 0.01
 
@@ -152,4 +152,4 @@ class ControllerPolicy:
 def register() -> None:
     """Register ``hydroarm/UnderwaterArm-v0`` with Gymnasium (idempotent)."""
     if "hydroarm/UnderwaterArm-v0" not in gymnasium.registry:
-        gymnasium.register(id="hydroarm/UnderwaterArm-v0", entry_point="hydroarm.env:UnderwaterArmEnv")
+        gymnasium.register(id="hydroarm/UnderwaterArm-v0", entry_point="hydroarm.envs.underwater_arm:UnderwaterArmEnv")

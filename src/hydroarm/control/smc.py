@@ -24,9 +24,9 @@ import numpy as np
 import pinocchio as pin
 import pydantic
 
-from hydroarm.arm import Arm
+from hydroarm.model.arm import Arm
 from hydroarm.config import FrozenModel, per_joint
-from hydroarm.control import ControlOutput, Reference
+from hydroarm.control.interface import ControlOutput, Reference
 
 Gain = Annotated[float, pydantic.Field(gt=0.0, le=1e6)]
 GainOrList = Gain | list[Gain]

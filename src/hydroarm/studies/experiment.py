@@ -18,16 +18,16 @@ from typing import Any, Literal
 
 import pydantic
 
-from hydroarm.arm import Arm, load_arm
+from hydroarm.model.arm import Arm, load_arm
 from hydroarm.config import ConfigError, FrozenModel, check_joint_counts, shown, validate
-from hydroarm.gp import GPConfig
-from hydroarm.gpmpc import GPMPC, GPMPCConfig, feature_size
-from hydroarm.mpc import LinearMPC, MPCConfig
-from hydroarm.plant import PlantConfig, UnderwaterPlant
-from hydroarm.simulate import Trajectory, run_closed_loop
-from hydroarm.smc import SlidingModeController, SMCConfig
-from hydroarm.task import SinusoidReference, paper_reference
-from hydroarm.water import Water
+from hydroarm.control.gp import GPConfig
+from hydroarm.control.gpmpc import GPMPC, GPMPCConfig, feature_size
+from hydroarm.control.mpc import LinearMPC, MPCConfig
+from hydroarm.model.plant import PlantConfig, UnderwaterPlant
+from hydroarm.studies.runner import Trajectory, run_closed_loop
+from hydroarm.control.smc import SlidingModeController, SMCConfig
+from hydroarm.model.task import SinusoidReference, paper_reference
+from hydroarm.model.water import Water
 
 MAX_CONTROL_STEPS = 1_000_000
 """Most control steps of one run (duration / control_period): every step's row is stored."""
@@ -131,7 +131,7 @@ def check_settings_for_arm(config: ExperimentConfig, arm: Arm, source: str = "se
     Every per-joint list (``smc.*``, ``mpc.*``) must have one value per joint; the GP's
     ``theta0`` (d + 2 values), ``input_scale`` (d) and ``output_scale`` (1 or n) must fit
     the d GP inputs of ``gpmpc.features`` on the arm's n joints; ``plant.friction`` must
-    suit the RK4 step on this arm (:class:`~hydroarm.plant.UnderwaterPlant` checks it).
+    suit the RK4 step on this arm (:class:`~hydroarm.model.plant.UnderwaterPlant` checks it).
     Nothing is run (with friction, the plant is built: about a millisecond).
     """
     n = arm.n_joints

@@ -12,7 +12,7 @@ held constant over a control period (zero-order hold).
 
 Both expose ``acceleration(t, q, v, tau)``, ``derivative(t, x, tau)`` and
 ``step(t, x, tau, dt) -> (x_next, StepInfo)``. ``step_reference`` is the plain
-Python RK4 (:func:`hydroarm.integrator.rk4_step` over ``_dynamics``);
+Python RK4 (:func:`hydroarm.model.integrator.rk4_step` over ``_dynamics``);
 ``UnderwaterPlant.step`` does the same operations in the same order with all but
 the Pinocchio calls compiled (bit-identical, ~3x faster; a test compares them). ``StepInfo.disturbance`` is the
 generalised force the nominal model lacks, ``M(q) q'' + C v + G - tau`` (zero
@@ -27,10 +27,10 @@ import numpy as np
 import pinocchio as pin
 import pydantic
 
-from hydroarm.arm import Arm
+from hydroarm.model.arm import Arm
 from hydroarm.config import ConfigError, FrozenModel
-from hydroarm.integrator import rk4_step
-from hydroarm.water import Water, WaterModel, added_mass_matrix, rk4_stage_kernel
+from hydroarm.model.integrator import rk4_step
+from hydroarm.model.water import Water, WaterModel, added_mass_matrix, rk4_stage_kernel
 
 STIFFNESS_LIMIT = 2.5
 """Bound on ``friction * inner_step / lambda_min(M + M_A)`` (classic RK4 is stable on the
@@ -207,11 +207,11 @@ class UnderwaterPlant(_RK4Model):
         The same RK4 as :meth:`step_reference` (``ceil(dt / inner_step)`` equal
         steps, the same operations in the same order), with everything but the
         three Pinocchio calls per stage (CRBA, NLE, Jacobians and their time
-        variation) in one compiled call (:func:`hydroarm.water.rk4_stage_kernel`):
+        variation) in one compiled call (:func:`hydroarm.model.water.rk4_stage_kernel`):
         ~2.5x faster than the reference, whose per-stage NumPy and closure calls
         cost more than the water itself. A state that stops being finite (a
         diverging run) gives an all-NaN ``x_next`` and disturbance instead of an
-        exception from the solve; :func:`hydroarm.simulate.run_closed_loop`
+        exception from the solve; :func:`hydroarm.studies.runner.run_closed_loop`
         reports it as ``diverged``.
         """
         n = self.n

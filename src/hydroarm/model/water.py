@@ -39,9 +39,9 @@ import numpy as np
 import pinocchio as pin
 import pydantic
 
-from hydroarm.arm import Arm
+from hydroarm.model.arm import Arm
 from hydroarm.config import FrozenModel
-from hydroarm.integrator import rk4_second_order_stage
+from hydroarm.model.integrator import rk4_second_order_stage
 
 MAX_CURRENT_SPEED = 20.0
 """m/s: bound on every component of a uniform current's mean and amplitude."""
@@ -470,11 +470,11 @@ def rk4_stage_kernel(
     Jacobians and their time variation -> ``jac``, ``djac``) at the stage state
     ``xs = [q, v]`` (2n,) and time ``t``; this evaluates the current at ``t`` and
     :func:`underwater_dynamics_kernel`, stores the disturbance ``dists[stage]`` and
-    leaves the RK4 bookkeeping to :func:`hydroarm.integrator.rk4_second_order_stage`
+    leaves the RK4 bookkeeping to :func:`hydroarm.model.integrator.rk4_second_order_stage`
     (``ks[stage] = [v, q'']``, ``xs`` the next stage's state); after the last stage
     (3) ``x`` itself becomes ``x + h/6 (k1 + 2 k2 + 2 k3 + k4)`` (``xs`` too) and
     ``average`` gets ``d1 + 2 d2 + 2 d3 + d4``. Same operations, in the same order,
-    as :func:`hydroarm.integrator.rk4_step` driven by ``_RK4Model.step`` (the
+    as :func:`hydroarm.model.integrator.rk4_step` driven by ``_RK4Model.step`` (the
     reference, which a test compares).
 
     Current: ``current_joint`` (3, n) = paper amplitude (rad/s^2, zero unless the

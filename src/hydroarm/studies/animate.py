@@ -8,7 +8,7 @@ transparent). A corner shows the time and the tracking error ``|q_r - q|``
 reach, so the camera never moves. Matplotlib 3-D on the Agg backend, frames
 written with Pillow (GIF) or ffmpeg (MP4, when installed): no display needed.
 
-    from hydroarm.animate import animate
+    from hydroarm.studies.animate import animate
     animate("run.npz", "arm.gif")                    # arm from the run's meta["arm"]
     animate(traj, "arm.gif", arm="paper", fps=10, duration=4.0)
 """
@@ -29,9 +29,9 @@ from matplotlib.lines import Line2D  # noqa: E402
 from matplotlib.ticker import MaxNLocator  # noqa: E402
 from mpl_toolkits.mplot3d.art3d import Poly3DCollection  # noqa: E402
 
-from hydroarm.arm import Arm, load_arm  # noqa: E402
+from hydroarm.model.arm import Arm, load_arm  # noqa: E402
 from hydroarm.config import ConfigError  # noqa: E402
-from hydroarm.simulate import Trajectory  # noqa: E402
+from hydroarm.studies.runner import Trajectory  # noqa: E402
 
 SIDES = 10  # facets per tube
 LINK_COLOURS = ("tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple", "tab:brown", "tab:pink", "tab:olive")

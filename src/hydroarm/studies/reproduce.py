@@ -37,11 +37,11 @@ from pathlib import Path
 
 import numpy as np
 
-from hydroarm import figures
-from hydroarm.animate import animate
-from hydroarm.arm import load_arm
-from hydroarm.experiments import ExperimentConfig, run_experiment, with_overrides
-from hydroarm.simulate import Trajectory, fault_counts, stop_reason, tracking_metrics
+from hydroarm.studies import figures
+from hydroarm.studies.animate import animate
+from hydroarm.model.arm import load_arm
+from hydroarm.studies.experiment import ExperimentConfig, run_experiment, with_overrides
+from hydroarm.studies.runner import Trajectory, fault_counts, stop_reason, tracking_metrics
 
 CONTROLLERS = ("SMC", "MPC", "GP-MPC")
 NOISE_VARIANCE = 0.001
@@ -440,6 +440,6 @@ def reproduce(
 
 def write_report(metrics: dict, out: Path) -> None:
     """report.md: settings, tables, figures, differences from the paper and why."""
-    from hydroarm.report import render_report
+    from hydroarm.studies.report import render_report
 
     (out / "report.md").write_text(render_report(metrics, out))

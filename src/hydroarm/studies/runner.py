@@ -6,7 +6,7 @@ x_{k+1} under u_k held constant, y_{k+1} is measured and the controller
 observes (y_k, u_k, y_{k+1}).
 
 Faults are caught where they happen and counted, never hidden
-(:data:`hydroarm.control.FAULT_EVENTS`; ``Trajectory.meta["faults"]``):
+(:data:`hydroarm.control.interface.FAULT_EVENTS`; ``Trajectory.meta["faults"]``):
 
 * a non-finite measurement is replaced by the last valid one (before any valid
   one: the known initial state x0), event ``measurement_held``; a step whose
@@ -32,8 +32,8 @@ from pathlib import Path
 
 import numpy as np
 
-from hydroarm.control import FAULT_EVENTS, Controller, Reference
-from hydroarm.plant import UnderwaterPlant
+from hydroarm.control.interface import FAULT_EVENTS, Controller, Reference
+from hydroarm.model.plant import UnderwaterPlant
 
 DIVERGENCE_SPEED = 1e3  # rad/s: beyond this the run is declared diverged
 
@@ -233,7 +233,7 @@ def run_closed_loop(
 
 def fault_counts(traj: Trajectory) -> dict[str, int]:
     """The run's fault events counted over the run (``traj.meta["faults"]``: event -> count;
-    events listed in :data:`hydroarm.control.FAULT_EVENTS`); {} from a runner that did not
+    events listed in :data:`hydroarm.control.interface.FAULT_EVENTS`); {} from a runner that did not
     count them."""
     return {str(name): int(count) for name, count in (traj.meta.get("faults") or {}).items()}
 

@@ -2,7 +2,7 @@
 
 A sweep file (TOML or YAML, validated into :class:`SweepConfig`) names the
 controllers, the seeds, the settings shared by every run (``[base]``, an
-:class:`~hydroarm.experiments.ExperimentConfig`) and the settings that vary
+:class:`~hydroarm.studies.experiment.ExperimentConfig`) and the settings that vary
 (``[parameters]``: dotted keys such as ``mpc.r``, ``water.current.scale``,
 ``plant.noise_variance``, ``arm``, ``mismatch.mass_scale``)::
 
@@ -40,7 +40,7 @@ into its output folder:
 Random starts: ``initial_state.position_spread`` / ``velocity_spread`` in
 ``[base]`` and ``"initial_state.seed" = {low = 0, high = 1000000, integer =
 true}`` in ``[parameters]`` give every sample its own start
-(:class:`~hydroarm.experiments.InitialState`).
+(:class:`~hydroarm.studies.experiment.InitialState`).
 
 Model mismatch. The controllers know the arm file (the nominal model); the
 true plant is that arm plus the water. ``water.*`` and ``plant.*`` settings
@@ -82,9 +82,9 @@ import numpy as np
 import pinocchio as pin
 import pydantic
 
-from hydroarm.arm import BUILTIN_ARMS, Arm, load_arm
+from hydroarm.model.arm import BUILTIN_ARMS, Arm, load_arm
 from hydroarm.config import ConfigError, FrozenModel, read_mapping, validate
-from hydroarm.experiments import (
+from hydroarm.studies.experiment import (
     CONTROLLER_SECTIONS,
     CONTROLLER_SETTINGS,
     CONTROLLERS,
@@ -93,7 +93,7 @@ from hydroarm.experiments import (
     start_for_arm,
     with_overrides,
 )
-from hydroarm.simulate import fault_counts, stop_reason
+from hydroarm.studies.runner import fault_counts, stop_reason
 
 FORMAT = 2
 """Version of the run-file layout; a run file of another format is recomputed.
@@ -633,14 +633,14 @@ def _scalars(metrics: dict, traj) -> dict:
 
 def execute_run(task: RunTask, arm: Arm | None = None) -> dict:
     """Run one task: the plant gets the perturbed arm, the controller the nominal one; the
-    run starts at :func:`~hydroarm.experiments.start_for_arm`'s state.
+    run starts at :func:`~hydroarm.studies.experiment.start_for_arm`'s state.
 
     Returns ``{"record": <the run file's content>, "trajectory": <.npz bytes or None>}``;
     the driver writes both (so workers need no shared disk, e.g. on a Ray cluster).
     """
     from hydroarm import __version__
-    from hydroarm.plant import UnderwaterPlant
-    from hydroarm.simulate import Trajectory, run_closed_loop, tracking_metrics
+    from hydroarm.model.plant import UnderwaterPlant
+    from hydroarm.studies.runner import Trajectory, run_closed_loop, tracking_metrics
 
     start = time.perf_counter()
     if arm is None:
@@ -861,7 +861,7 @@ file whenever the table is written, so a changed ``[robustness]`` recomputes no 
 
 
 PER_JOINT = ("Ep", "Ep_steady", "rms", "max", "torque_rms", "time_to_band")
-"""The per-joint metrics of :func:`hydroarm.simulate.tracking_metrics`: columns ``Ep_1``, ``Ep_2``, ..."""
+"""The per-joint metrics of :func:`hydroarm.studies.runner.tracking_metrics`: columns ``Ep_1``, ``Ep_2``, ..."""
 
 
 def _cell(value: Any) -> Any:

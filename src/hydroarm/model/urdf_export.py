@@ -15,7 +15,7 @@ import numpy as np
 import pinocchio as pin
 
 if TYPE_CHECKING:
-    from hydroarm.arm import Arm
+    from hydroarm.model.arm import Arm
 
 
 def _fmt(values: np.ndarray) -> str:
@@ -45,7 +45,7 @@ def arm_to_urdf(arm: Arm) -> str:
     limits, and a ``continuous`` joint would give Pinocchio a 2-number
     configuration per joint).
     """
-    from hydroarm.water import revolute_axes
+    from hydroarm.model.water import revolute_axes
 
     axes = revolute_axes(arm)
     model = arm.model

@@ -215,7 +215,7 @@ class Arm:
     Follows Pinocchio's model/data split: ``model`` holds constants, ``data`` is
     the workspace every method below reuses (one ``Arm`` per thread).
     All dynamics here are the *dry* rigid body; the water is in
-    :mod:`hydroarm.water`. ``position_limit`` (n, 2) rad: [lower, upper] per
+    :mod:`hydroarm.model.water`. ``position_limit`` (n, 2) rad: [lower, upper] per
     joint when the arm file states them (URDF joint limits), else None.
     """
 
@@ -336,7 +336,7 @@ class Arm:
     # --- export ---------------------------------------------------------------
     def to_urdf(self) -> str:
         """URDF of the dry arm: links, revolute joints, inertials, cylinder geometry."""
-        from hydroarm.urdf import arm_to_urdf
+        from hydroarm.model.urdf_export import arm_to_urdf
 
         return arm_to_urdf(self)
 
@@ -392,7 +392,7 @@ BUILTIN_URDF_ARMS = ("alpha5",)
 """Built-in arms given as a URDF plus a hydrodynamics file (``arms/<name>.hydro.toml``)."""
 
 URDF_SUFFIXES = (".urdf", ".hydro.toml", ".hydro.yaml", ".hydro.yml")
-"""File names that :func:`load_arm` hands to :mod:`hydroarm.urdf_import`."""
+"""File names that :func:`load_arm` hands to :mod:`hydroarm.model.urdf_import`."""
 
 
 def builtin_arm_path(name: str) -> Path:
@@ -428,9 +428,9 @@ def load_arm_spec(source: str | Path) -> ArmSpec:
 def load_arm(source: str | Path = "paper") -> Arm:
     """Load an arm: ``"paper"`` (Liu et al. 2023), ``"ur5"``, ``"alpha5"`` (Reach Alpha 5),
     a DH arm file (TOML/YAML), a URDF (``.urdf``, with ``<stem>.hydro.toml`` beside it) or a
-    hydrodynamics file (``.hydro.toml``/``.yaml`` naming its URDF): see :mod:`hydroarm.urdf_import`."""
+    hydrodynamics file (``.hydro.toml``/``.yaml`` naming its URDF): see :mod:`hydroarm.model.urdf_import`."""
     if is_urdf_source(source):
-        from hydroarm.urdf_import import load_urdf_arm
+        from hydroarm.model.urdf_import import load_urdf_arm
 
         if isinstance(source, str) and source in BUILTIN_URDF_ARMS:
             return load_urdf_arm(builtin_arm_path(source))

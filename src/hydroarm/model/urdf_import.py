@@ -1,4 +1,4 @@
-"""Bring your own arm: a URDF plus a small hydrodynamics file -> an :class:`~hydroarm.arm.Arm`.
+"""Bring your own arm: a URDF plus a small hydrodynamics file -> an :class:`~hydroarm.model.arm.Arm`.
 
 The URDF gives the dry rigid body (Pinocchio's own URDF parser builds the
 model: links attached by fixed joints are merged into their parent joint's
@@ -34,12 +34,12 @@ revolute joints only, so any other joint (a prismatic jaw) must be listed in
 limit (``position_limit`` = +-inf). A link's ``displaced_volume`` is split
 over its cylinders in proportion to their volumes.
 
-Every wetted cylinder ends up as a :class:`~hydroarm.arm.WettedCylinder` in
+Every wetted cylinder ends up as a :class:`~hydroarm.model.arm.WettedCylinder` in
 the body frame of the Pinocchio joint that carries the link: a URDF link hung
 on a fixed joint is placed with Pinocchio's frame placement
 (``model.frames[fid].placement`` in joint ``parentJoint``). Cylinders on links
 fixed to the base (joint 0) exert no joint torque but are kept (drawn by
-:mod:`hydroarm.animate`, written to MJCF).
+:mod:`hydroarm.studies.animate`, written to MJCF).
 """
 
 from __future__ import annotations
@@ -53,7 +53,7 @@ import numpy as np
 import pinocchio as pin
 import pydantic
 
-from hydroarm.arm import Arm, WettedCylinder
+from hydroarm.model.arm import Arm, WettedCylinder
 from hydroarm.config import ConfigError, FrozenModel, field_error, read_mapping, shown, validate
 
 Coordinate = Annotated[float, pydantic.Field(ge=-100.0, le=100.0)]
@@ -473,7 +473,7 @@ def load_urdf_arm(source: str | Path, hydro: HydroSpec | dict | str | Path | Non
 def hydro_spec_of(arm: Arm, use_collision: bool = True) -> dict[str, Any]:
     """A hydrodynamics mapping for ``arm`` exported with :meth:`Arm.to_urdf`.
 
-    One entry per link of :func:`hydroarm.urdf.arm_to_urdf` (``link<i>``): its
+    One entry per link of :func:`hydroarm.model.urdf_export.arm_to_urdf` (``link<i>``): its
     URDF collision cylinder (``use_collision`` and one cylinder on the link) or
     explicit cylinders, with the arm's displaced volumes and coefficient
     overrides, so that re-loading the export with it gives the same dynamics

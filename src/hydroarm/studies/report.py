@@ -106,7 +106,7 @@ def render_report(metrics: dict, out: Path) -> str:
     if (out / "ablation.md").exists():
         lines += ["## Ablation", "", (out / "ablation.md").read_text()]
     lines += ["## Figures", ""]
-    from hydroarm.reproduce import ANIMATION, FIGURES
+    from hydroarm.studies.reproduce import ANIMATION, FIGURES
 
     lines += [f"![GP-MPC on the task: the arm (colour) and the reference (grey)]({ANIMATION})", ""]
     for name, title in FIGURES.items():

@@ -69,7 +69,7 @@ factorised on the new window, that output predicts its prior. Every such
 event is counted in ``SlidingWindowGP.stats``; no LinAlgError leaves the class.
 
 Scaling (measured on the paper's reference trajectory, water torques from
-``hydroarm.water`` as targets, inputs [q, q'], one-step-ahead RMSE): raw N*m
+``hydroarm.model.water`` as targets, inputs [q, q'], one-step-ahead RMSE): raw N*m
 targets with the paper's theta0 = 1 and the default bounds work best;
 ``normalize_y`` (window mean/std) is worse (joint 1: 20 vs 8.5 N*m with
 measurement noise, 1.5e-2 vs 3e-3 N*m without) because the 10-sample window
@@ -120,7 +120,7 @@ At N = 10 the NumPy formulation of one batched evaluation (kernel matrices,
 batched Cholesky, one LAPACK triangular inverse per row, K^-1, alpha, LML,
 gradient: ~40 NumPy calls) costs ~170 us for the 18 stacked rows of one
 hyperparameter step, nearly all of it call overhead. ``_evaluate_kernel`` and
-``_predict_kernel`` (numba, cached on disk like hydroarm.water) do the same
+``_predict_kernel`` (numba, cached on disk like hydroarm.model.water) do the same
 algebra in plain loops, ~37 us; the NumPy versions stay as the readable
 references (``_evaluate_reference``, ``_predict_with_factor_reference``) and
 tests compare the two (they differ by rounding only). A Cholesky that fails in
