@@ -46,7 +46,8 @@ from hydroarm.control.mpc import (  # noqa: E402
     make_box_qp_solver,
     solve_riccati,
 )
-from hydroarm.model.plant import NominalModel, UnderwaterPlant  # noqa: E402
+from hydroarm.model.nominal import NominalModel
+from hydroarm.model.plant import UnderwaterPlant  # noqa: E402
 from hydroarm.model.task import paper_reference  # noqa: E402
 
 

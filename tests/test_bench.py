@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 import hydroarm
+from hydroarm.model.nominal import NominalModel
 from hydroarm.control import gp as gp_module
 from hydroarm.control import mpc as mpc_module
 from hydroarm.benchmark import _missing, growth_exponent, run_benchmarks, stats_ms, validate_report
@@ -174,7 +175,7 @@ def _linearised_window(arm, start: float, horizon: int = 10, period: float = 0.0
     for k in range(horizon + 1):
         q, v, a = reference.sample(start + k * period)
         tau = arm.inverse_dynamics(q, v, a)
-        A, B, x_next = mpc_module.linearise_euler(arm, q, v, tau, period)
+        A, B, x_next = NominalModel(arm).linearise(q, v, tau, period, "euler")
         points.append((A, B, x_next, np.concatenate([q, v])))
     A = np.stack([p[0] for p in points[:horizon]])
     B = np.stack([p[1] for p in points[:horizon]])
@@ -204,11 +205,12 @@ def test_linearisation_fill_is_bit_identical(arm):
     for t in (0.0, 0.37, 6.1):
         q, v, a = reference.sample(t)
         tau = arm.inverse_dynamics(q, v, a)
+        nominal = NominalModel(arm)
         for fixed in (False, True):
             fast_a, fast_b = np.full((12, 12), 3.0), np.full((12, 6), 3.0)
             ref_a, ref_b = fast_a.copy(), fast_b.copy()
-            x_fast = mpc_module._linearise_into(arm, q, v, tau, 0.01, fast_a, fast_b, fixed)
-            x_ref = mpc_module._linearise_into_reference(arm, q, v, tau, 0.01, ref_a, ref_b, fixed)
+            x_fast = nominal.linearise_into(q, v, tau, 0.01, fast_a, fast_b, "euler", constant_blocks_set=fixed)
+            x_ref = nominal.linearise_into_numpy(q, v, tau, 0.01, ref_a, ref_b, constant_blocks_set=fixed)
             np.testing.assert_array_equal(fast_a, ref_a)
             np.testing.assert_array_equal(fast_b, ref_b)
             np.testing.assert_array_equal(x_fast, x_ref)
@@ -231,7 +233,7 @@ def test_compiled_plant_step_is_bit_identical_to_the_reference(arm, water, frict
     u = np.array([20.0, -40.0, 10.0, 2.0, -1.0, 0.5])
     for t, dt in ((0.37, 0.01), (1.0, 0.0035), (2.0, 0.02)):
         x_fast, info_fast = plant.step(t, x0, u, dt)
-        x_ref, info_ref = plant.step_reference(t, x0, u, dt)
+        x_ref, info_ref = plant.step_numpy(t, x0, u, dt)
         np.testing.assert_array_equal(x_fast, x_ref)
         np.testing.assert_array_equal(info_fast.disturbance, info_ref.disturbance)
         np.testing.assert_array_equal(info_fast.disturbance_start, info_ref.disturbance_start)
@@ -253,11 +255,10 @@ def test_a_missing_peer_is_skipped_with_a_reason(monkeypatch):
     assert report["ours_qp_vs_controller_torque_max_abs_diff_nm"] < 1e-9
 
 
-def test_compiled_nominal_rk4_step_is_bit_identical(arm):
-    from hydroarm.studies.experiment import ExperimentConfig, build_controller
-
-    controller = build_controller("GP-MPC", arm, ExperimentConfig())
+@pytest.mark.parametrize("inner_step", [None, 1e-3])
+def test_compiled_nominal_rk4_step_is_bit_identical(arm, inner_step):
+    nominal = NominalModel(arm, inner_step=inner_step)
     rng = np.random.default_rng(3)
     for _ in range(10):
         y, u = rng.normal(size=12), 50.0 * rng.normal(size=6)
-        np.testing.assert_array_equal(controller._nominal_step(y, u), controller._nominal_step_reference(y, u))
+        np.testing.assert_array_equal(nominal.predict(y, u, 0.01), nominal.predict_numpy(y, u, 0.01))

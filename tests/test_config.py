@@ -18,7 +18,7 @@ import numpy as np
 import pydantic
 import pytest
 
-from hydroarm.model.arm import builtin_arm_path, load_arm
+from hydroarm.model.loading import builtin_arm_path, load_arm
 from hydroarm.cli import _experiment_config
 from hydroarm.config import ConfigError, FrozenModel, load_model, validate
 from hydroarm.studies.experiment import ExperimentConfig, with_overrides

@@ -35,7 +35,7 @@ from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 from typer.testing import CliRunner
 
-from hydroarm.model.arm import builtin_arm_path, load_arm
+from hydroarm.model.loading import builtin_arm_path, load_arm
 from hydroarm.cli import app
 from hydroarm.config import ConfigError, read_mapping, shown, validate
 from hydroarm.studies.experiment import (
@@ -44,8 +44,8 @@ from hydroarm.studies.experiment import (
     build_controller,
     check_settings_for_arm,
     run_experiment,
-    task_for_arm,
 )
+from hydroarm.model.task import task_for_arm
 from hydroarm.control.gp import GPConfig
 from hydroarm.model.plant import PlantConfig, UnderwaterPlant
 from hydroarm.studies.sweep import plan_sweep, validate_sweep
@@ -756,7 +756,7 @@ def test_cli_sweep_file_with_a_broken_value_exits_2(data):
 @pytest.mark.parametrize(
     ("args", "expected"),
     [
-        (["run", "--controller", "pid"], "--controller 'pid'"),
+        (["run", "--controller", "pid"], "--controller = 'pid'"),
         (["run", "--arm", "no-such-arm"], "arm 'no-such-arm'"),
         (["run", "--noise", "-1"], "--noise"),
         (["run", "--noise", "nan"], "--noise"),

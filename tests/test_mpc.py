@@ -14,19 +14,31 @@ from hydroarm.control.mpc import (
     MPCConfig,
     QPResult,
     condense,
-    euler_step,
-    linearise,
-    linearise_euler,
-    linearise_taylor2,
     lqr_gain,
     make_box_qp_solver,
     solve_riccati,
     solve_terminal_qp,
 )
-from hydroarm.model.plant import NominalModel
+from hydroarm.model.nominal import NominalModel
 from hydroarm.model.task import SinusoidReference, paper_reference
 
 T = 0.01
+
+
+def linearise(arm, q, v, tau, period, discretisation="taylor2"):
+    return NominalModel(arm).linearise(q, v, tau, period, discretisation)
+
+
+def linearise_euler(arm, q, v, tau, period):
+    return NominalModel(arm).linearise(q, v, tau, period, "euler")
+
+
+def linearise_taylor2(arm, q, v, tau, period):
+    return NominalModel(arm).linearise(q, v, tau, period, "taylor2")
+
+
+def euler_step(arm, x, tau, period):
+    return NominalModel(arm).euler_step(x, tau, period)
 
 
 @pytest.fixture(scope="module")
@@ -253,9 +265,9 @@ def test_taylor2_linearisation_equals_finite_differences_of_its_step(arm):
 
 def test_sliding_horizon_linearises_one_new_index_per_step(arm, monkeypatch):
     calls = []
-    original = arm.forward_dynamics_derivatives
-    monkeypatch.setattr(arm, "forward_dynamics_derivatives", lambda *a: calls.append(1) or original(*a))
     mpc = LinearMPC(arm, MPCConfig(horizon=10))
+    original = mpc.nominal.forward_dynamics_derivatives
+    monkeypatch.setattr(mpc.nominal, "forward_dynamics_derivatives", lambda *a: calls.append(1) or original(*a))
     reference = paper_reference()
     mpc.compute(0.0, paper_state(0.0), reference)
     assert len(calls) == 11
@@ -456,7 +468,7 @@ def test_two_runs_give_identical_torques(arm):
     "data, field",
     [
         ({"horizon": 0}, "horizon"),
-        ({"control_period": -0.01}, "control_period"),
+        ({"control_period": 0.01}, "control_period"),  # one period per experiment, not per controller
         ({"q_position": -300.0}, "q_position"),
         ({"q_velocity": [0.01, -1.0]}, "q_velocity"),
         ({"r": 0.0}, "r"),

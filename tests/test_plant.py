@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 import hydroarm
-from hydroarm.model.plant import NominalModel, PlantConfig, UnderwaterPlant
+from hydroarm.model.nominal import NominalModel
+from hydroarm.model.plant import PlantConfig, UnderwaterPlant
 from hydroarm.model.water import CurrentConfig, Water, paper_current_acceleration
 
 

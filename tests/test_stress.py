@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hydroarm.model.arm import load_arm
+from hydroarm.model.loading import load_arm
 from hydroarm.config import ConfigError, read_mapping
 from hydroarm.studies.experiment import (
     ExperimentConfig,
@@ -19,9 +19,9 @@ from hydroarm.studies.experiment import (
     build_controller,
     run_experiment,
     start_for_arm,
-    task_for_arm,
     with_overrides,
 )
+from hydroarm.model.task import task_for_arm
 from hydroarm.model.plant import UnderwaterPlant
 from hydroarm.studies.runner import run_closed_loop
 from hydroarm.studies.sweep import (

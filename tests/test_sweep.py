@@ -12,9 +12,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hydroarm.model.arm import load_arm
+from hydroarm.model.loading import load_arm
 from hydroarm.config import ConfigError
-from hydroarm.studies.experiment import ExperimentConfig, build_controller, run_experiment, task_for_arm, with_overrides
+from hydroarm.model.task import task_for_arm
+from hydroarm.studies.experiment import ExperimentConfig, build_controller, run_experiment, with_overrides
 from hydroarm.model.plant import UnderwaterPlant
 from hydroarm.studies.runner import Trajectory, run_closed_loop, tracking_metrics
 from hydroarm.studies.sweep import (

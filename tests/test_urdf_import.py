@@ -10,7 +10,8 @@ import pinocchio as pin
 import pytest
 
 import hydroarm
-from hydroarm.model.arm import BUILTIN_ARMS, builtin_arm_path, load_arm_spec
+from hydroarm.model.urdf_export import arm_to_urdf
+from hydroarm.model.loading import BUILTIN_ARMS, builtin_arm_path, load_arm_spec
 from hydroarm.config import ConfigError
 from hydroarm.studies.experiment import ExperimentConfig, build_controller
 from hydroarm.model.plant import UnderwaterPlant
@@ -52,7 +53,7 @@ def paper_pair(tmp_path_factory):
     arm = hydroarm.load_arm("paper")
     folder = tmp_path_factory.mktemp("paper_urdf")
     urdf = folder / "paper.urdf"
-    urdf.write_text(arm.to_urdf())
+    urdf.write_text(arm_to_urdf(arm))
     (folder / "paper.hydro.toml").write_text(to_toml(hydro_spec_of(arm)))
     return arm, hydroarm.load_arm(urdf)  # load_arm dispatches on .urdf and finds the .hydro.toml
 
@@ -91,7 +92,7 @@ def test_round_trip_with_explicit_cylinders_and_overrides():
         dataclasses.replace(c, cd=0.7 + 0.1 * k, cm=1.5 if k % 2 else None) for k, c in enumerate(base.cylinders)
     )
     arm = hydroarm.Arm(name="paper", model=base.model, cylinders=cylinders, torque_limit=base.torque_limit)
-    again = arm_from_urdf(arm.to_urdf(), hydro_spec_of(arm, use_collision=False))
+    again = arm_from_urdf(arm_to_urdf(arm), hydro_spec_of(arm, use_collision=False))
     for q, v, a in _states(6, 4):
         wa = hydrodynamic_torques(arm, Water(current=CURRENT), q, v, a, 1.0)
         wb = hydrodynamic_torques(again, Water(current=CURRENT), q, v, a, 1.0)

@@ -9,9 +9,11 @@ Quick tour::
     plant = hydroarm.UnderwaterPlant(arm, water)
 """
 
-from hydroarm.model.arm import Arm, ArmSpec, WettedCylinder, load_arm
+from hydroarm.model.arm import Arm, ArmSpec, WettedCylinder
+from hydroarm.model.loading import load_arm
 from hydroarm.config import ConfigError
-from hydroarm.model.plant import NominalModel, PlantConfig, StepInfo, UnderwaterPlant
+from hydroarm.model.nominal import NominalModel
+from hydroarm.model.plant import PlantConfig, StepInfo, UnderwaterPlant
 from hydroarm.model.task import SinusoidReference, paper_reference
 from hydroarm.model.water import (
     CurrentConfig,

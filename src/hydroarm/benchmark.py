@@ -157,7 +157,7 @@ class _TimedController:
 
 
 def _setup():
-    from hydroarm.model.arm import load_arm
+    from hydroarm.model.loading import load_arm
     from hydroarm.studies.experiment import ExperimentConfig
     from hydroarm.model.plant import UnderwaterPlant
     from hydroarm.model.task import paper_reference
@@ -706,7 +706,7 @@ def _time_calls(function, args_list, repeat: int = 1) -> list[float]:
 def bench_plant(recorded: dict, quick: bool) -> dict:
     import pinocchio as pin
 
-    from hydroarm.model.plant import NominalModel
+    from hydroarm.model.nominal import NominalModel
 
     config, arm, plant, _ = _setup()
     traj = recorded["GP-MPC"]["traj"]
@@ -716,7 +716,7 @@ def bench_plant(recorded: dict, quick: bool) -> dict:
     states = [(float(traj.t[k]), traj.x[k], traj.u[k]) for k in rows]
     nominal = NominalModel(arm, config.plant.inner_step)
     period = 0.01
-    model, data = arm.model, arm.data
+    model, data = arm.model, arm.create_data()
     wm = plant.water_model
     for t, x, u in states[:20]:  # warm-up
         plant.step(t, x, u, period)
@@ -726,9 +726,9 @@ def bench_plant(recorded: dict, quick: bool) -> dict:
     step_plant = _time_calls(lambda t, x, u: plant.step(t, x, u, period), states)
     step_dry = _time_calls(lambda t, x, u: nominal.step(t, x, u, period), states)
     reference_states = states[:20] if quick else states
-    step_reference = _time_calls(lambda t, x, u: plant.step_reference(t, x, u, period), reference_states)
+    step_reference = _time_calls(lambda t, x, u: plant.step_numpy(t, x, u, period), reference_states)
     worst = max(
-        float(np.abs(plant.step(t, x, u, period)[0] - plant.step_reference(t, x, u, period)[0]).max())
+        float(np.abs(plant.step(t, x, u, period)[0] - plant.step_numpy(t, x, u, period)[0]).max())
         for t, x, u in reference_states
     )
     water, aba = stats_ms(evaluation_water), stats_ms(evaluation_aba)

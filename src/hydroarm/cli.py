@@ -111,7 +111,7 @@ def reproduce(
 
     Examples: hydroarm reproduce --out results;  hydroarm reproduce --arm alpha5 --out alpha5
     """
-    from hydroarm.model.arm import load_arm
+    from hydroarm.model.loading import load_arm
     from hydroarm.studies.experiment import check_settings_for_arm, with_overrides
     from hydroarm.studies.reproduce import reproduce as run
 
@@ -184,13 +184,14 @@ def run(
     Example: hydroarm run --controller gp-mpc --arm paper --noise 0.001 --seed 3 --out DIR
     """
     from hydroarm.studies import figures
-    from hydroarm.model.arm import load_arm
-    from hydroarm.studies.experiment import CONTROLLERS, check_settings_for_arm, run_experiment, with_overrides
+    from hydroarm.model.loading import load_arm
+    from hydroarm.studies.experiment import canonical_name, check_settings_for_arm, run_experiment, with_overrides
     from hydroarm.studies.runner import tracking_metrics
 
-    names = {c.lower(): c for c in CONTROLLERS}
-    if controller.lower() not in names:
-        _fail(f"--controller '{controller}': must be one of {', '.join(names)}")
+    try:
+        name = canonical_name(controller)
+    except ConfigError as error:
+        _fail(f"--{error}")
     _check_out(out)
     try:
         config = _experiment_config(config_file, overrides or [])
@@ -200,7 +201,6 @@ def run(
         check_settings_for_arm(config, arm_model)
     except ConfigError as error:
         _fail(str(error))
-    name = names[controller.lower()]
     out.mkdir(parents=True, exist_ok=True)
     with Progress(TextColumn(name), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(), console=console) as progress:
         task = progress.add_task(name, total=int(round(config.duration / config.control_period)))
@@ -235,7 +235,7 @@ def animate(
     Example: hydroarm animate results/runs/clean__GP-MPC__seed0.npz --out arm.gif
     """
     from hydroarm.studies.animate import animate as render
-    from hydroarm.model.arm import load_arm
+    from hydroarm.model.loading import load_arm
     from hydroarm.studies.runner import Trajectory
 
     if not run_file.is_file():
@@ -255,7 +255,7 @@ def animate(
 @app.command()
 def arms(as_json: Annotated[bool, typer.Option("--json")] = False) -> None:
     """List the built-in arms."""
-    from hydroarm.model.arm import BUILTIN_ARMS, load_arm
+    from hydroarm.model.loading import BUILTIN_ARMS, load_arm
 
     rows = []
     for name in BUILTIN_ARMS:
@@ -282,10 +282,12 @@ def export_urdf(
 
     Example: hydroarm export-urdf paper --out paper.urdf
     """
-    from hydroarm.model.arm import load_arm
+    from hydroarm.model.loading import load_arm
 
     try:
-        text = load_arm(arm).to_urdf()
+        from hydroarm.model.urdf_export import arm_to_urdf
+
+        text = arm_to_urdf(load_arm(arm))
     except ConfigError as error:
         _fail(str(error))
     if out is None:

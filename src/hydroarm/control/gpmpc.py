@@ -31,15 +31,14 @@ import time
 from typing import Literal
 
 import numpy as np
-import pinocchio as pin
 import pydantic
 
 from hydroarm.model.arm import Arm
 from hydroarm.config import FrozenModel
 from hydroarm.control.interface import ControlOutput, Reference
 from hydroarm.control.gp import GPConfig, SlidingWindowGP
-from hydroarm.model.integrator import rk4_second_order_stage, rk4_step
 from hydroarm.control.mpc import LinearMPC
+from hydroarm.model.nominal import NominalModel
 
 Features = Literal["state", "state+nominal", "state+torque"]
 
@@ -83,8 +82,7 @@ class GPMPC:
         self.n = arm.n_joints
         self.gp = SlidingWindowGP(feature_size(self.config.features, self.n), self.n, gp_config)
         self.control_period = mpc.control_period
-        self._data = arm.model.createData()  # own workspace: the MPC uses arm.data
-        self._rk4_stages = np.empty((4, 2 * self.n))  # work array of _nominal_step
+        self.nominal = NominalModel(arm, inner_step=None)  # own workspace; one RK4 step per period
         self.reset()
 
     def reset(self) -> None:
@@ -110,33 +108,6 @@ class GPMPC:
         for name, value in counts.items():
             self._pending_events.extend([name] * (value - self._gp_counts[name]))
         self._gp_counts = counts
-
-    # --- model pieces -----------------------------------------------------------------
-    def _nominal_step(self, y: np.ndarray, u: np.ndarray) -> np.ndarray:
-        """The dry model's state after one control period from y under u (one RK4 step).
-
-        :meth:`_nominal_step_reference` with the RK4 arithmetic compiled
-        (bit-identical; four ABA calls and four small compiled calls).
-        """
-        n, model, data = self.n, self.arm.model, self._data
-        x = np.array(y, dtype=float)
-        stage_state = x.copy()
-        q, v = stage_state[:n], stage_state[n:]
-        u = np.ascontiguousarray(u, dtype=float)
-        for stage in range(4):
-            rk4_second_order_stage(
-                stage, self.control_period, x, stage_state, self._rk4_stages, pin.aba(model, data, q, v, u)
-            )
-        return stage_state
-
-    def _nominal_step_reference(self, y: np.ndarray, u: np.ndarray) -> np.ndarray:
-        """The dry model's state after one control period (``rk4_step`` on ``[v, ABA]``)."""
-        n, model, data = self.n, self.arm.model, self._data
-
-        def f(_t: float, x: np.ndarray) -> np.ndarray:
-            return np.concatenate([x[n:], pin.aba(model, data, x[:n], x[n:], u)])
-
-        return rk4_step(f, 0.0, y, self.control_period)
 
     def _features(self, y: np.ndarray, u_prev: np.ndarray, nominal: np.ndarray | None) -> np.ndarray:
         kind = self.config.features
@@ -165,8 +136,7 @@ class GPMPC:
             if self.config.variance_aware:
                 scaled = mean * mean**2 / (mean**2 + var + 1e-12)
             if self.config.feedforward == "acceleration":
-                mass = pin.crba(self.arm.model, self._data, y[:n])
-                mass = np.triu(mass) + np.triu(mass, 1).T
+                mass = self.nominal.mass_matrix(y[:n])
                 feedforward = {"feedforward_acceleration": np.linalg.solve(mass, scaled)}
             else:
                 feedforward = {"feedforward_torque": scaled}
@@ -184,11 +154,7 @@ class GPMPC:
 
     def observe(self, t: float, y: np.ndarray, u: np.ndarray, y_next: np.ndarray) -> None:
         """Add the disturbance seen over the last step to the GP window."""
-        n = self.n
-        nominal = self._nominal_step(y, u)
-        mass = pin.crba(self.arm.model, self._data, y[:n])
-        mass = np.triu(mass) + np.triu(mass, 1).T
-        residual = mass @ (y_next[n:] - nominal[n:]) / self.control_period
+        residual, nominal = self.nominal.residual(y, u, y_next, self.control_period)
         features = self._features_now if self._features_now is not None else self._features(y, u, None)
         self._nominal_now = nominal
         if not (np.all(np.isfinite(residual)) and np.all(np.isfinite(features))):

@@ -64,6 +64,18 @@ FAULT_EVENTS: dict[str, str] = {
 counts each one; docs/reliability.md)."""
 
 
+def require_period(control_period: float) -> float:
+    """``control_period`` (s) as a float, checked to lie in [1e-4, 1] (raises ValueError otherwise).
+
+    The period is a setting of the experiment (``ExperimentConfig.control_period``), not of
+    any one controller: the builder hands the same value to the controller and the runner.
+    """
+    period = float(control_period)
+    if not 1e-4 <= period <= 1.0:
+        raise ValueError(f"control_period = {control_period!r}: must be >= 0.0001 and <= 1 (s)")
+    return period
+
+
 @runtime_checkable
 class Controller(Protocol):
     """What every controller implements."""

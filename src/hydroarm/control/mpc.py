@@ -77,9 +77,10 @@ import numpy as np
 import pydantic
 import scipy.linalg
 
-from hydroarm.model.arm import Arm
 from hydroarm.config import ConfigError, FrozenModel, per_joint
-from hydroarm.control.interface import ControlOutput, Reference
+from hydroarm.control.interface import ControlOutput, Reference, require_period
+from hydroarm.model.arm import Arm
+from hydroarm.model.nominal import NominalModel
 
 SOLVERS = ("daqp", "osqp", "quadprog", "clarabel")
 
@@ -106,7 +107,6 @@ class MPCConfig(FrozenModel):
     """
 
     horizon: int = pydantic.Field(10, ge=1, le=200, description="prediction horizon N (steps)")
-    control_period: float = pydantic.Field(0.01, ge=1e-4, le=1.0, description="T (s)")
     q_position: PositiveFloat | PositiveList = pydantic.Field(
         300.0, description="Q weight on joint position error (1/rad^2)"
     )
@@ -150,149 +150,6 @@ class MPCConfig(FrozenModel):
                     where = f"{name}.{k}" if isinstance(value, list) else name
                     raise field_error(where, entry, f"must be >= {low:g} and <= {high:g}")
         return self
-
-
-# --------------------------------------------------------------------------------------
-# Linearisation
-# --------------------------------------------------------------------------------------
-def linearise_euler(
-    arm: Arm, q: np.ndarray, v: np.ndarray, tau: np.ndarray, period: float
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Euler-discretised dry dynamics at (q, v, tau): ``(A, B, x_next)``.
-
-    ``x_next = x + T f(x, tau)`` (2n,) with ``f = [v, ABA(q, v, tau)]``;
-    ``A = I + T df/dx`` (2n, 2n); ``B = T df/dtau`` (2n, n). Analytical
-    derivatives (Pinocchio ``computeABADerivatives``), no finite differences.
-    """
-    n = arm.n_joints
-    a_mat = np.zeros((2 * n, 2 * n))
-    b_mat = np.zeros((2 * n, n))
-    x_next = _linearise_into(arm, q, v, tau, period, a_mat, b_mat, fixed_part=False)
-    return a_mat, b_mat, x_next
-
-
-def _linearise_into(arm, q, v, tau, period, a_mat, b_mat, fixed_part=True) -> np.ndarray:
-    """Write A and B of :func:`linearise_euler` into ``a_mat``, ``b_mat``; return x_next.
-
-    With ``fixed_part`` the constant blocks (A's top rows ``[I, T I]``, B's top
-    rows 0) are taken as already in place and only the bottom rows are written.
-    The same values as :func:`_linearise_into_reference` (bit for bit), with
-    the fill compiled (one call instead of ~10 small NumPy calls).
-    """
-    qdd, dqdd_dq, dqdd_dv, minv = arm.forward_dynamics_derivatives(q, v, tau)
-    return _fill_linearisation(
-        np.ascontiguousarray(q, dtype=float), np.ascontiguousarray(v, dtype=float),
-        qdd, dqdd_dq, dqdd_dv, minv, float(period), a_mat, b_mat, not fixed_part,
-    )  # fmt: skip
-
-
-@numba.njit(cache=True)
-def _fill_linearisation(q, v, qdd, dqdd_dq, dqdd_dv, minv_upper, period, a_mat, b_mat, constant_blocks):
-    """A's and B's bottom rows (and with ``constant_blocks`` their top rows) from ABA's
-    derivatives (``M^-1`` symmetric: its upper triangle is read).
-    Returns ``x_next = [q + T v, v + T q'']``.
-    """  # pragma: no cover - compiled
-    n = q.shape[0]
-    x_next = np.empty(2 * n)
-    for i in range(n):
-        if constant_blocks:
-            for j in range(n):
-                a_mat[i, j] = 1.0 if i == j else 0.0
-                a_mat[i, n + j] = period if i == j else 0.0
-                b_mat[i, j] = 0.0
-        for j in range(n):
-            a_mat[n + i, j] = dqdd_dq[i, j] * period
-            a_mat[n + i, n + j] = dqdd_dv[i, j] * period
-            b_mat[n + i, j] = (minv_upper[i, j] if i <= j else minv_upper[j, i]) * period
-        a_mat[n + i, n + i] += 1.0
-        x_next[i] = q[i] + period * v[i]
-        x_next[n + i] = v[i] + period * qdd[i]
-    return x_next
-
-
-def linearise(
-    arm: Arm, q: np.ndarray, v: np.ndarray, tau: np.ndarray, period: float, discretisation: str = "taylor2"
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``(A, B, x_next)`` of the MPC's prediction model (``MPCConfig.discretisation``)."""
-    if discretisation == "euler":
-        return linearise_euler(arm, q, v, tau, period)
-    if discretisation == "taylor2":
-        return linearise_taylor2(arm, q, v, tau, period)
-    raise ConfigError(f"discretisation = {discretisation!r}: must be 'euler' or 'taylor2'")
-
-
-def linearise_taylor2(
-    arm: Arm, q: np.ndarray, v: np.ndarray, tau: np.ndarray, period: float
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Second-order Taylor discretisation of the dry dynamics at (q, v, tau): ``(A, B, x_next)``.
-
-    ``q+ = q + T v + T^2/2 q''``, ``v+ = v + T q''`` with ``q'' = ABA(q, v, tau)``:
-    exact for a constant acceleration over the step, i.e. the torque held by the
-    zero-order hold also moves the position within the step (Euler's position row
-    ignores it). ``A`` (2n, 2n), ``B`` (2n, n) are its Jacobians (analytical ABA
-    derivatives). Compared with :func:`linearise_euler` only the top (position)
-    rows differ: ``[I + T^2/2 dq''/dq, T I + T^2/2 dq''/dv]`` and ``T^2/2 M^-1``.
-    """
-    n = arm.n_joints
-    a_mat = np.zeros((2 * n, 2 * n))
-    b_mat = np.zeros((2 * n, n))
-    x_next = _linearise_into_taylor2(arm, q, v, tau, period, a_mat, b_mat)
-    return a_mat, b_mat, x_next
-
-
-def _linearise_into_taylor2(arm, q, v, tau, period, a_mat, b_mat) -> np.ndarray:
-    """Write A and B of :func:`linearise_taylor2` into ``a_mat``, ``b_mat`` (every block); return x_next."""
-    x_next = _linearise_into(arm, q, v, tau, period, a_mat, b_mat, fixed_part=False)
-    _add_position_curvature(period, a_mat, b_mat)
-    n = arm.n_joints
-    x_next[:n] += 0.5 * period * (x_next[n:] - v)  # + T^2/2 q'', with T q'' = v+ - v
-    return x_next
-
-
-@numba.njit(cache=True)
-def _add_position_curvature(period, a_mat, b_mat):  # pragma: no cover - compiled
-    """Turn Euler's A and B (all rows filled) into the second-order Taylor ones:
-    position rows += T/2 x (velocity rows minus their identity block)."""
-    n = b_mat.shape[1]
-    half = 0.5 * period
-    for i in range(n):
-        for j in range(n):
-            a_mat[i, j] += half * a_mat[n + i, j]
-            a_mat[i, n + j] += half * (a_mat[n + i, n + j] - (1.0 if i == j else 0.0))
-            b_mat[i, j] = half * b_mat[n + i, j]
-
-
-def _linearise_into_reference(arm, q, v, tau, period, a_mat, b_mat, fixed_part=True) -> np.ndarray:
-    """NumPy formulation of :func:`_linearise_into` (tests compare the two)."""
-    n = arm.n_joints
-    qdd, dqdd_dq, dqdd_dv, minv = arm.forward_dynamics_derivatives(q, v, tau)
-    if not fixed_part:
-        a_mat[:n, :n] = np.eye(n)
-        a_mat[:n, n:] = period * np.eye(n)
-        b_mat[:n] = 0.0
-    np.multiply(dqdd_dq, period, out=a_mat[n:, :n])
-    np.multiply(dqdd_dv, period, out=a_mat[n:, n:])
-    a_mat[n:, n:][_diagonal(n)] += 1.0
-    np.multiply(minv, period, out=b_mat[n:])
-    return np.concatenate([q + period * v, v + period * qdd])
-
-
-def _diagonal(n: int) -> tuple[np.ndarray, np.ndarray]:
-    """Index arrays of the diagonal of an (n, n) block (cached: the same n every call)."""
-    cached = _DIAGONALS.get(n)
-    if cached is None:
-        cached = _DIAGONALS[n] = (np.arange(n), np.arange(n))
-    return cached
-
-
-_DIAGONALS: dict[int, tuple[np.ndarray, np.ndarray]] = {}
-
-
-def euler_step(arm: Arm, x: np.ndarray, tau: np.ndarray, period: float) -> np.ndarray:
-    """One explicit Euler step of the dry model: ``x + T [v, ABA(q, v, tau)]`` (2n,)."""
-    n = arm.n_joints
-    q, v = x[:n], x[n:]
-    return np.concatenate([q + period * v, v + period * arm.forward_dynamics(q, v, tau)])
 
 
 # --------------------------------------------------------------------------------------
@@ -934,14 +791,15 @@ class LinearMPC:
 
     name = "MPC"
 
-    def __init__(self, arm: Arm, config: MPCConfig | None = None) -> None:
+    def __init__(self, arm: Arm, config: MPCConfig | None = None, control_period: float = 0.01) -> None:
         self.arm = arm
         self.config = config if config is not None else MPCConfig()
         cfg = self.config
         n = arm.n_joints
         self.n = n
         self.horizon = cfg.horizon
-        self.control_period = cfg.control_period
+        self.control_period = require_period(control_period)
+        self.nominal = NominalModel(arm, inner_step=None)  # own workspace
         self._q_diag = np.concatenate(
             [per_joint(cfg.q_position, n, "q_position"), per_joint(cfg.q_velocity, n, "q_velocity")]
         )
@@ -952,7 +810,6 @@ class LinearMPC:
         self.torque_limit = per_joint(limit, n, "torque_limit")
         self._limit_stacked = np.tile(self.torque_limit, cfg.horizon)
         self._solver = make_box_qp_solver(cfg.solver)
-        self._linearise_into = {"euler": _linearise_into, "taylor2": _linearise_into_taylor2}[cfg.discretisation]
         if cfg.terminal_set != "off":
             try:
                 import clarabel  # noqa: F401
@@ -968,7 +825,7 @@ class LinearMPC:
         self._b = np.zeros((size, 2 * n, n))
         self._x_next = np.zeros((size, 2 * n))
         self._a[:, :n, :n] = np.eye(n)  # the constant blocks of every A and B
-        self._a[:, :n, n:] = cfg.control_period * np.eye(n)
+        self._a[:, :n, n:] = self.control_period * np.eye(n)
         self.reset()
 
     # --- interface -------------------------------------------------------------------
@@ -1122,9 +979,10 @@ class LinearMPC:
             q, v, a = reference.sample((k + slot) * self.control_period)
             q = np.asarray(q, dtype=float)
             v = np.asarray(v, dtype=float)
-            u_ref = self.arm.inverse_dynamics(q, v, np.asarray(a, dtype=float))
-            self._x_next[slot] = self._linearise_into(
-                self.arm, q, v, u_ref, self.control_period, self._a[slot], self._b[slot]
+            u_ref = self.nominal.inverse_dynamics(q, v, np.asarray(a, dtype=float))
+            self._x_next[slot] = self.nominal.linearise_into(
+                q, v, u_ref, self.control_period, self._a[slot], self._b[slot],
+                self.config.discretisation, constant_blocks_set=True,
             )
             self._x_ref[slot, : self.n] = q
             self._x_ref[slot, self.n :] = v

@@ -21,12 +21,12 @@ import time
 from typing import Annotated
 
 import numpy as np
-import pinocchio as pin
 import pydantic
 
-from hydroarm.model.arm import Arm
 from hydroarm.config import FrozenModel, per_joint
-from hydroarm.control.interface import ControlOutput, Reference
+from hydroarm.control.interface import ControlOutput, Reference, require_period
+from hydroarm.model.arm import Arm
+from hydroarm.model.nominal import NominalModel
 
 Gain = Annotated[float, pydantic.Field(gt=0.0, le=1e6)]
 GainOrList = Gain | list[Gain]
@@ -35,9 +35,8 @@ NonNegativeGain = Annotated[float, pydantic.Field(ge=0.0, le=1e6)]
 
 class SMCConfig(FrozenModel):
     """Sliding-mode gains (scalars or one per joint, each in (0, 1e6]; ``linear_gain`` from 0,
-    ``boundary_layer`` from 1e-6) and the control period (s, in [1e-4, 1])."""
+    ``boundary_layer`` from 1e-6)."""
 
-    control_period: float = pydantic.Field(0.01, ge=1e-4, le=1.0)
     surface_slope: GainOrList = pydantic.Field(40.0, description="lambda (1/s)")
     switching_gain: GainOrList = pydantic.Field(50.0, description="k (rad/s^2)")
     boundary_layer: Annotated[float, pydantic.Field(ge=1e-6, le=1e6)] | list[
@@ -54,11 +53,12 @@ class SlidingModeController:
 
     name = "SMC"
 
-    def __init__(self, arm: Arm, config: SMCConfig | None = None):
+    def __init__(self, arm: Arm, config: SMCConfig | None = None, control_period: float = 0.01):
         self.arm = arm
         self.config = config if config is not None else SMCConfig()
         n = arm.n_joints
-        self.control_period = self.config.control_period
+        self.control_period = require_period(control_period)
+        self.nominal = NominalModel(arm)  # own workspace
         self.slope = per_joint(self.config.surface_slope, n, "surface_slope")
         self.gain = per_joint(self.config.switching_gain, n, "switching_gain")
         self.layer = per_joint(self.config.boundary_layer, n, "boundary_layer")
@@ -77,7 +77,7 @@ class SlidingModeController:
         error_v = v - v_r
         surface = error_v + self.slope * (q - q_r)
         acc = a_r - self.slope * error_v - self.linear * surface - self.gain * np.clip(surface / self.layer, -1.0, 1.0)
-        tau = pin.rnea(self.arm.model, self.arm.data, q, v, acc)
+        tau = self.nominal.inverse_dynamics(q, v, acc)
         tau = np.clip(tau, -self.torque_limit, self.torque_limit)
         return ControlOutput(tau=tau, timings={"total": time.perf_counter() - start})
 

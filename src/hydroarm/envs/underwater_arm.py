@@ -29,7 +29,7 @@ import gymnasium
 import numpy as np
 from gymnasium import spaces
 
-from hydroarm.model.arm import load_arm
+from hydroarm.model.loading import load_arm
 from hydroarm.control.interface import Controller
 from hydroarm.studies.experiment import ExperimentConfig, build_controller, with_overrides
 from hydroarm.model.plant import UnderwaterPlant

@@ -18,16 +18,14 @@ the base frame.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
-from importlib import resources
-from pathlib import Path
+from dataclasses import dataclass
 from typing import Annotated, Self
 
 import numpy as np
 import pinocchio as pin
 import pydantic
 
-from hydroarm.config import ConfigError, FrozenModel, field_error, load_model
+from hydroarm.config import ConfigError, FrozenModel, field_error
 
 REFERENCE_WATER_DENSITY = 1000.0
 """kg/m^3: the density at which arm files state ``buoyancy_kg`` (Table A1's)."""
@@ -210,10 +208,13 @@ class WettedCylinder:
 
 @dataclass
 class Arm:
-    """A fixed-base arm of revolute joints: Pinocchio model + data + wetted cylinders.
+    """A fixed-base arm of revolute joints: constants only (Pinocchio model + wetted cylinders).
 
-    Follows Pinocchio's model/data split: ``model`` holds constants, ``data`` is
-    the workspace every method below reuses (one ``Arm`` per thread).
+    Follows Pinocchio's model/data split: an ``Arm`` holds constants and is shared
+    freely; whoever computes with it owns a workspace (``arm.create_data()``) and
+    passes it as ``data=`` (the plant, :class:`~hydroarm.model.nominal.NominalModel`
+    and every controller own theirs). The dynamics methods below are free of
+    state: without ``data`` they make a fresh workspace (convenient, slower).
     All dynamics here are the *dry* rigid body; the water is in
     :mod:`hydroarm.model.water`. ``position_limit`` (n, 2) rad: [lower, upper] per
     joint when the arm file states them (URDF joint limits), else None.
@@ -225,7 +226,6 @@ class Arm:
     torque_limit: np.ndarray
     spec: ArmSpec | None = None
     position_limit: np.ndarray | None = None
-    data: pin.Data = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         if self.model.nq != self.model.nv:
@@ -240,7 +240,6 @@ class Arm:
                     f"position_limit must be ({self.model.nv}, 2) with lower <= upper, got {limits.tolist()}"
                 )
             self.position_limit = limits.copy()
-        self.data = self.model.createData()
         # support[c, j] = 1 if joint j moves cylinder c (joint j on the path to its link).
         support = np.zeros((len(self.cylinders), self.model.nv))
         for row, cylinder in enumerate(self.cylinders):
@@ -258,87 +257,100 @@ class Arm:
     def gravity_acceleration(self) -> float:
         return float(np.linalg.norm(self.model.gravity.linear))
 
+    def create_data(self) -> pin.Data:
+        """A new Pinocchio workspace for this arm's model."""
+        return self.model.createData()
+
+    def _data(self, data: pin.Data | None) -> pin.Data:
+        return self.model.createData() if data is None else data
+
     # --- dry rigid-body dynamics ---------------------------------------------
-    def mass_matrix(self, q: np.ndarray) -> np.ndarray:
+    def mass_matrix(self, q: np.ndarray, *, data: pin.Data | None = None) -> np.ndarray:
         """Joint-space inertia M(q), shape (n, n), symmetric (CRBA)."""
-        mass = pin.crba(self.model, self.data, _vec(q, self.n_joints, "q"))
+        data = self._data(data)
+        mass = pin.crba(self.model, data, _vec(q, self.n_joints, "q"))
         return np.triu(mass) + np.triu(mass, 1).T
 
-    def coriolis_matrix(self, q: np.ndarray, v: np.ndarray) -> np.ndarray:
+    def coriolis_matrix(self, q: np.ndarray, v: np.ndarray, *, data: pin.Data | None = None) -> np.ndarray:
         """C(q, v), shape (n, n), with M' - 2C skew-symmetric."""
+        data = self._data(data)
         return pin.computeCoriolisMatrix(
-            self.model, self.data, _vec(q, self.n_joints, "q"), _vec(v, self.n_joints, "v")
+            self.model, data, _vec(q, self.n_joints, "q"), _vec(v, self.n_joints, "v")
         ).copy()
 
-    def gravity(self, q: np.ndarray) -> np.ndarray:
+    def gravity(self, q: np.ndarray, *, data: pin.Data | None = None) -> np.ndarray:
         """G(q) (N m), shape (n,): the torque that holds the dry arm still."""
+        data = self._data(data)
         return pin.computeGeneralizedGravity(
-            self.model, self.data, _vec(q, self.n_joints, "q")
+            self.model, data, _vec(q, self.n_joints, "q")
         ).copy()
 
-    def nonlinear_effects(self, q: np.ndarray, v: np.ndarray) -> np.ndarray:
+    def nonlinear_effects(self, q: np.ndarray, v: np.ndarray, *, data: pin.Data | None = None) -> np.ndarray:
         """C(q, v) v + G(q) (N m), shape (n,)."""
-        return pin.nonLinearEffects(self.model, self.data, q, v).copy()
+        data = self._data(data)
+        return pin.nonLinearEffects(self.model, data, q, v).copy()
 
-    def inverse_dynamics(self, q: np.ndarray, v: np.ndarray, a: np.ndarray) -> np.ndarray:
+    def inverse_dynamics(self, q: np.ndarray, v: np.ndarray, a: np.ndarray, *, data: pin.Data | None = None) -> np.ndarray:
         """tau = M a + C v + G (RNEA), shape (n,)."""
+        data = self._data(data)
         n = self.n_joints
-        return pin.rnea(self.model, self.data, _vec(q, n, "q"), _vec(v, n, "v"), _vec(a, n, "a")).copy()
+        return pin.rnea(self.model, data, _vec(q, n, "q"), _vec(v, n, "v"), _vec(a, n, "a")).copy()
 
-    def forward_dynamics(self, q: np.ndarray, v: np.ndarray, tau: np.ndarray) -> np.ndarray:
+    def forward_dynamics(self, q: np.ndarray, v: np.ndarray, tau: np.ndarray, *, data: pin.Data | None = None) -> np.ndarray:
         """q'' = M^-1 (tau - C v - G) (ABA), shape (n,)."""
+        data = self._data(data)
         n = self.n_joints
-        return pin.aba(self.model, self.data, _vec(q, n, "q"), _vec(v, n, "v"), _vec(tau, n, "tau")).copy()
+        return pin.aba(self.model, data, _vec(q, n, "q"), _vec(v, n, "v"), _vec(tau, n, "tau")).copy()
 
     def forward_dynamics_derivatives(
-        self, q: np.ndarray, v: np.ndarray, tau: np.ndarray
+        self, q: np.ndarray, v: np.ndarray, tau: np.ndarray, *, data: pin.Data | None = None
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Analytical derivatives of ABA (Carpentier & Mansard 2018).
 
         Returns ``(qdd, dqdd_dq, dqdd_dv, dqdd_dtau)``: the acceleration (n,) and
         its Jacobians (n, n) each; ``dqdd_dtau`` is M(q)^-1.
         """
-        pin.computeABADerivatives(self.model, self.data, q, v, tau)
-        minv = np.triu(self.data.Minv) + np.triu(self.data.Minv, 1).T
-        return self.data.ddq.copy(), self.data.ddq_dq.copy(), self.data.ddq_dv.copy(), minv
+        data = self._data(data)
+        pin.computeABADerivatives(self.model, data, q, v, tau)
+        minv = np.triu(data.Minv) + np.triu(data.Minv, 1).T
+        return data.ddq.copy(), data.ddq_dq.copy(), data.ddq_dv.copy(), minv
 
     def inverse_dynamics_derivatives(
-        self, q: np.ndarray, v: np.ndarray, a: np.ndarray
+        self, q: np.ndarray, v: np.ndarray, a: np.ndarray, *, data: pin.Data | None = None
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Analytical derivatives of RNEA: ``(dtau_dq, dtau_dv, M)``, each (n, n)."""
-        pin.computeRNEADerivatives(self.model, self.data, q, v, a)
-        mass = np.triu(self.data.M) + np.triu(self.data.M, 1).T
-        return self.data.dtau_dq.copy(), self.data.dtau_dv.copy(), mass
+        data = self._data(data)
+        pin.computeRNEADerivatives(self.model, data, q, v, a)
+        mass = np.triu(data.M) + np.triu(data.M, 1).T
+        return data.dtau_dq.copy(), data.dtau_dv.copy(), mass
 
-    def kinetic_energy(self, q: np.ndarray, v: np.ndarray) -> float:
+    def kinetic_energy(self, q: np.ndarray, v: np.ndarray, *, data: pin.Data | None = None) -> float:
         """1/2 v^T M v (J)."""
-        return float(pin.computeKineticEnergy(self.model, self.data, q, v))
+        data = self._data(data)
+        return float(pin.computeKineticEnergy(self.model, data, q, v))
 
-    def potential_energy(self, q: np.ndarray) -> float:
+    def potential_energy(self, q: np.ndarray, *, data: pin.Data | None = None) -> float:
         """Gravity potential of the dry arm (J), zero at the base height."""
-        return float(pin.computePotentialEnergy(self.model, self.data, q))
+        data = self._data(data)
+        return float(pin.computePotentialEnergy(self.model, data, q))
 
-    def joint_placements(self, q: np.ndarray) -> list[pin.SE3]:
+    def joint_placements(self, q: np.ndarray, *, data: pin.Data | None = None) -> list[pin.SE3]:
         """World placement of every joint's body frame (Pinocchio ``oMi``), n items."""
-        pin.forwardKinematics(self.model, self.data, _vec(q, self.n_joints, "q"))
-        return [self.data.oMi[i].copy() for i in range(1, self.model.njoints)]
+        data = self._data(data)
+        pin.forwardKinematics(self.model, data, _vec(q, self.n_joints, "q"))
+        return [data.oMi[i].copy() for i in range(1, self.model.njoints)]
 
-    def cylinder_endpoints(self, q: np.ndarray) -> np.ndarray:
+    def cylinder_endpoints(self, q: np.ndarray, *, data: pin.Data | None = None) -> np.ndarray:
         """World coordinates of every cylinder's ends, shape (n_cylinders, 2, 3) (m)."""
-        pin.forwardKinematics(self.model, self.data, _vec(q, self.n_joints, "q"))
+        data = self._data(data)
+        pin.forwardKinematics(self.model, data, _vec(q, self.n_joints, "q"))
         out = np.empty((len(self.cylinders), 2, 3))
         for row, cylinder in enumerate(self.cylinders):
-            placement = self.data.oMi[cylinder.joint_id]
+            placement = data.oMi[cylinder.joint_id]
             out[row, 0] = placement.act(cylinder.start)
             out[row, 1] = placement.act(cylinder.end)
         return out
 
-    # --- export ---------------------------------------------------------------
-    def to_urdf(self) -> str:
-        """URDF of the dry arm: links, revolute joints, inertials, cylinder geometry."""
-        from hydroarm.model.urdf_export import arm_to_urdf
-
-        return arm_to_urdf(self)
 
 
 def _vec(x: np.ndarray, n: int, name: str) -> np.ndarray:
@@ -387,52 +399,19 @@ def build_arm(spec: ArmSpec) -> Arm:
     return Arm(name=spec.name, model=model, cylinders=tuple(cylinders), torque_limit=np.asarray(limit), spec=spec)
 
 
-BUILTIN_ARMS = ("paper", "ur5", "alpha5")
-BUILTIN_URDF_ARMS = ("alpha5",)
-"""Built-in arms given as a URDF plus a hydrodynamics file (``arms/<name>.hydro.toml``)."""
+def revolute_axes(arm: Arm) -> np.ndarray:
+    """Unit rotation axis of every joint in its own frame, shape (njoints, 3).
 
-URDF_SUFFIXES = (".urdf", ".hydro.toml", ".hydro.yaml", ".hydro.yml")
-"""File names that :func:`load_arm` hands to :mod:`hydroarm.model.urdf_import`."""
-
-
-def builtin_arm_path(name: str) -> Path:
-    """Path of a built-in arm file: ``arms/<name>.toml`` (DH arms ``paper``, ``ur5``)
-    or ``arms/<name>.hydro.toml`` (URDF arms, e.g. ``alpha5``; it names its URDF)."""
-    suffix = ".hydro.toml" if name in BUILTIN_URDF_ARMS else ".toml"
-    return Path(str(resources.files("hydroarm") / "arms" / f"{name}{suffix}"))
-
-
-def is_urdf_source(source: str | Path) -> bool:
-    """True for a built-in URDF arm name or a ``.urdf`` / ``.hydro.{toml,yaml,yml}`` path."""
-    if isinstance(source, str) and source in BUILTIN_URDF_ARMS:
-        return True
-    return str(source).lower().endswith(URDF_SUFFIXES)
-
-
-def load_arm_spec(source: str | Path) -> ArmSpec:
-    """Read and validate a DH arm file, or a built-in DH arm by name."""
-    if is_urdf_source(source):
-        raise ConfigError(
-            f"arm {str(source)!r} is a URDF arm: it has no DH arm file; load it with load_arm()"
-        )
-    if isinstance(source, str) and source in BUILTIN_ARMS:
-        return load_model(ArmSpec, builtin_arm_path(source))
-    path = Path(source)
-    if not str(source) or not path.is_file():
-        raise ConfigError(
-            f"arm {str(source)!r}: neither a built-in arm ({', '.join(BUILTIN_ARMS)}) nor an existing file"
-        )
-    return load_model(ArmSpec, path)
-
-
-def load_arm(source: str | Path = "paper") -> Arm:
-    """Load an arm: ``"paper"`` (Liu et al. 2023), ``"ur5"``, ``"alpha5"`` (Reach Alpha 5),
-    a DH arm file (TOML/YAML), a URDF (``.urdf``, with ``<stem>.hydro.toml`` beside it) or a
-    hydrodynamics file (``.hydro.toml``/``.yaml`` naming its URDF): see :mod:`hydroarm.model.urdf_import`."""
-    if is_urdf_source(source):
-        from hydroarm.model.urdf_import import load_urdf_arm
-
-        if isinstance(source, str) and source in BUILTIN_URDF_ARMS:
-            return load_urdf_arm(builtin_arm_path(source))
-        return load_urdf_arm(source)
-    return build_arm(load_arm_spec(source))
+    Row 0 (the universe) is unused. Raises ValueError for joints that are not
+    1-DOF revolute (the water kernel's forward kinematics supports only those).
+    """
+    axes = np.zeros((arm.model.njoints, 3))
+    for i in range(1, arm.model.njoints):
+        name = arm.model.joints[i].shortname()
+        if name in ("JointModelRX", "JointModelRY", "JointModelRZ"):
+            axes[i, "XYZ".index(name[-1])] = 1.0
+        elif name == "JointModelRevoluteUnaligned":
+            axes[i] = np.asarray(arm.model.joints[i].extract().axis)
+        else:
+            raise ValueError(f"joint {arm.model.names[i]}: type {name} is not supported (revolute only)")
+    return axes

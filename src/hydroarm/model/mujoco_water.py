@@ -60,7 +60,8 @@ import numpy as np
 import pinocchio as pin
 
 from hydroarm.model.arm import Arm
-from hydroarm.model.water import Water, WaterModel, current_velocity, revolute_axes
+from hydroarm.model.arm import revolute_axes
+from hydroarm.model.water import Water, WaterModel, current_velocity
 
 TINY_MASS = 1e-6  # kg: given to massless moving bodies (MuJoCo skips fluid forces on them)
 
@@ -285,7 +286,7 @@ def ellipsoid_drag(
     (Morison's normal drag lumped at the segment centre) without. Generalised force sum J_p^T F.
     ``cylinders``: the indices to include (default all).
     """
-    model, data = arm.model, arm.data
+    model, data = arm.model, arm.create_data()
     q, v = np.asarray(q, dtype=float), np.asarray(v, dtype=float)
     pin.forwardKinematics(model, data, q, v)
     pin.computeJointJacobians(model, data, q)
@@ -328,7 +329,7 @@ def ellipsoid_drag(
 def axial_flow_fraction(arm: Arm, q: np.ndarray, v: np.ndarray, wind: np.ndarray | None = None, points: int = 9):
     """Per cylinder, the largest |u . e| / |u| over ``points`` points along it (0 = flow normal
     to the axis everywhere; cylinders at rest in still water give 0). Shape (n_cylinders,)."""
-    model, data = arm.model, arm.data
+    model, data = arm.model, arm.create_data()
     pin.forwardKinematics(model, data, np.asarray(q, float), np.asarray(v, float))
     wind = np.zeros(3) if wind is None else np.asarray(wind, dtype=float)
     out = np.zeros(len(arm.cylinders))

@@ -1,36 +1,35 @@
-"""The true underwater plant and the nominal (dry) model, with one interface.
+"""The true underwater plant: rigid body + water + current (+ friction), integrated by RK4.
 
-State x = [q, v] (rad, rad/s), shape (2n,); input tau (N m), shape (n,),
-held constant over a control period (zero-order hold).
+State x = [q, v] (rad, rad/s), shape (2n,); input tau (N m), shape (n,), held
+constant over a control period (zero-order hold). The plant integrates
+``(M + M_A) (q'' - d_c(t)) = tau - C v - G - h_A + drag + buoyancy - b v`` with
+classic RK4 in inner steps of at most ``PlantConfig.inner_step``; the measured
+state adds seeded Gaussian noise to q and v only; the true state is never touched.
+The dry model the controllers know is :class:`hydroarm.model.nominal.NominalModel`.
 
-* :class:`UnderwaterPlant`: rigid body + water (drag, added mass, buoyancy),
-  the current, optional joint viscous friction, integrated by RK4 with inner
-  steps of at most ``PlantConfig.inner_step``. The measured state adds seeded
-  Gaussian noise to q and v only; the true state is never touched.
-* :class:`NominalModel`: the dry rigid body (what the controllers know: the
-  arm "tuned once on land"), same interface.
-
-Both expose ``acceleration(t, q, v, tau)``, ``derivative(t, x, tau)`` and
-``step(t, x, tau, dt) -> (x_next, StepInfo)``. ``step_reference`` is the plain
-Python RK4 (:func:`hydroarm.model.integrator.rk4_step` over ``_dynamics``);
-``UnderwaterPlant.step`` does the same operations in the same order with all but
-the Pinocchio calls compiled (bit-identical, ~3x faster; a test compares them). ``StepInfo.disturbance`` is the
-generalised force the nominal model lacks, ``M(q) q'' + C v + G - tau`` (zero
-for the nominal model).
+``UnderwaterPlant.step`` runs everything but three Pinocchio calls per RK4 stage in
+one compiled kernel; :meth:`UnderwaterPlant.step_numpy` is its plain-NumPy twin
+(:func:`hydroarm.model.integrator.rk4_step` over :meth:`WaterModel.dynamics`), the
+same operations in the same order (bit-identical; a test compares them; the speed
+ratio is in ``bench/results``). ``StepInfo.disturbance`` is the generalised force
+the dry model lacks, ``M(q) q'' + C v + G - tau``.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 import pinocchio as pin
 import pydantic
 
-from hydroarm.model.arm import Arm
 from hydroarm.config import ConfigError, FrozenModel
-from hydroarm.model.integrator import rk4_step
-from hydroarm.model.water import Water, WaterModel, added_mass_matrix, rk4_stage_kernel
+from hydroarm.model.arm import Arm
+from hydroarm.model.current import current_at
+from hydroarm.model.integrator import rk4_second_order_stage, rk4_step
+from hydroarm.model.strips import underwater_dynamics_kernel
+from hydroarm.model.water import Water, WaterModel, added_mass_matrix
 
 STIFFNESS_LIMIT = 2.5
 """Bound on ``friction * inner_step / lambda_min(M + M_A)`` (classic RK4 is stable on the
@@ -44,15 +43,16 @@ class PlantConfig(FrozenModel):
     steps no longer than this); ``friction`` (N m s/rad): joint viscous friction,
     0 = off (SPEC default); it must also be soft enough for explicit RK4 on the
     arm (:class:`UnderwaterPlant` checks ``friction * inner_step`` against the
-    arm's smallest joint-space inertia: about 0.3 N m s/rad for the paper arm at
-    1 ms); ``noise_variance`` (rad^2 and (rad/s)^2): variance of
+    arm's smallest joint-space inertia); ``noise_variance`` (rad^2 and (rad/s)^2): variance of
     the zero-mean Gaussian measurement noise on q and v (0.001 in the paper's
     Table 2).
     """
 
-    inner_step: float = pydantic.Field(1e-3, ge=1e-5, le=0.1)
-    friction: float = pydantic.Field(0.0, ge=0.0, le=1e4)
-    noise_variance: float = pydantic.Field(0.0, ge=0.0, le=10.0)
+    inner_step: float = pydantic.Field(1e-3, ge=1e-5, le=0.1, description="RK4 step (s)")
+    friction: float = pydantic.Field(0.0, ge=0.0, le=1e4, description="joint viscous friction (N m s/rad)")
+    noise_variance: float = pydantic.Field(
+        0.0, ge=0.0, le=10.0, description="measurement noise variance on q and v (rad^2, (rad/s)^2)"
+    )
 
 
 @dataclass(frozen=True)
@@ -68,63 +68,13 @@ class StepInfo:
     disturbance_start: np.ndarray
 
 
-class _RK4Model:
-    """Shared stepping: subclasses define ``_dynamics(t, q, v, tau) -> (q'', disturbance)``."""
-
-    arm: Arm
-    inner_step: float
-    n: int
-
-    def _dynamics(self, t: float, q: np.ndarray, v: np.ndarray, tau: np.ndarray):
-        raise NotImplementedError
-
-    def acceleration(self, t: float, q: np.ndarray, v: np.ndarray, tau: np.ndarray) -> np.ndarray:
-        """q'' (rad/s^2), shape (n,)."""
-        return self._dynamics(t, q, v, tau)[0]
-
-    def disturbance(self, t: float, q: np.ndarray, v: np.ndarray, tau: np.ndarray) -> np.ndarray:
-        """Generalised force (N m) beyond the dry model at (t, q, v, tau), shape (n,)."""
-        return self._dynamics(t, q, v, tau)[1]
-
-    def derivative(self, t: float, x: np.ndarray, tau: np.ndarray) -> np.ndarray:
-        """x' = [v, q''], shape (2n,)."""
-        n = self.n
-        return np.concatenate([x[n:], self._dynamics(t, x[:n], x[n:], tau)[0]])
-
-    def step(self, t: float, x: np.ndarray, tau: np.ndarray, dt: float) -> tuple[np.ndarray, StepInfo]:
-        """Integrate from (t, x) over dt (s) under constant tau: ``(x_next (2n,), StepInfo)``.
-
-        Classic RK4 with ``ceil(dt / inner_step)`` equal steps.
-        """
-        n = self.n
-        steps = max(1, int(np.ceil(dt / self.inner_step - 1e-9)))
-        h = dt / steps
-        x = np.asarray(x, dtype=float)
-        average = np.zeros(n)
-        start = None
-        time = t
-        stages: list[np.ndarray] = []
-
-        def f(s: float, y: np.ndarray) -> np.ndarray:
-            acc, dist = self._dynamics(s, y[:n], y[n:], tau)
-            stages.append(dist)
-            return np.concatenate([y[n:], acc])
-
-        for _ in range(steps):
-            stages.clear()
-            x = rk4_step(f, time, x, h)
-            if start is None:
-                start = stages[0]
-            average += stages[0] + 2.0 * stages[1] + 2.0 * stages[2] + stages[3]
-            time += h
-        average /= 6.0 * steps
-        return x, StepInfo(disturbance=average, disturbance_start=start)
-
-    # The generic Python formulation: the reference that faster overrides are tested against.
-    step_reference = step
-
-
-_VIEWS_ARE_LIVE: bool | None = None
+def inner_steps(dt: float, inner_step: float | None) -> tuple[int, float]:
+    """``(count, h)``: ``dt`` (s) split into ``ceil(dt / inner_step)`` equal RK4 steps of h (s);
+    one step of ``dt`` when ``inner_step`` is None."""
+    if inner_step is None:
+        return 1, dt
+    steps = max(1, int(np.ceil(dt / inner_step - 1e-9)))
+    return steps, dt / steps
 
 
 def _live_views(model: pin.Model, data: pin.Data):
@@ -133,42 +83,22 @@ def _live_views(model: pin.Model, data: pin.Data):
     eigenpy (Pinocchio's bindings) returns these members as views of the Eigen
     storage, so fetching them once per plant step instead of once per stage saves
     three attribute look-ups (and, for the Jacobians, a reshape copy) per stage.
-    Checked once per process on a scratch Data: the view fetched before two CRBA
-    calls at different configurations must show the second result; if not (other
-    bindings), None and the caller fetches the members after every call.
+    Checked on this workspace: the view fetched before two CRBA calls at different
+    configurations must show the second result; if not (other bindings), None and
+    the caller fetches the members after every call.
     """
-    global _VIEWS_ARE_LIVE
-    if _VIEWS_ARE_LIVE is None:
-        scratch = model.createData()
-        view = scratch.M
-        q = pin.neutral(model)
-        pin.crba(model, scratch, q)
-        first = scratch.M.copy()
-        pin.crba(model, scratch, pin.integrate(model, q, np.full(model.nv, 0.5)))
-        _VIEWS_ARE_LIVE = bool(not np.array_equal(view, first) and np.array_equal(view, scratch.M))
-    return (data.M, data.J, data.dJ) if _VIEWS_ARE_LIVE else None
+    view = data.M
+    q = pin.neutral(model)
+    pin.crba(model, data, q)
+    first = data.M.copy()
+    pin.crba(model, data, pin.integrate(model, q, np.full(model.nv, 0.5)))
+    live = bool(not np.array_equal(view, first) and np.array_equal(view, data.M))
+    return (data.M, data.J, data.dJ) if live else None
 
 
-class NominalModel(_RK4Model):
-    """The dry rigid-body model: q'' = M^-1 (tau - C v - G) (Pinocchio ABA)."""
-
-    def __init__(self, arm: Arm, inner_step: float = 1e-3):
-        self.arm = arm
-        self.inner_step = inner_step
-        self.n = arm.n_joints
-        self._zero = np.zeros(self.n)
-
-    def _dynamics(self, t: float, q: np.ndarray, v: np.ndarray, tau: np.ndarray):
-        return pin.aba(self.arm.model, self.arm.data, q, v, tau).copy(), self._zero
-
-
-class UnderwaterPlant(_RK4Model):
-    """The true plant: rigid body + water + current (+ friction).
-
-    ``(M + M_A) (q'' - d_c(t)) = tau - C v - G - h_A + drag + buoyancy - b v``,
-    with d_c the paper current's joint acceleration (zero for other current
-    models; the uniform current acts through the drag instead).
-    """
+class UnderwaterPlant:
+    """The true plant (see the module docstring). Owns its Pinocchio workspace and its
+    :class:`~hydroarm.model.water.WaterModel`: one plant per thread."""
 
     def __init__(self, arm: Arm, water: Water | None = None, config: PlantConfig | None = None):
         self.arm = arm
@@ -177,6 +107,8 @@ class UnderwaterPlant(_RK4Model):
         self.water_model = WaterModel(arm, self.water)
         self.inner_step = self.config.inner_step
         self.n = arm.n_joints
+        self.data = arm.create_data()
+        self._views = _live_views(arm.model, self.data)
         self._check_friction()
 
     def _check_friction(self) -> None:
@@ -186,7 +118,7 @@ class UnderwaterPlant(_RK4Model):
         if friction == 0.0:
             return
         q = pin.neutral(self.arm.model)
-        inertia = self.arm.mass_matrix(q)
+        inertia = self.arm.mass_matrix(q, data=self.data)
         if self.water.added_mass:
             inertia = inertia + added_mass_matrix(self.arm, self.water, q)
         smallest = float(np.linalg.eigvalsh(inertia)[0])
@@ -198,25 +130,28 @@ class UnderwaterPlant(_RK4Model):
                 f"{smallest:.3g} kg m^2), or use a smaller inner_step"
             )
 
-    def _dynamics(self, t: float, q: np.ndarray, v: np.ndarray, tau: np.ndarray):
-        return self.water_model.dynamics(q, v, tau, t, self.config.friction)
+    # --- the dynamics at one instant ------------------------------------------------------
+    def acceleration(self, t: float, q: np.ndarray, v: np.ndarray, tau: np.ndarray) -> np.ndarray:
+        """True q'' (rad/s^2), shape (n,)."""
+        return self.water_model.dynamics(q, v, tau, t, self.config.friction)[0]
 
+    def disturbance(self, t: float, q: np.ndarray, v: np.ndarray, tau: np.ndarray) -> np.ndarray:
+        """Generalised force (N m) beyond the dry model at (t, q, v, tau), shape (n,)."""
+        return self.water_model.dynamics(q, v, tau, t, self.config.friction)[1]
+
+    # --- integration ------------------------------------------------------------------
     def step(self, t: float, x: np.ndarray, tau: np.ndarray, dt: float) -> tuple[np.ndarray, StepInfo]:
         """Integrate from (t, x) over dt (s) under constant tau: ``(x_next (2n,), StepInfo)``.
 
-        The same RK4 as :meth:`step_reference` (``ceil(dt / inner_step)`` equal
-        steps, the same operations in the same order), with everything but the
+        Classic RK4 in ``ceil(dt / inner_step)`` equal steps, everything but the
         three Pinocchio calls per stage (CRBA, NLE, Jacobians and their time
-        variation) in one compiled call (:func:`hydroarm.model.water.rk4_stage_kernel`):
-        ~2.5x faster than the reference, whose per-stage NumPy and closure calls
-        cost more than the water itself. A state that stops being finite (a
-        diverging run) gives an all-NaN ``x_next`` and disturbance instead of an
-        exception from the solve; :func:`hydroarm.studies.runner.run_closed_loop`
-        reports it as ``diverged``.
+        variation) in one compiled call (:func:`rk4_stage_kernel`). A state that
+        stops being finite (a diverging run) gives an all-NaN ``x_next`` and
+        disturbance instead of an exception from the solve; the runner reports it
+        as ``diverged``.
         """
         n = self.n
-        steps = max(1, int(np.ceil(dt / self.inner_step - 1e-9)))
-        h = dt / steps
+        steps, h = inner_steps(dt, self.inner_step)
         state = np.array(x, dtype=float)  # a copy: the kernel updates it in place
         tau = np.ascontiguousarray(tau, dtype=float)
         stage_state = state.copy()
@@ -225,12 +160,13 @@ class UnderwaterPlant(_RK4Model):
         disturbances = np.empty((4, n))
         average = np.zeros(n)
         start = None
-        model, data = self.arm.model, self.arm.data
+        model, data = self.arm.model, self.data
         wm, water = self.water_model, self.water_model.water
-        constants = wm._constants
+        constants = wm.kernel_constants
+        current_joint, current_world = wm.current.joint, wm.current.world
         friction = float(self.config.friction)
         drag, added_mass, buoyancy = water.drag, water.added_mass, water.buoyancy
-        live = _live_views(model, data)
+        live = self._views
         time = t
         for _ in range(steps):
             half = time + 0.5 * h
@@ -243,7 +179,7 @@ class UnderwaterPlant(_RK4Model):
                     rk4_stage_kernel(
                         stage, stage_time, h, state, stage_state, derivatives, disturbances, average, tau,
                         friction, mass, nonlinear, jac, djac,
-                        wm.current_joint, wm.current_world, *constants, drag, added_mass, buoyancy,
+                        current_joint, current_world, *constants, drag, added_mass, buoyancy,
                     )  # fmt: skip
                 except np.linalg.LinAlgError:  # the solve met an infinite force: diverged
                     stage_state[:] = np.nan
@@ -257,6 +193,33 @@ class UnderwaterPlant(_RK4Model):
         average /= 6.0 * steps
         return state, StepInfo(disturbance=average, disturbance_start=start)
 
+    def step_numpy(self, t: float, x: np.ndarray, tau: np.ndarray, dt: float) -> tuple[np.ndarray, StepInfo]:
+        """:meth:`step` in plain NumPy: :func:`~hydroarm.model.integrator.rk4_step` over
+        :meth:`WaterModel.dynamics` (the twin tests compare :meth:`step` with)."""
+        n = self.n
+        steps, h = inner_steps(dt, self.inner_step)
+        x = np.asarray(x, dtype=float)
+        average = np.zeros(n)
+        start = None
+        time = t
+        stages: list[np.ndarray] = []
+
+        def f(s: float, y: np.ndarray) -> np.ndarray:
+            acc, dist = self.water_model.dynamics(y[:n], y[n:], tau, s, self.config.friction)
+            stages.append(dist)
+            return np.concatenate([y[n:], acc])
+
+        for _ in range(steps):
+            stages.clear()
+            x = rk4_step(f, time, x, h)
+            if start is None:
+                start = stages[0]
+            average += stages[0] + 2.0 * stages[1] + 2.0 * stages[2] + stages[3]
+            time += h
+        average /= 6.0 * steps
+        return x, StepInfo(disturbance=average, disturbance_start=start)
+
+    # --- sensing ----------------------------------------------------------------------
     def measure(self, x: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """Measured state: x plus N(0, noise_variance) on every entry (q and v)."""
         variance = self.config.noise_variance
@@ -267,4 +230,48 @@ class UnderwaterPlant(_RK4Model):
     def energy(self, x: np.ndarray) -> float:
         """Dry kinetic + gravity potential energy (J) of state x."""
         n = self.n
-        return self.arm.kinetic_energy(x[:n], x[n:]) + self.arm.potential_energy(x[:n])
+        return self.arm.kinetic_energy(x[:n], x[n:], data=self.data) + self.arm.potential_energy(x[:n], data=self.data)
+
+
+@numba.njit(cache=True)
+def rk4_stage_kernel(
+    stage, t, h, x, xs, ks, dists, average, tau, friction, mass_upper, nonlinear, jac, djac,
+    current_joint, current_world,
+    parents, placement_rotation, placement_translation, axes, idx_v,
+    joint_ids, start, axis, length, support, drag_per_length, mass_per_length, buoyancy_force,
+    nodes, weights, use_drag, use_added_mass, use_buoyancy,
+):  # fmt: skip  # pragma: no cover - compiled
+    """One stage of a classic RK4 step of the true plant, everything but Pinocchio compiled.
+
+    The caller evaluates Pinocchio (CRBA -> ``mass_upper``, NLE -> ``nonlinear``,
+    Jacobians and their time variation -> ``jac``, ``djac``) at the stage state
+    ``xs = [q, v]`` (2n,) and time ``t``; this evaluates the current at ``t`` and
+    :func:`~hydroarm.model.strips.underwater_dynamics_kernel`, stores the disturbance ``dists[stage]`` and
+    leaves the RK4 bookkeeping to :func:`hydroarm.model.integrator.rk4_second_order_stage`
+    (``ks[stage] = [v, q'']``, ``xs`` the next stage's state); after the last stage
+    (3) ``x`` itself becomes ``x + h/6 (k1 + 2 k2 + 2 k3 + k4)`` (``xs`` too) and
+    ``average`` gets ``d1 + 2 d2 + 2 d3 + d4``. Same operations, in the same order,
+    as :meth:`UnderwaterPlant.step_numpy` (a test compares them bit for bit).
+    ``current_joint``, ``current_world``: :class:`~hydroarm.model.current.CurrentField`'s arrays.
+    """
+    n = tau.shape[0]
+    joint_acceleration = np.empty(n)
+    water_velocity = np.empty(3)
+    current_at(t, current_joint, current_world, joint_acceleration, water_velocity)
+    acc, disturbance = underwater_dynamics_kernel(
+        xs[:n], xs[n:], tau, water_velocity, joint_acceleration, friction, mass_upper, nonlinear, jac, djac,
+        parents, placement_rotation, placement_translation, axes, idx_v,
+        joint_ids, start, axis, length, support, drag_per_length, mass_per_length, buoyancy_force,
+        nodes, weights, use_drag, use_added_mass, use_buoyancy,
+    )  # fmt: skip
+    for i in range(n):
+        dists[stage, i] = disturbance[i]
+    rk4_second_order_stage(stage, h, x, xs, ks, acc)
+    if stage < 3:
+        return
+    for i in range(2 * n):
+        x[i] = xs[i]
+    for i in range(n):
+        average[i] += dists[0, i] + 2.0 * dists[1, i] + 2.0 * dists[2, i] + dists[3, i]
+
+

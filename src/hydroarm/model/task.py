@@ -11,6 +11,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from hydroarm.model.arm import Arm
+
 
 @dataclass(frozen=True)
 class SinusoidReference:
@@ -61,3 +63,30 @@ def paper_reference() -> SinusoidReference:
     sin_amp = np.array([[0.0, 2.0], [0.0, 1.0], [0.0, 0.0], [0.0, 0.0], [1.0, 0.0], [0.0, 2.0]])
     omega = np.array([[1.0, 2.0]] * 6)
     return SinusoidReference(np.zeros(6), cos_amp, sin_amp, omega)
+
+
+def task_for_arm(arm: Arm) -> tuple[SinusoidReference, np.ndarray]:
+    """The reference and the initial state (2n,) for ``arm``.
+
+    A 6-joint arm without position limits (the paper's, UR5) gets the paper
+    task from rest at q = 0. Other arms get the same shape (joint i follows the
+    paper's joint i mod 6), scaled so that it stays within 80 % of each joint's
+    range around its middle, starting at rest at the middle. Velocity limits are
+    not enforced by the plant; the scaled task is a tracking test, not a
+    certified motion.
+    """
+    paper = paper_reference()
+    n = arm.n_joints
+    if n == 6 and arm.position_limit is None:
+        return paper, np.zeros(12)
+    rows = [i % 6 for i in range(n)]
+    base = SinusoidReference(paper.offset[rows], paper.cos_amp[rows], paper.sin_amp[rows], paper.omega[rows])
+    if arm.position_limit is None:
+        return base, np.zeros(2 * n)
+    limits = np.asarray(arm.position_limit, dtype=float)
+    finite = np.all(np.isfinite(limits), axis=1)
+    middle = np.where(finite, 0.5 * (limits[:, 0] + limits[:, 1]), 0.0)
+    half = np.where(finite, 0.5 * (limits[:, 1] - limits[:, 0]), np.inf)
+    amplitude = np.sum(np.abs(base.cos_amp) + np.abs(base.sin_amp), axis=1)
+    scale = np.minimum(1.0, 0.8 * half / np.maximum(amplitude, 1e-12))
+    return base.scaled(scale, offset=middle), np.concatenate([middle, np.zeros(n)])

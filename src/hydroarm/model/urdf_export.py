@@ -8,14 +8,12 @@ are written with 17 significant digits so the round trip is exact to ~1e-15.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
 from xml.sax.saxutils import quoteattr
 
 import numpy as np
 import pinocchio as pin
 
-if TYPE_CHECKING:
-    from hydroarm.model.arm import Arm
+from hydroarm.model.arm import Arm, revolute_axes
 
 
 def _fmt(values: np.ndarray) -> str:
@@ -45,8 +43,6 @@ def arm_to_urdf(arm: Arm) -> str:
     limits, and a ``continuous`` joint would give Pinocchio a 2-number
     configuration per joint).
     """
-    from hydroarm.model.water import revolute_axes
-
     axes = revolute_axes(arm)
     model = arm.model
     lines = ['<?xml version="1.0"?>', f"<robot name={quoteattr(arm.name)}>", '  <link name="base_link"/>']

@@ -29,7 +29,8 @@ from matplotlib.lines import Line2D  # noqa: E402
 from matplotlib.ticker import MaxNLocator  # noqa: E402
 from mpl_toolkits.mplot3d.art3d import Poly3DCollection  # noqa: E402
 
-from hydroarm.model.arm import Arm, load_arm  # noqa: E402
+from hydroarm.model.arm import Arm
+from hydroarm.model.loading import load_arm  # noqa: E402
 from hydroarm.config import ConfigError  # noqa: E402
 from hydroarm.studies.runner import Trajectory  # noqa: E402
 

@@ -1,51 +1,62 @@
-"""One experiment as validated data: arm, water, plant, task, controller settings, seed.
+"""One experiment as validated data, and the one way to build it.
 
 ``ExperimentConfig`` is what a TOML file (``--config``) and ``--set key=value``
-overrides describe; :func:`run_experiment` builds the arm, the plant and the
-controller from it and runs the closed loop from the task's start (moved by
-a seeded draw if ``initial_state`` asks for it). The control period is set once
-here and passed to every controller.
+overrides describe. :func:`build_experiment` turns it into an :class:`Experiment`
+(the true plant, the controller, the task's reference and the start state) and is
+the only place where these are wired together: the runner (:func:`run_experiment`),
+the sweep worker, the benchmark and the Gymnasium env all use it. The control period
+is set once here (``ExperimentConfig.control_period``) and handed to the controller.
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
-from collections.abc import Callable
-from typing import Any, Literal
-
 import pydantic
 
-from hydroarm.model.arm import Arm, load_arm
 from hydroarm.config import ConfigError, FrozenModel, check_joint_counts, shown, validate
+from hydroarm.control import registry
 from hydroarm.control.gp import GPConfig
-from hydroarm.control.gpmpc import GPMPC, GPMPCConfig, feature_size
-from hydroarm.control.mpc import LinearMPC, MPCConfig
+from hydroarm.control.gpmpc import GPMPCConfig, feature_size
+from hydroarm.control.interface import Controller
+from hydroarm.control.mpc import MPCConfig
+from hydroarm.control.registry import CONTROLLERS, canonical_name
+from hydroarm.control.smc import SMCConfig
+from hydroarm.model.arm import Arm
+from hydroarm.model.loading import load_arm
 from hydroarm.model.plant import PlantConfig, UnderwaterPlant
-from hydroarm.studies.runner import Trajectory, run_closed_loop
-from hydroarm.control.smc import SlidingModeController, SMCConfig
-from hydroarm.model.task import SinusoidReference, paper_reference
+from hydroarm.model.task import SinusoidReference, task_for_arm
 from hydroarm.model.water import Water
+from hydroarm.studies.runner import Trajectory, run_closed_loop
+
+__all__ = [
+    "CONTROLLERS",
+    "Experiment",
+    "ExperimentConfig",
+    "InitialState",
+    "build_controller",
+    "build_experiment",
+    "canonical_name",
+    "check_settings_for_arm",
+    "run_experiment",
+    "start_for_arm",
+    "with_overrides",
+]
 
 MAX_CONTROL_STEPS = 1_000_000
 """Most control steps of one run (duration / control_period): every step's row is stored."""
 
-ControllerName = Literal["SMC", "MPC", "GP-MPC"]
-CONTROLLERS: tuple[str, ...] = ("SMC", "MPC", "GP-MPC")
-
 CONTROLLER_SECTIONS: tuple[str, ...] = ("smc", "mpc", "gp", "gpmpc")
 """The sections of :class:`ExperimentConfig` that only controllers read."""
 
-CONTROLLER_SETTINGS: dict[str, tuple[str, ...]] = {
-    "SMC": ("smc",),
-    "MPC": ("mpc",),
-    "GP-MPC": ("mpc", "gp", "gpmpc"),
-}
-"""The controller sections each controller reads in :func:`build_controller` (keep the
-two in step): a sweep leaves the other sections out of a run's id, so sweeping
-``mpc.r`` runs SMC once."""
+CONTROLLER_SETTINGS: dict[str, tuple[str, ...]] = {name: spec.sections for name, spec in registry.REGISTRY.items()}
+"""The controller sections each controller reads (from the registry): a sweep leaves the
+other sections out of a run's id, so sweeping ``mpc.r`` runs SMC once."""
 
 
 class InitialState(FrozenModel):
@@ -154,44 +165,11 @@ def check_settings_for_arm(config: ExperimentConfig, arm: Arm, source: str = "se
             raise ConfigError(f"{source}: gp.{name} = {shown(value)}: {len(value)} values: give {wanted} ({inputs})")
 
 
-def build_controller(name: str, arm: Arm, config: ExperimentConfig):
-    """The controller ``name`` (SMC, MPC, GP-MPC) on ``arm`` with the experiment's settings."""
-    period = {"control_period": config.control_period}
-    if name == "SMC":
-        return SlidingModeController(arm, config.smc.model_copy(update=period))
-    mpc = LinearMPC(arm, config.mpc.model_copy(update=period))
-    if name == "MPC":
-        return mpc
-    if name == "GP-MPC":
-        return GPMPC(arm, mpc, config.gp, config.gpmpc)
-    raise ConfigError(f"controller '{name}': must be one of {', '.join(CONTROLLERS)}")
-
-
-def task_for_arm(arm: Arm) -> tuple[SinusoidReference, np.ndarray]:
-    """The reference and the initial state (2n,) for ``arm``.
-
-    A 6-joint arm without position limits (the paper's, UR5) gets the paper
-    task from rest at q = 0. Other arms get the same shape (joint i follows the
-    paper's joint i mod 6), scaled so that it stays within 80 % of each joint's
-    range around its middle, starting at rest at the middle. Velocity limits are
-    not enforced by the plant; the scaled task is a tracking test, not a
-    certified motion.
-    """
-    paper = paper_reference()
-    n = arm.n_joints
-    if n == 6 and arm.position_limit is None:
-        return paper, np.zeros(12)
-    rows = [i % 6 for i in range(n)]
-    base = SinusoidReference(paper.offset[rows], paper.cos_amp[rows], paper.sin_amp[rows], paper.omega[rows])
-    if arm.position_limit is None:
-        return base, np.zeros(2 * n)
-    limits = np.asarray(arm.position_limit, dtype=float)
-    finite = np.all(np.isfinite(limits), axis=1)
-    middle = np.where(finite, 0.5 * (limits[:, 0] + limits[:, 1]), 0.0)
-    half = np.where(finite, 0.5 * (limits[:, 1] - limits[:, 0]), np.inf)
-    amplitude = np.sum(np.abs(base.cos_amp) + np.abs(base.sin_amp), axis=1)
-    scale = np.minimum(1.0, 0.8 * half / np.maximum(amplitude, 1e-12))
-    return base.scaled(scale, offset=middle), np.concatenate([middle, np.zeros(n)])
+def build_controller(name: str, arm: Arm, config: ExperimentConfig) -> Controller:
+    """The controller ``name`` (any spelling of :data:`~hydroarm.control.registry.CONTROLLERS`)
+    on ``arm`` with the experiment's settings and its one control period."""
+    sections = {section: getattr(config, section) for section in CONTROLLER_SECTIONS}
+    return registry.build_controller(name, arm, sections, config.control_period)
 
 
 def start_for_arm(arm: Arm, config: ExperimentConfig) -> tuple[SinusoidReference, np.ndarray]:
@@ -201,26 +179,66 @@ def start_for_arm(arm: Arm, config: ExperimentConfig) -> tuple[SinusoidReference
     return reference, config.initial_state.apply(x0)
 
 
+@dataclass
+class Experiment:
+    """A closed loop ready to run: what :func:`build_experiment` returns.
+
+    ``arm``: the arm the controller knows; ``plant``: the true plant (its arm may differ:
+    a mismatch study); ``controller`` (canonical ``controller.name``); ``reference``: the
+    task on this arm; ``x0`` (2n,): the start state; ``config``: the settings.
+    """
+
+    config: ExperimentConfig
+    arm: Arm
+    plant: UnderwaterPlant
+    controller: Controller
+    reference: SinusoidReference
+    x0: np.ndarray
+
+    @property
+    def control_period(self) -> float:
+        return self.config.control_period
+
+    def run(self, seed: int = 0, progress: Callable[[int, int], None] | None = None) -> Trajectory:
+        """The closed loop over ``config.duration`` with measurement-noise ``seed``; the
+        trajectory's ``meta`` records the settings and their digest."""
+        traj = run_closed_loop(
+            self.plant, self.controller, self.reference, self.config.duration, seed, x0=self.x0, progress=progress
+        )
+        traj.meta["settings"] = self.config.model_dump(mode="json")
+        traj.meta["digest"] = self.config.digest()
+        traj.meta["arm"] = self.config.arm
+        return traj
+
+
+def build_experiment(
+    config: ExperimentConfig,
+    controller: str,
+    arm: Arm | None = None,
+    plant_arm: Arm | None = None,
+) -> Experiment:
+    """The one experiment builder: plant, controller, reference and start from ``config``.
+
+    ``controller``: any spelling of a registered controller (``"gp-mpc"``, ``"GP-MPC"``).
+    ``arm``: the arm, if already loaded (default: ``load_arm(config.arm)``); ``plant_arm``:
+    a different arm for the true plant only (default: ``arm``). The settings are checked
+    against the arm first (:func:`check_settings_for_arm`); the reference and start are
+    :func:`start_for_arm`'s.
+    """
+    arm = load_arm(config.arm) if arm is None else arm
+    check_settings_for_arm(config, arm)
+    plant = UnderwaterPlant(arm if plant_arm is None else plant_arm, config.water, config.plant)
+    reference, x0 = start_for_arm(arm, config)
+    return Experiment(config, arm, plant, build_controller(controller, arm, config), reference, x0)
+
+
 def run_experiment(
     config: ExperimentConfig,
     controller: str,
     seed: int = 0,
     progress: Callable[[int, int], None] | None = None,
 ) -> Trajectory:
-    """Run ``controller`` on the true plant of ``config`` along the paper task
-    (scaled to the arm's joint limits for other arms: :func:`task_for_arm`),
-    from the start of :func:`start_for_arm`.
-
-    ``seed`` drives the measurement noise; the trajectory's ``meta`` records the
-    settings and their digest.
-    """
-    arm = load_arm(config.arm)
-    check_settings_for_arm(config, arm)
-    plant = UnderwaterPlant(arm, config.water, config.plant)
-    reference, x0 = start_for_arm(arm, config)
-    controller_object = build_controller(controller, arm, config)
-    traj = run_closed_loop(plant, controller_object, reference, config.duration, seed, x0=x0, progress=progress)
-    traj.meta["settings"] = config.model_dump(mode="json")
-    traj.meta["digest"] = config.digest()
-    traj.meta["arm"] = config.arm
-    return traj
+    """Run ``controller`` (any spelling) on the true plant of ``config`` along the arm's task
+    (:func:`~hydroarm.model.task.task_for_arm`) from :func:`start_for_arm`'s state;
+    ``seed`` drives the measurement noise. See :func:`build_experiment`."""
+    return build_experiment(config, controller).run(seed, progress)

@@ -39,7 +39,7 @@ import numpy as np
 
 from hydroarm.studies import figures
 from hydroarm.studies.animate import animate
-from hydroarm.model.arm import load_arm
+from hydroarm.model.loading import load_arm
 from hydroarm.studies.experiment import ExperimentConfig, run_experiment, with_overrides
 from hydroarm.studies.runner import Trajectory, fault_counts, stop_reason, tracking_metrics
 

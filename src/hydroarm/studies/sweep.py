@@ -82,12 +82,14 @@ import numpy as np
 import pinocchio as pin
 import pydantic
 
-from hydroarm.model.arm import BUILTIN_ARMS, Arm, load_arm
+from hydroarm.model.arm import Arm
+from hydroarm.model.loading import BUILTIN_ARMS, load_arm
 from hydroarm.config import ConfigError, FrozenModel, read_mapping, validate
 from hydroarm.studies.experiment import (
     CONTROLLER_SECTIONS,
     CONTROLLER_SETTINGS,
     CONTROLLERS,
+    canonical_name,
     ExperimentConfig,
     build_controller,
     start_for_arm,
@@ -230,9 +232,8 @@ class SweepConfig(FrozenModel):
     @pydantic.field_validator("controllers", mode="before")
     @classmethod
     def _controller_case(cls, value: Any) -> Any:
-        names = {name.lower(): name for name in CONTROLLERS}
         if isinstance(value, list):
-            return [names.get(v.lower(), v) if isinstance(v, str) else v for v in value]
+            return [_canonical_or_same(v) for v in value]
         return value
 
     @pydantic.field_validator("parameters", mode="before")
@@ -243,6 +244,15 @@ class SweepConfig(FrozenModel):
     @property
     def seed_list(self) -> list[int]:
         return list(range(self.seeds)) if isinstance(self.seeds, int) else list(self.seeds)
+
+
+def _canonical_or_same(name: Any) -> Any:
+    """The registry's canonical name of a controller (any spelling); anything else unchanged,
+    for the field's own validation to name."""
+    try:
+        return canonical_name(name)
+    except ConfigError:
+        return name
 
 
 def flatten_parameters(parameters: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
@@ -488,11 +498,6 @@ def plan_sweep(config: SweepConfig, folder: Path | None = None, source: str = "s
                 ) from None
             lines = [line.removeprefix("settings: ") for line in message.splitlines()]
             raise ConfigError("\n".join(f"{source}: parameters ({where}): {line}" for line in lines)) from None
-        ignored = [k for k in overrides if k in ("smc.control_period", "mpc.control_period")]
-        if ignored:
-            raise ConfigError(
-                f"{source}: parameters.{ignored[0]}: set by control_period for every controller; sweep control_period"
-            )
         unknown = set(mismatch_values) - set(Mismatch.model_fields)
         if unknown:
             raise ConfigError(

@@ -1,0 +1,91 @@
+"""One registry of controllers for the CLI, the Python API, sweeps and the Gymnasium env.
+
+Every controller has a canonical name (``"SMC"``, ``"MPC"``, ``"GP-MPC"``), the config
+sections it reads, and a builder. Names are matched case-insensitively, with ``_`` and
+``-`` alike: ``"gp-mpc"``, ``"GP_MPC"`` and ``"GP-MPC"`` are one controller.
+
+To add a controller: write it in :mod:`hydroarm.control` with the
+:class:`~hydroarm.control.interface.Controller` interface and a config model, then add one
+:class:`ControllerSpec` to :data:`REGISTRY` (and its config section to
+:class:`~hydroarm.studies.experiment.ExperimentConfig`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from typing import Any
+
+from hydroarm.config import ConfigError
+from hydroarm.control.gpmpc import GPMPC
+from hydroarm.control.interface import Controller
+from hydroarm.control.mpc import LinearMPC
+from hydroarm.control.smc import SlidingModeController
+from hydroarm.model.arm import Arm
+
+
+@dataclass(frozen=True)
+class ControllerSpec:
+    """A controller of the registry: its canonical ``name``, the config ``sections`` it reads
+    (keys of the ``sections`` mapping :func:`build_controller` takes), a one-line
+    ``description`` and its ``build(arm, sections, control_period)``."""
+
+    name: str
+    sections: tuple[str, ...]
+    description: str
+    build: Callable[[Arm, Mapping[str, Any], float], Controller]
+
+
+def _smc(arm: Arm, sections: Mapping[str, Any], period: float) -> Controller:
+    return SlidingModeController(arm, sections["smc"], control_period=period)
+
+
+def _mpc(arm: Arm, sections: Mapping[str, Any], period: float) -> Controller:
+    return LinearMPC(arm, sections["mpc"], control_period=period)
+
+
+def _gpmpc(arm: Arm, sections: Mapping[str, Any], period: float) -> Controller:
+    return GPMPC(arm, LinearMPC(arm, sections["mpc"], control_period=period), sections["gp"], sections["gpmpc"])
+
+
+REGISTRY: dict[str, ControllerSpec] = {
+    spec.name: spec
+    for spec in (
+        ControllerSpec("SMC", ("smc",), "boundary-layer sliding-mode computed torque on the dry model", _smc),
+        ControllerSpec("MPC", ("mpc",), "linear time-varying MPC about the reference (the paper's)", _mpc),
+        ControllerSpec(
+            "GP-MPC", ("mpc", "gp", "gpmpc"), "the paper's MPC with a sliding-window GP disturbance model", _gpmpc
+        ),
+    )
+}
+
+CONTROLLERS: tuple[str, ...] = tuple(REGISTRY)
+"""Canonical controller names, in the order tables show them."""
+
+
+def _key(name: str) -> str:
+    return name.strip().upper().replace("_", "-")
+
+
+def canonical_name(name: str) -> str:
+    """The canonical name of controller ``name`` (either spelling); raises :class:`ConfigError`
+    naming the allowed names otherwise."""
+    if isinstance(name, str):
+        key = _key(name)
+        for canonical in REGISTRY:
+            if _key(canonical) == key:
+                return canonical
+    allowed = ", ".join(f"{c} ({c.lower()})" for c in CONTROLLERS)
+    raise ConfigError(f"controller = {name!r}: must be one of {allowed}")
+
+
+def controller_spec(name: str) -> ControllerSpec:
+    """The :class:`ControllerSpec` of controller ``name`` (either spelling)."""
+    return REGISTRY[canonical_name(name)]
+
+
+def build_controller(name: str, arm: Arm, sections: Mapping[str, Any], control_period: float) -> Controller:
+    """Controller ``name`` on ``arm`` from its config ``sections`` (section name -> config
+    model, e.g. ``{"mpc": MPCConfig()}``) with the control period (s)."""
+    spec = controller_spec(name)
+    return spec.build(arm, sections, control_period)

@@ -1,0 +1,59 @@
+"""Loading arms: built-in names, DH arm files, URDF + hydrodynamics files -> :class:`Arm`."""
+
+from __future__ import annotations
+
+from importlib import resources
+from pathlib import Path
+
+from hydroarm.config import ConfigError, load_model
+from hydroarm.model.arm import Arm, ArmSpec, build_arm
+from hydroarm.model.urdf_import import load_urdf_arm
+
+
+BUILTIN_ARMS = ("paper", "ur5", "alpha5")
+BUILTIN_URDF_ARMS = ("alpha5",)
+"""Built-in arms given as a URDF plus a hydrodynamics file (``arms/<name>.hydro.toml``)."""
+
+URDF_SUFFIXES = (".urdf", ".hydro.toml", ".hydro.yaml", ".hydro.yml")
+"""File names that :func:`load_arm` hands to :mod:`hydroarm.model.urdf_import`."""
+
+
+def builtin_arm_path(name: str) -> Path:
+    """Path of a built-in arm file: ``arms/<name>.toml`` (DH arms ``paper``, ``ur5``)
+    or ``arms/<name>.hydro.toml`` (URDF arms, e.g. ``alpha5``; it names its URDF)."""
+    suffix = ".hydro.toml" if name in BUILTIN_URDF_ARMS else ".toml"
+    return Path(str(resources.files("hydroarm") / "arms" / f"{name}{suffix}"))
+
+
+def is_urdf_source(source: str | Path) -> bool:
+    """True for a built-in URDF arm name or a ``.urdf`` / ``.hydro.{toml,yaml,yml}`` path."""
+    if isinstance(source, str) and source in BUILTIN_URDF_ARMS:
+        return True
+    return str(source).lower().endswith(URDF_SUFFIXES)
+
+
+def load_arm_spec(source: str | Path) -> ArmSpec:
+    """Read and validate a DH arm file, or a built-in DH arm by name."""
+    if is_urdf_source(source):
+        raise ConfigError(
+            f"arm {str(source)!r} is a URDF arm: it has no DH arm file; load it with load_arm()"
+        )
+    if isinstance(source, str) and source in BUILTIN_ARMS:
+        return load_model(ArmSpec, builtin_arm_path(source))
+    path = Path(source)
+    if not str(source) or not path.is_file():
+        raise ConfigError(
+            f"arm {str(source)!r}: neither a built-in arm ({', '.join(BUILTIN_ARMS)}) nor an existing file"
+        )
+    return load_model(ArmSpec, path)
+
+
+def load_arm(source: str | Path = "paper") -> Arm:
+    """Load an arm: ``"paper"`` (Liu et al. 2023), ``"ur5"``, ``"alpha5"`` (Reach Alpha 5),
+    a DH arm file (TOML/YAML), a URDF (``.urdf``, with ``<stem>.hydro.toml`` beside it) or a
+    hydrodynamics file (``.hydro.toml``/``.yaml`` naming its URDF): see :mod:`hydroarm.model.urdf_import`."""
+    if is_urdf_source(source):
+        if isinstance(source, str) and source in BUILTIN_URDF_ARMS:
+            return load_urdf_arm(builtin_arm_path(source))
+        return load_urdf_arm(source)
+    return build_arm(load_arm_spec(source))
