@@ -3,13 +3,12 @@
 No coercion across kinds: a boolean or a string for a number, a number or a string for a
 boolean, a float for an int are refused with one :class:`ConfigError` line naming the field,
 the value and what is allowed; what real inputs need is still accepted: an int for a float, a
-list (TOML, YAML, ``--set``) for a tuple, a mapping for a nested model or for the ``gp``
-dataclass section.
+list (TOML, YAML, ``--set``) for a tuple, a mapping for a nested model (such as the ``gp``
+section).
 """
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from pathlib import Path
 from typing import Annotated
@@ -18,13 +17,13 @@ import numpy as np
 import pydantic
 import pytest
 
-from hydroarm.model.loading import builtin_arm_path, load_arm
 from hydroarm.cli import _experiment_config
 from hydroarm.config import ConfigError, FrozenModel, load_model, validate
-from hydroarm.studies.experiment import ExperimentConfig, with_overrides
 from hydroarm.control.gp import GPConfig
-from hydroarm.studies.sweep import validate_sweep
+from hydroarm.model.loading import builtin_arm_path, load_arm
 from hydroarm.model.water import Water
+from hydroarm.studies.experiment import ExperimentConfig, with_overrides
+from hydroarm.studies.sweep import validate_sweep
 
 
 def refused(data: dict, model=ExperimentConfig, source: str = "settings") -> str:
@@ -45,7 +44,10 @@ def refused(data: dict, model=ExperimentConfig, source: str = "settings") -> str
         ({"water": {"drag": 1}}, "settings: water.drag = 1: Input should be a valid boolean"),
         ({"gpmpc": {"variance_aware": 0.0}}, "settings: gpmpc.variance_aware = 0.0: Input should be a valid boolean"),
         # a string for a number
-        ({"mpc": {"r": "0.1"}}, "settings: mpc.r = '0.1': Input should be a valid number; or Input should be a valid list"),
+        (
+            {"mpc": {"r": "0.1"}},
+            "settings: mpc.r = '0.1': Input should be a valid number; or Input should be a valid list",
+        ),
         ({"mpc": {"horizon": "10"}}, "settings: mpc.horizon = '10': Input should be a valid integer"),
         ({"plant": {"friction": "0"}}, "settings: plant.friction = '0': Input should be a valid number"),
         # a string for a boolean
@@ -60,12 +62,15 @@ def refused(data: dict, model=ExperimentConfig, source: str = "settings") -> str
             {"water": {"current": {"mean": [0.0, True, 0.0]}}},
             "settings: water.current.mean.1 = True: Input should be a valid number",
         ),
-        # the gp section (a dataclass): strict fields, strict tuple items
+        # the gp section: strict fields, strict tuple items
         ({"gp": {"window": True}}, "settings: gp.window = True: Input should be a valid integer"),
         ({"gp": {"window": 10.0}}, "settings: gp.window = 10.0: Input should be a valid integer"),
         ({"gp": {"learning_rate": "0.1"}}, "settings: gp.learning_rate = '0.1': Input should be a valid number"),
         ({"gp": {"normalize_y": 1}}, "settings: gp.normalize_y = 1: Input should be a valid boolean"),
-        ({"gp": {"log_sf2_bounds": [True, 1.0]}}, "settings: gp.log_sf2_bounds.0 = True: Input should be a valid number"),
+        (
+            {"gp": {"log_sf2_bounds": [True, 1.0]}},
+            "settings: gp.log_sf2_bounds.0 = True: Input should be a valid number",
+        ),
         ({"gp": {"theta0": [1.0, 1.0, "1"]}}, "settings: gp.theta0.2 = '1': Input should be a valid number"),
         ({"gp": {"input_scale": "abc"}}, "settings: gp.input_scale = 'abc': Input should be a valid tuple"),
     ],
@@ -76,16 +81,16 @@ def test_no_coercion_across_kinds(data, expected):
 
 
 @pytest.mark.parametrize("value", [True, "1", 1.5])
-@pytest.mark.parametrize("field", dataclasses.fields(GPConfig), ids=lambda f: f.name)
-def test_every_gp_field_is_strict(field, value):
+@pytest.mark.parametrize("name", list(GPConfig.model_fields))
+def test_every_gp_field_is_strict(name, value):
     """Every GPConfig field is strict as a settings section (a new field needs a Strict type)."""
-    default = field.default
+    default = GPConfig.model_fields[name].default
     if type(default) is type(value) or (isinstance(default, float) and isinstance(value, float)):
         return  # a boolean for a boolean field, a float for a float field are fine
     if default is None and isinstance(value, float):
         return  # None-able tuples: a float is simply not a tuple (checked with "1" and True)
-    message = refused({"gp": {field.name: value}})
-    assert message.startswith(f"settings: gp.{field.name} = {value!r}: "), message
+    message = refused({"gp": {name: value}})
+    assert message.startswith(f"settings: gp.{name} = {value!r}: "), message
     assert "should be" in message or "must" in message, message
     assert len(message.splitlines()) == 1, message
 
@@ -193,7 +198,10 @@ def test_relaxed_fields_take_strings_for_paths_and_lists_for_tuples():
     assert refused({"pair": ["1", 1.0]}, _Relaxed, "x") == "x: pair.0 = '1': Input should be a valid number"
     assert refused({"path": 3}, _Relaxed, "x").startswith("x: path = 3: ")
     # without the relaxation, strict mode refuses a list for a tuple
-    assert refused({"strict_pair": [1.0, 2.0]}, _Relaxed, "x") == "x: strict_pair = [1.0, 2.0]: Input should be a valid tuple"
+    assert (
+        refused({"strict_pair": [1.0, 2.0]}, _Relaxed, "x")
+        == "x: strict_pair = [1.0, 2.0]: Input should be a valid tuple"
+    )
 
 
 def test_non_finite_numbers_are_still_refused():

@@ -1,18 +1,22 @@
-"""Tests of hydroarm.control.gp: reference checks against scikit-learn, gradients against
-finite differences, and the safeguards of the sliding-window estimator."""
+"""Tests of hydroarm.control.gp: checks against scikit-learn, gradients against finite
+differences, the safeguards of the sliding-window estimator, the fault events its calls
+return, and the validation of GPConfig."""
 
 from __future__ import annotations
 
 import math
 
 import numpy as np
+import pydantic
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from sklearn.gaussian_process import GaussianProcessRegressor
 from sklearn.gaussian_process.kernels import RBF, ConstantKernel, WhiteKernel
 
+from hydroarm.config import ConfigError, validate
 from hydroarm.control.gp import (
+    FAULTS,
     GPConfig,
     SlidingWindowGP,
     log_marginal_likelihood,
@@ -20,6 +24,7 @@ from hydroarm.control.gp import (
     predict,
     predict_multi,
 )
+from hydroarm.control.interface import FAULT_EVENTS
 
 # Tolerances against sklearn: both sides do the same Cholesky algebra in float64,
 # so agreement is at round-off level; we require rtol = 1e-8 (relative) with an
@@ -151,10 +156,10 @@ def test_multi_output_functions_equal_per_output_calls():
 
 
 def window_lml(gp: SlidingWindowGP, theta_row: np.ndarray, output: int) -> float:
-    """Reference LML (pure function) of one output on gp's current window."""
-    return log_marginal_likelihood(
-        gp.window_inputs, gp.window_targets[:, output], theta_row, jitter=gp.config.jitter
-    )[0]
+    """LML of one output on gp's current window, by the pure function."""
+    return log_marginal_likelihood(gp.window_inputs, gp.window_targets[:, output], theta_row, jitter=gp.config.jitter)[
+        0
+    ]
 
 
 def test_window_drops_oldest_sample():
@@ -203,8 +208,8 @@ def test_normalize_y_matches_sklearn_normalize_y():
     mean, var = gp.predict(X_star)
     kernel = ConstantKernel(theta[0], "fixed") * RBF(theta[2:], "fixed") + WhiteKernel(theta[1], "fixed")
     for k in range(2):
-        reference = GaussianProcessRegressor(kernel=kernel, alpha=0.0, optimizer=None, normalize_y=True)
-        sk_mean, sk_std = reference.fit(X, Y[:, k]).predict(X_star, return_std=True)
+        sklearn_model = GaussianProcessRegressor(kernel=kernel, alpha=0.0, optimizer=None, normalize_y=True)
+        sk_mean, sk_std = sklearn_model.fit(X, Y[:, k]).predict(X_star, return_std=True)
         np.testing.assert_allclose(mean[:, k], sk_mean, rtol=RTOL_SKLEARN)
         np.testing.assert_allclose(var[:, k], sk_std**2, rtol=RTOL_SKLEARN)
 
@@ -300,7 +305,7 @@ def test_bounds_respected_with_aggressive_steps():
 
 
 def fresh_inverse_factor(gp: SlidingWindowGP) -> np.ndarray:
-    """Reference inverse Cholesky factors of gp's window at its current theta."""
+    """Inverse Cholesky factors of gp's window at its current theta, computed afresh."""
     X, theta, noise = gp.window_inputs, gp.theta, gp.config.jitter
     factors = []
     for row in theta:
@@ -386,6 +391,68 @@ def test_failed_factorisation_falls_back_and_is_counted():
     np.testing.assert_allclose(var, theta_one_sample[:, 0] + theta_one_sample[:, 1])  # the prior variance
 
 
+def degenerate_config(hyper_steps: int, max_jitter_retries: int) -> GPConfig:
+    """Identical samples and sn2 = 1e-30: K = sf2 * ones, singular without jitter."""
+    return GPConfig(
+        window=10,
+        hyper_steps=hyper_steps,
+        jitter=0.0,
+        max_jitter_retries=max_jitter_retries,
+        theta0=(1.0, 1e-30, 1.0, 1.0),
+        log_sn2_bounds=(math.log(1e-30), math.log(1.0)),
+    )
+
+
+def fault_counts(stats) -> dict[str, int]:
+    return {
+        "gp_jittered": stats.n_jittered_factorizations,
+        "gp_cholesky_fallback": stats.n_cholesky_fallbacks,
+        "gp_prior_prediction": stats.n_prior_predictions,
+    }
+
+
+@pytest.mark.parametrize("hyper_steps", [0, 2])
+@pytest.mark.parametrize("max_jitter_retries", [0, 4])
+def test_calls_return_the_fault_events_they_meet(hyper_steps, max_jitter_retries):
+    """Each call returns its own events, grouped in FAULTS order; they add up to the counters."""
+    assert set(FAULTS) <= set(FAULT_EVENTS)
+    gp = SlidingWindowGP(2, 2, degenerate_config(hyper_steps, max_jitter_retries))
+    returned = dict.fromkeys(FAULTS, 0)
+    for _ in range(6):
+        assert gp.add([0.3, -0.2], [1.0, 2.0]) is None  # add meets no fault
+        before = fault_counts(gp.stats)
+        trace, update_events = gp.update_hyperparameters(return_events=True)
+        between = fault_counts(gp.stats)
+        mean, var, predict_events = gp.predict([0.3, -0.2], return_events=True)
+        after = fault_counts(gp.stats)
+        for events, start, stop in ((update_events, before, between), (predict_events, between, after)):
+            assert events == tuple(sorted(events, key=FAULTS.index))
+            assert {name: events.count(name) for name in FAULTS} == {k: stop[k] - start[k] for k in FAULTS}
+            for name in events:
+                returned[name] += 1
+        assert "gp_prior_prediction" not in update_events
+        if hyper_steps:  # the update left its factor: predict meets no factorisation fault
+            assert set(predict_events) <= {"gp_prior_prediction"}
+        assert trace.shape[1] == 2 and (trace.shape[0] == 0) == (hyper_steps == 0)
+        assert mean.shape == var.shape == (2,)
+    assert returned == fault_counts(gp.stats)
+    if max_jitter_retries:
+        assert returned["gp_jittered"] > 0 and returned["gp_cholesky_fallback"] == 0
+    else:
+        assert returned["gp_cholesky_fallback"] > 0 and returned["gp_prior_prediction"] > 0
+
+
+def test_without_return_events_the_calls_return_what_they_always_did():
+    gp = SlidingWindowGP(2, 2, degenerate_config(2, 0))
+    gp.add([0.3, -0.2], [1.0, 2.0])
+    gp.add([0.3, -0.2], [1.0, 2.0])
+    trace = gp.update_hyperparameters()
+    assert isinstance(trace, np.ndarray) and trace.shape == (1, 2)
+    prediction = gp.predict([0.3, -0.2])
+    assert len(prediction) == 2 and prediction[0].shape == (2,)
+    assert gp.stats.n_prior_predictions == 2  # still counted
+
+
 @pytest.mark.parametrize("lengthscale", [1e-6, 1e6])
 def test_extreme_lengthscales_do_not_raise(lengthscale):
     wide = (math.log(1e-8), math.log(1e8))
@@ -463,13 +530,68 @@ def test_pure_functions_reject_bad_inputs_naming_the_argument():
     ],
 )
 def test_config_rejects_bad_values_naming_the_field(kwargs, field):
-    with pytest.raises(ValueError, match=f"GPConfig.{field}"):
+    with pytest.raises(pydantic.ValidationError, match=rf"(?s)GPConfig.*\b{field}\b") as error:
         GPConfig(**kwargs)
+    assert error.value.error_count() == 1
+    with pytest.raises(ConfigError, match=rf"^gp: {field}(\.\d+)? = "):
+        validate(GPConfig, kwargs, "gp")
+
+
+@pytest.mark.parametrize(
+    "kwargs, expected",
+    [
+        ({"window": 1}, "gp: window = 1: Input should be greater than or equal to 2"),
+        ({"window": 1001}, "gp: window = 1001: Input should be less than or equal to 1000"),
+        ({"learning_rate": 0.0}, "gp: learning_rate = 0.0: Input should be greater than 0"),
+        ({"max_jitter_retries": 21}, "gp: max_jitter_retries = 21: Input should be less than or equal to 20"),
+        (
+            {"log_sf2_bounds": [-200.0, 1.0]},
+            "gp: log_sf2_bounds.0 = -200.0: Input should be greater than or equal to -100",
+        ),
+        (
+            {"log_sn2_bounds": [1.0, -1.0]},
+            "gp: log_sn2_bounds = (1.0, -1.0): must be (low, high) natural-log values with low < high",
+        ),
+        (
+            {"log_sf2_bounds": [1.0, 2.0]},
+            "gp: log_sf2_bounds = (1.0, 2.0): must contain 0 (theta0=None initialises theta to 1)",
+        ),
+        ({"theta0": [1.0, 1.0]}, "gp: theta0 = (1.0, 1.0): must be None or d+2 >= 3 values [sf2, sn2, l_1..l_d]"),
+        ({"theta0": [1.0, 0.0, 1.0]}, "gp: theta0.1 = 0.0: Input should be greater than 0"),
+        (
+            {"theta0": [1.0, 1.0, 1e9]},
+            "gp: theta0 = (1.0, 1.0, 1000000000.0): entry l_1 = 1000000000.0 must lie within "
+            "exp(log_lengthscale_bounds = (-4.605170185988091, 6.907755278982137)) = [0.01, 1e+03]",
+        ),
+        ({"input_scale": [1.0, 2e6]}, "gp: input_scale.1 = 2000000.0: Input should be less than or equal to 1000000"),
+        ({"output_scale": []}, "gp: output_scale = (): must be None or at least one value"),
+        (
+            {"normalize_y": True, "output_scale": [2.0]},
+            "gp: output_scale = (2.0,): must be None when normalize_y is True (choose one target scaling)",
+        ),
+    ],
+)
+def test_config_errors_name_the_field_the_value_and_the_range(kwargs, expected):
+    with pytest.raises(ConfigError) as error:
+        validate(GPConfig, kwargs, "gp")
+    assert str(error.value) == expected
+
+
+def test_config_takes_lists_for_tuples_and_keeps_the_defaults():
+    config = validate(GPConfig, {"theta0": [1, 2.0, 3], "log_sf2_bounds": [-1, 2]}, "gp")
+    assert config.theta0 == (1.0, 2.0, 3.0) and config.log_sf2_bounds == (-1.0, 2.0)
+    default = GPConfig()
+    assert (default.window, default.hyper_steps, default.learning_rate, default.max_log_step) == (10, 1, 0.1, 1.0)
+    assert default.log_sf2_bounds == (math.log(1e-4), math.log(1e8))
+    assert default.log_sn2_bounds == (math.log(1e-6), math.log(1e6))
+    assert default.log_lengthscale_bounds == (math.log(1e-2), math.log(1e3))
+    assert (default.jitter, default.max_jitter_retries, default.incremental_min_window) == (1e-10, 4, 30)
+    assert all(field.description for field in GPConfig.model_fields.values())
 
 
 def test_config_is_frozen():
     config = GPConfig()
-    with pytest.raises(AttributeError):
+    with pytest.raises(pydantic.ValidationError, match="frozen"):
         config.window = 3  # type: ignore[misc]
 
 

@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 
 import hydroarm
-from hydroarm.studies.experiment import ExperimentConfig, run_experiment, with_overrides
 from hydroarm.control.gp import GPConfig
 from hydroarm.control.gpmpc import GPMPC, GPMPCConfig
 from hydroarm.control.mpc import LinearMPC
+from hydroarm.studies.experiment import ExperimentConfig, run_experiment, with_overrides
 from hydroarm.studies.runner import run_closed_loop, tracking_metrics
 
 
@@ -19,6 +19,7 @@ def clean_runs():
     return {name: run_experiment(config, name, seed=0) for name in ("MPC", "GP-MPC")}
 
 
+@pytest.mark.slow
 def test_gp_mpc_beats_mpc_on_the_paper_task(clean_runs):
     """10 s, no noise: lower mean E_p, and lower steady-state E_p (t > 2 s) on every joint.
 
@@ -34,6 +35,7 @@ def test_gp_mpc_beats_mpc_on_the_paper_task(clean_runs):
     assert np.max(np.abs(clean_runs["MPC"].disturbance[:, 5])) < 1e-3
 
 
+@pytest.mark.slow
 def test_gp_estimate_explains_the_disturbance(clean_runs):
     """After 1 s the RMS estimate error is at most 20 % of the disturbance's RMS on joints 1-3."""
     traj = clean_runs["GP-MPC"]
@@ -45,6 +47,7 @@ def test_gp_estimate_explains_the_disturbance(clean_runs):
         assert rms_error[joint] <= 0.2 * rms_disturbance[joint], (rms_error, rms_disturbance)
 
 
+@pytest.mark.slow
 def test_torque_limits_and_status(clean_runs):
     arm = hydroarm.load_arm("paper")
     for traj in clean_runs.values():
@@ -74,10 +77,48 @@ def test_every_wiring_runs_and_learns(features, feedforward):
     assert np.sqrt(np.mean(error**2)) < 0.3 * np.sqrt(np.mean(traj.disturbance[late, 0] ** 2))
 
 
-def test_variance_aware_mode_scales_the_feedforward_down():
+def test_variance_aware_mode_scales_the_feedforward_by_the_documented_factor():
+    """On the same GP data, ``variance_aware`` feeds forward w * w^2 / (w^2 + var) instead of
+    the GP mean w (GPMPC's module docstring): two controllers see the same samples, and the
+    torque feed-forward each hands its MPC is recorded."""
     arm = hydroarm.load_arm("paper")
     plant = hydroarm.UnderwaterPlant(arm)
-    controller = GPMPC(arm, LinearMPC(arm), GPConfig(), GPMPCConfig(variance_aware=True))
-    traj = run_closed_loop(plant, controller, hydroarm.paper_reference(), 0.5)
-    assert np.all(np.isfinite(traj.disturbance_var[5:]))
-    assert np.all(traj.disturbance_var[5:] > 0.0)
+    reference = hydroarm.paper_reference()
+    plain = GPMPC(arm, LinearMPC(arm), GPConfig(), GPMPCConfig())
+    aware = GPMPC(arm, LinearMPC(arm), GPConfig(), GPMPCConfig(variance_aware=True))
+    fed: dict[str, list] = {"plain": [], "aware": []}
+    for name, controller in (("plain", plain), ("aware", aware)):
+
+        def recording(t, y, ref, _compute=controller.mpc.compute, _log=fed[name], **feedforward):
+            _log.append(feedforward.get("feedforward_torque"))
+            return _compute(t, y, ref, **feedforward)
+
+        controller.mpc.compute = recording
+    period = plain.control_period
+    x = np.zeros(12)
+    outputs = []
+    for k in range(30):
+        t = k * period
+        out_plain, out_aware = plain.compute(t, x, reference), aware.compute(t, x, reference)
+        x_next, _ = plant.step(t, x, out_plain.tau, period)
+        for controller in (plain, aware):  # the same sample for both GPs
+            controller.observe(t, x, out_plain.tau, x_next)
+        outputs.append((out_plain, out_aware))
+        x = x_next
+
+    first = plain.config.min_samples  # steps before: no estimate, no feed-forward
+    assert fed["plain"][:first] == fed["aware"][:first] == [None] * first
+    factors = []
+    for (out_plain, out_aware), ff_plain, ff_aware in list(zip(outputs, fed["plain"], fed["aware"]))[first:]:
+        w, var = out_plain.disturbance_mean, out_plain.disturbance_var
+        np.testing.assert_array_equal(out_aware.disturbance_mean, w)  # same data, same GP
+        np.testing.assert_array_equal(out_aware.disturbance_var, var)
+        assert np.all(var > 0.0)
+        np.testing.assert_array_equal(ff_plain, w)  # unscaled without the option
+        np.testing.assert_allclose(ff_aware, w * w**2 / (w**2 + var), rtol=1e-6, atol=1e-12)
+        factors.append(w**2 / (w**2 + var))
+    factors = np.array(factors)
+    assert np.all(factors <= 1.0)
+    # joint 6 sees next to no disturbance (~1e-4 N m): its uncertain estimate is scaled right down
+    assert np.max(factors[:, 5]) < 0.5
+    assert any(not np.array_equal(a.tau, b.tau) for a, b in outputs[first:])  # and the torque follows

@@ -78,10 +78,8 @@ class FrozenModel(pydantic.BaseModel):
     and a mapping for a nested model. A field that must take a list for a tuple or a
     string for a ``Path`` (as TOML, YAML and ``--set`` give them) relaxes itself only,
     its items staying strict: ``Annotated[tuple[pydantic.StrictFloat, ...],
-    pydantic.Strict(False)]``. No config model has such a field today; the stdlib
-    dataclass :class:`~hydroarm.control.gp.GPConfig` (the ``gp`` section) carries its own
-    pydantic config and strict field types, as strict mode would accept only a
-    ``GPConfig`` instance for it, not a mapping.
+    pydantic.Strict(False)]``, as :class:`~hydroarm.control.gp.GPConfig`'s bounds and
+    vectors do.
 
     NumPy scalars: floating and integer ones are valid floats (as is ``numpy.bool_``,
     which strict mode does not tell from a number); NumPy integers and booleans are not
@@ -178,9 +176,7 @@ def _known_keys(model: Any, where: tuple[Any, ...]) -> list[str] | None:
     return _fields_of(cls)
 
 
-def format_validation_error(
-    error: pydantic.ValidationError, source: str, data: Any = None, model: Any = None
-) -> str:
+def format_validation_error(error: pydantic.ValidationError, source: str, data: Any = None, model: Any = None) -> str:
     """One readable line per problem: ``source: field = value: what is allowed``.
 
     ``data`` (the validated input) lets union member tags be dropped from the

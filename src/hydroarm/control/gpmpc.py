@@ -33,11 +33,11 @@ from typing import Literal
 import numpy as np
 import pydantic
 
-from hydroarm.model.arm import Arm
 from hydroarm.config import FrozenModel
-from hydroarm.control.interface import ControlOutput, Reference
 from hydroarm.control.gp import GPConfig, SlidingWindowGP
+from hydroarm.control.interface import ControlOutput, Reference
 from hydroarm.control.mpc import LinearMPC
+from hydroarm.model.arm import Arm
 from hydroarm.model.nominal import NominalModel
 
 Features = Literal["state", "state+nominal", "state+torque"]
@@ -92,22 +92,6 @@ class GPMPC:
         self._nominal_now = None  # nominal prediction of the current state
         self._features_now = None
         self._pending_events: list[str] = []  # faults met in observe, reported by the next compute
-        self._gp_counts = self._gp_fault_counts()
-
-    def _gp_fault_counts(self) -> dict[str, int]:
-        stats = self.gp.stats
-        return {
-            "gp_jittered": stats.n_jittered_factorizations,
-            "gp_cholesky_fallback": stats.n_cholesky_fallbacks,
-            "gp_prior_prediction": stats.n_prior_predictions,
-        }
-
-    def _collect_gp_events(self) -> None:
-        """Add one event per GP fault counted since the last call (``SlidingWindowGP.stats``)."""
-        counts = self._gp_fault_counts()
-        for name, value in counts.items():
-            self._pending_events.extend([name] * (value - self._gp_counts[name]))
-        self._gp_counts = counts
 
     def _features(self, y: np.ndarray, u_prev: np.ndarray, nominal: np.ndarray | None) -> np.ndarray:
         kind = self.config.features
@@ -126,9 +110,11 @@ class GPMPC:
         mean = np.zeros(n)
         var = np.full(n, np.nan)
         feedforward = None
+        gp_events: tuple[str, ...] = ()  # the GP's faults of this step, as its calls return them
         if self.gp.n_samples >= self.config.min_samples:
-            self.gp.update_hyperparameters()
-            mean, var = self.gp.predict(features)
+            _, update_events = self.gp.update_hyperparameters(return_events=True)
+            mean, var, predict_events = self.gp.predict(features, return_events=True)
+            gp_events = update_events + predict_events
             if not np.all(np.isfinite(mean)):  # cannot happen with finite data; guarded anyway
                 self._pending_events.append("gp_nonfinite_prediction")
                 mean = np.where(np.isfinite(mean), mean, 0.0)
@@ -141,7 +127,7 @@ class GPMPC:
             else:
                 feedforward = {"feedforward_torque": scaled}
         gp_time = time.perf_counter() - start
-        self._collect_gp_events()
+        self._pending_events.extend(gp_events)
         out = self.mpc.compute(t, y, reference, **(feedforward or {}))
         out.events = (*self._pending_events, *out.events)
         self._pending_events = []
@@ -160,4 +146,4 @@ class GPMPC:
         if not (np.all(np.isfinite(residual)) and np.all(np.isfinite(features))):
             self._pending_events.append("gp_sample_rejected")  # e.g. a blown-up step: not learned
             return
-        self.gp.add(features, residual)  # its GP faults are reported by the next compute
+        self.gp.add(features, residual)  # meets no GP fault (SlidingWindowGP.add)
