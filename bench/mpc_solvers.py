@@ -9,7 +9,7 @@
    reports median / p90 / p99 / max (us), failures, and the largest difference
    from DAQP's solution (max-norm, N m) and objective (relative).
 3. Times the terminal-weight Riccati solve (doubling vs. scipy's DARE) and the
-   condensing on the horizon-end linearisations of the task.
+   condensing (compiled vs. its NumPy twin) on the linearisations of the task.
 
 BLAS runs on one thread (environment variables before NumPy is imported, and
 threadpoolctl). The load average is printed: other processes on the machine
@@ -18,7 +18,7 @@ inflate every number.
 Usage::
 
     python bench/mpc_solvers.py [--duration 10] [--plant underwater|nominal]
-                                [--horizon 10] [--r 0.1] [--torque-limit 500]
+                                [--horizon 10] [--r 0.1] [--torque-limit 500] [--period 0.01]
                                 [--json results.json]
 """
 
@@ -42,11 +42,11 @@ from hydroarm.control.mpc import (  # noqa: E402
     LinearMPC,
     MPCConfig,
     condense,
-    linearise_euler,
+    condense_numpy,
     make_box_qp_solver,
     solve_riccati,
 )
-from hydroarm.model.nominal import NominalModel
+from hydroarm.model.nominal import NominalModel  # noqa: E402
 from hydroarm.model.plant import UnderwaterPlant  # noqa: E402
 from hydroarm.model.task import paper_reference  # noqa: E402
 
@@ -63,10 +63,11 @@ def percentiles(samples_ns) -> dict[str, float]:
     }
 
 
-def record(arm, plant, duration: float, config: MPCConfig):
-    """Closed loop from rest at q = 0: the QP sequence and the step timings."""
+def record(arm, plant, duration: float, config: MPCConfig, period: float):
+    """Closed loop from rest at q = 0 with control period ``period`` (s): the QP sequence
+    and the step timings."""
     reference = paper_reference()
-    mpc = LinearMPC(arm, config)
+    mpc = LinearMPC(arm, config, period)
     solver = mpc._solver
     original = solver.solve
     qps = []
@@ -76,7 +77,6 @@ def record(arm, plant, duration: float, config: MPCConfig):
         return original(H, g, lb, ub, x0)
 
     solver.solve = recording
-    period = config.control_period
     x = np.zeros(2 * arm.n_joints)
     timings: dict[str, list[float]] = {}
     statuses: dict[str, int] = {}
@@ -100,17 +100,17 @@ def objective(H, g, x) -> float:
 
 def time_solvers(qps, names) -> dict[str, dict]:
     """Every solver on the recorded sequence: one warm-up pass, then one timed pass."""
-    reference = []
+    daqp_solutions = []
     daqp = make_box_qp_solver("daqp")
     for H, g, lb, ub, x0 in qps:
-        reference.append(daqp.solve(H, g, lb, ub, x0).x)
+        daqp_solutions.append(daqp.solve(H, g, lb, ub, x0).x)
     results = {}
     for label, name, warm in names:
         solver = make_box_qp_solver(name)
         for H, g, lb, ub, x0 in qps:  # warm-up pass (also fills caches, JIT, set-up)
             solver.solve(H, g, lb, ub, x0 if warm else None)
         samples, failures, worst_x, worst_f, messages = [], 0, 0.0, 0.0, set()
-        for (H, g, lb, ub, x0), x_ref in zip(qps, reference):
+        for (H, g, lb, ub, x0), x_daqp in zip(qps, daqp_solutions):
             start = time.perf_counter_ns()
             result = solver.solve(H, g, lb, ub, x0 if warm else None)
             samples.append(time.perf_counter_ns() - start)
@@ -118,9 +118,9 @@ def time_solvers(qps, names) -> dict[str, dict]:
                 failures += 1
                 messages.add(result.message)
                 continue
-            worst_x = max(worst_x, float(np.abs(result.x - x_ref).max()))
-            f_ref = objective(H, g, x_ref)
-            worst_f = max(worst_f, abs(objective(H, g, result.x) - f_ref) / max(1.0, abs(f_ref)))
+            worst_x = max(worst_x, float(np.abs(result.x - x_daqp).max()))
+            f_daqp = objective(H, g, x_daqp)
+            worst_f = max(worst_f, abs(objective(H, g, result.x) - f_daqp) / max(1.0, abs(f_daqp)))
         results[label] = {
             **percentiles(samples),
             "failures": failures,
@@ -131,16 +131,17 @@ def time_solvers(qps, names) -> dict[str, dict]:
     return results
 
 
-def time_riccati_and_condensing(arm, config: MPCConfig, steps: int) -> dict[str, dict]:
+def time_riccati_and_condensing(arm, config: MPCConfig, period: float, steps: int) -> dict[str, dict]:
     """Doubling vs. scipy DARE on the task's linearisations, and the condensing alone."""
     reference = paper_reference()
-    period, horizon = config.control_period, config.horizon
-    mpc = LinearMPC(arm, config)
+    horizon = config.horizon
+    mpc = LinearMPC(arm, config, period)
+    nominal = NominalModel(arm)
     points = []
     for k in range(steps + horizon + 1):
         q, v, a = reference.sample(k * period)
         tau = arm.inverse_dynamics(q, v, a)
-        a_mat, b_mat, x_next = linearise_euler(arm, q, v, tau, period)
+        a_mat, b_mat, x_next = nominal.linearise(q, v, tau, period, "euler")
         points.append((a_mat, b_mat, x_next, np.concatenate([q, v])))
     solve_riccati(points[0][0], points[0][1], mpc.Q, mpc.R)  # JIT / cache load
     doubling, scipy_dare, iterations, worst = [], [], [], 0.0
@@ -154,7 +155,7 @@ def time_riccati_and_condensing(arm, config: MPCConfig, steps: int) -> dict[str,
         iterations.append(solution.iterations)
         worst = max(worst, float(np.abs(solution.P - exact).max() / np.abs(exact).max()))
     q_diag, r_diag = np.diag(mpc.Q).copy(), np.diag(mpc.R).copy()
-    condensing = []
+    condensing, condensing_numpy = [], []
     for k in range(steps):
         window = points[k : k + horizon + 1]
         A = np.stack([p[0] for p in window[:horizon]])
@@ -163,6 +164,9 @@ def time_riccati_and_condensing(arm, config: MPCConfig, steps: int) -> dict[str,
         start = time.perf_counter_ns()
         condense(A, B, c, q_diag, r_diag, mpc.Q * 50.0, np.full(2 * arm.n_joints, 0.01))
         condensing.append(time.perf_counter_ns() - start)
+        start = time.perf_counter_ns()
+        condense_numpy(A, B, c, q_diag, r_diag, mpc.Q * 50.0, np.full(2 * arm.n_joints, 0.01))
+        condensing_numpy.append(time.perf_counter_ns() - start)
     return {
         "riccati_doubling": {
             **percentiles(doubling),
@@ -171,6 +175,7 @@ def time_riccati_and_condensing(arm, config: MPCConfig, steps: int) -> dict[str,
         },
         "riccati_scipy_dare": percentiles(scipy_dare),
         "condense": percentiles(condensing),
+        "condense_numpy": percentiles(condensing_numpy),
     }
 
 
@@ -181,6 +186,7 @@ def main() -> None:
     parser.add_argument("--horizon", type=int, default=10)
     parser.add_argument("--r", type=float, default=0.1, help="R weight")
     parser.add_argument("--torque-limit", type=float, default=None, help="N m (default: the arm's)")
+    parser.add_argument("--period", type=float, default=0.01, help="control period T (s)")
     parser.add_argument("--json", help="also write the results to this file")
     args = parser.parse_args()
     threadpool_limits(1)
@@ -188,14 +194,12 @@ def main() -> None:
     arm = hydroarm.load_arm("paper")
     plant = UnderwaterPlant(arm) if args.plant == "underwater" else NominalModel(arm)
     config = MPCConfig(horizon=args.horizon, r=args.r, torque_limit=args.torque_limit)
-    LinearMPC(arm, config).compute(0.0, np.zeros(12), paper_reference())  # JIT / cache load
+    LinearMPC(arm, config, args.period).compute(0.0, np.zeros(12), paper_reference())  # JIT / cache load
 
-    qps, step_timings, statuses, e_p, _ = record(arm, plant, args.duration, config)
+    qps, step_timings, statuses, e_p, _ = record(arm, plant, args.duration, config, args.period)
     active = [
         int(np.sum(np.isclose(x, lb, atol=1e-9) | np.isclose(x, ub, atol=1e-9)))
-        for x, (_, _, lb, ub, _) in zip(
-            [make_box_qp_solver("daqp").solve(*qp[:4]).x for qp in qps], qps
-        )
+        for x, (_, _, lb, ub, _) in zip([make_box_qp_solver("daqp").solve(*qp[:4]).x for qp in qps], qps)
     ]
     solvers = time_solvers(
         qps,
@@ -207,12 +211,13 @@ def main() -> None:
             ("clarabel", "clarabel", False),
         ],
     )
-    parts = time_riccati_and_condensing(arm, config, min(len(qps), 600))
+    parts = time_riccati_and_condensing(arm, config, args.period, min(len(qps), 600))
     results = {
         "setup": {
             "plant": args.plant,
             "duration_s": args.duration,
             "horizon": args.horizon,
+            "period_s": args.period,
             "r": args.r,
             "torque_limit": args.torque_limit,
             "qp_variables": int(qps[0][1].size),
@@ -240,10 +245,12 @@ def main() -> None:
             f"  rel obj {row['max_rel_objective_diff']:.1e}  {' '.join(row['failure_messages'])}"
         )
     print("\nParts, us:")
-    for key in ("riccati_doubling", "riccati_scipy_dare", "condense"):
+    for key in ("riccati_doubling", "riccati_scipy_dare", "condense", "condense_numpy"):
         row = results[key]
         extra = {k: v for k, v in row.items() if not k.endswith("_us") and k != "count"}
-        print(f"  {key:20s} median {row['median_us']:8.1f}  p90 {row['p90_us']:8.1f}  p99 {row['p99_us']:8.1f}  {extra}")
+        print(
+            f"  {key:20s} median {row['median_us']:8.1f}  p90 {row['p90_us']:8.1f}  p99 {row['p99_us']:8.1f}  {extra}"
+        )
     if args.json:
         with open(args.json, "w") as handle:
             json.dump(results, handle, indent=2)

@@ -10,9 +10,8 @@ import numpy as np
 import pytest
 
 import hydroarm
-from hydroarm.control.interface import FAULT_EVENTS, ControlOutput
-from hydroarm.studies.experiment import ExperimentConfig, build_controller
 from hydroarm.control.gp import GPConfig
+from hydroarm.control.interface import FAULT_EVENTS, ControlOutput
 from hydroarm.control.mpc import (
     SOLVERS,
     DaqpBoxSolver,
@@ -25,15 +24,16 @@ from hydroarm.control.mpc import (
     solve_terminal_qp,
 )
 from hydroarm.model.plant import PlantConfig, UnderwaterPlant
-from hydroarm.studies.runner import Trajectory, run_closed_loop, tracking_metrics
 from hydroarm.model.water import Water
+from hydroarm.studies.experiment import ExperimentConfig, build_controller
+from hydroarm.studies.runner import Trajectory, run_closed_loop, tracking_metrics
 
 DURATION = 1.0  # s: 100 control steps, enough for the GP window to fill and the faults to recur
 
 
-@pytest.fixture(scope="module")
-def arm():
-    return hydroarm.load_arm("paper")
+@pytest.fixture(scope="session")
+def arm(paper_arm):
+    return paper_arm
 
 
 @pytest.fixture(scope="module")
@@ -86,7 +86,9 @@ def test_nan_measurement_holds_the_last_valid_one(arm, reference, name):
     np.testing.assert_array_equal(traj.y[17], traj.y[16])
     np.testing.assert_array_equal(traj.y[18], traj.y[16])  # two in a row: still the last valid one
     assert_within_limits(traj, arm.torque_limit)
-    clean = run_closed_loop(DropoutPlant(arm, set(), noise_variance=1e-3), controller(name, arm), reference, DURATION, seed=3)
+    clean = run_closed_loop(
+        DropoutPlant(arm, set(), noise_variance=1e-3), controller(name, arm), reference, DURATION, seed=3
+    )
     ep, ep_clean = np.mean(tracking_metrics(traj)["Ep"]), np.mean(tracking_metrics(clean)["Ep"])
     # Five held samples out of 100 are a small perturbation: the measured spread of
     # this ratio over the three controllers is 0.9-1.1; 1.5 flags a real failure.
@@ -143,8 +145,11 @@ class RaisingSolver:
 
 @pytest.mark.parametrize(
     "solver, event",
-    [(DaqpBoxSolver(iteration_factor=0), "qp_iteration_limit"), (OsqpBoxSolver(max_iterations=2), "qp_iteration_limit"),
-     (RaisingSolver(), "qp_failed")],  # fmt: skip
+    [
+        (DaqpBoxSolver(iteration_factor=0), "qp_iteration_limit"),
+        (OsqpBoxSolver(max_iterations=2), "qp_iteration_limit"),
+        (RaisingSolver(), "qp_failed"),
+    ],  # fmt: skip
 )
 def test_qp_failures_fall_back_within_limits(arm, reference, solver, event):
     """Start-up from rest, far from q_r(0), with 40 N m limits: the torques saturate,
@@ -297,7 +302,7 @@ def test_a_clean_run_records_no_fault(arm, reference):
 def test_lqr_fallback_that_cannot_be_computed_uses_the_reference_torque(arm, reference, monkeypatch):
     """If even the LQR gain fails (singular R + B'PB from degenerate weights), the MPC
     falls back to the saturated reference torque instead of raising."""
-    import hydroarm.control.mpc as mpc_module
+    import hydroarm.control.mpc.controller as mpc_module  # where LinearMPC looks lqr_gain up
 
     def singular(*args):
         raise np.linalg.LinAlgError("Singular matrix")

@@ -10,6 +10,7 @@ import scipy.linalg
 import hydroarm
 from hydroarm.config import ConfigError, validate
 from hydroarm.control.mpc import (
+    SOLVERS,
     LinearMPC,
     MPCConfig,
     QPResult,
@@ -19,6 +20,7 @@ from hydroarm.control.mpc import (
     solve_riccati,
     solve_terminal_qp,
 )
+from hydroarm.control.qp import BoxQPSolver
 from hydroarm.model.nominal import NominalModel
 from hydroarm.model.task import SinusoidReference, paper_reference
 
@@ -178,8 +180,45 @@ def test_solvers_agree(other):
     rng = np.random.default_rng(11)
     for _ in range(3):
         problem = random_problem(rng, horizon=8)
-        reference = solve_box("daqp", *problem)
-        np.testing.assert_allclose(solve_box(other, *problem), reference, rtol=0.0, atol=1e-6)
+        expected = solve_box("daqp", *problem)
+        np.testing.assert_allclose(solve_box(other, *problem), expected, rtol=0.0, atol=1e-6)
+
+
+# --- the box-QP backends behind one protocol ---------------------------------------------
+def random_box_qp(rng: np.random.Generator, m: int):
+    """A random strictly convex box QP ``(H, g, lb, ub)`` whose optimum has active bounds."""
+    root = rng.standard_normal((m, m))
+    H = root @ root.T + m * np.eye(m)
+    g = 5.0 * m * rng.standard_normal(m)
+    centre = rng.uniform(-1.0, 1.0, m)
+    half_width = rng.uniform(0.1, 1.0, m)
+    return H, g, centre - half_width, centre + half_width
+
+
+@pytest.mark.parametrize("name", SOLVERS)
+def test_every_backend_implements_the_box_qp_protocol(name):
+    solver = make_box_qp_solver(name)
+    assert isinstance(solver, BoxQPSolver)
+    assert BoxQPSolver in type(solver).__mro__  # declared, not only structurally equal
+    assert solver.name == name
+    assert not isinstance(object(), BoxQPSolver)
+
+
+@pytest.mark.parametrize("name", SOLVERS)
+def test_every_backend_gives_the_solution_of_a_second_solver(name):
+    """The same optimum as another backend on random strictly convex box QPs (cold and warm)."""
+    second = make_box_qp_solver("quadprog" if name == "daqp" else "daqp")
+    solver = make_box_qp_solver(name)
+    rng = np.random.default_rng(21)
+    for m in (3, 8, 8, 20):  # repeated size: backends that keep their set-up update it
+        H, g, lb, ub = random_box_qp(rng, m)
+        expected = second.solve(H, g, lb, ub)
+        assert expected.ok, expected.message
+        assert np.any(np.isclose(expected.x, lb, atol=1e-9) | np.isclose(expected.x, ub, atol=1e-9))
+        for warm in (None, np.clip(expected.x + 0.05 * rng.standard_normal(m), lb, ub)):
+            result = solver.solve(H, g, lb, ub, warm)
+            assert isinstance(result, QPResult) and result.ok, result.message
+            np.testing.assert_allclose(result.x, expected.x, rtol=0.0, atol=1e-6)
 
 
 # --- Riccati and linearisation ----------------------------------------------------------
@@ -354,7 +393,7 @@ def test_soft_terminal_set_closed_loop_from_rest_stays_bounded(arm):
 
 def start_up_qp(mpc: LinearMPC, reference):
     """The condensed QP of the first step from rest (rebuilt from the public pieces)."""
-    arm, horizon, n = mpc.arm, mpc.horizon, mpc.n
+    arm, horizon = mpc.arm, mpc.horizon
     A, B, x_next, x_ref, u_ref = [], [], [], [], []
     for k in range(horizon + 1):
         q, v, a = reference.sample(k * T)

@@ -9,13 +9,13 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import hydroarm
-from hydroarm.studies.experiment import ExperimentConfig, build_controller
 from hydroarm.control.gp import GPConfig
 from hydroarm.control.mpc import MPCConfig
-from hydroarm.model.plant import PlantConfig, UnderwaterPlant
-from hydroarm.studies.runner import run_closed_loop
 from hydroarm.control.smc import SMCConfig
+from hydroarm.model.plant import PlantConfig, UnderwaterPlant
 from hydroarm.model.water import CurrentConfig, Water
+from hydroarm.studies.experiment import ExperimentConfig, build_controller
+from hydroarm.studies.runner import run_closed_loop
 
 UR5_LIMITS = [150.0, 150.0, 150.0, 28.0, 28.0, 28.0]
 
@@ -48,6 +48,7 @@ cases = st.fixed_dictionaries(
 
 @settings(max_examples=100, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(case=cases)
+@pytest.mark.slow
 def test_no_controller_ever_exceeds_its_torque_limit(arm, case):
     """100 random closed loops of 0.3 s (the start-up, where the torques saturate most)."""
     config = ExperimentConfig(
