@@ -12,8 +12,11 @@ import subprocess
 import sys
 
 import numpy as np
+import pytest
 
 from hydroarm.studies.runner import Trajectory
+
+pytestmark = [pytest.mark.subprocess]
 
 SCRIPT = r"""
 import sys
@@ -34,6 +37,7 @@ def run_in_fresh_process(folder, hash_seed: str) -> None:
     subprocess.run([sys.executable, "-c", SCRIPT, str(folder)], check=True, env=env, timeout=600)
 
 
+@pytest.mark.slow
 def test_two_processes_give_bit_identical_runs(tmp_path):
     first, second = tmp_path / "first", tmp_path / "second"
     first.mkdir()

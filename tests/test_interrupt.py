@@ -15,7 +15,12 @@ from pathlib import Path
 
 import pytest
 
+from hydroarm.studies.executor import LocalExecutor, run_tasks
+from hydroarm.studies.experiment import ExperimentConfig
+from hydroarm.studies.reproduce import RunSpec, TrajectoryFiles, run_one
 from hydroarm.studies.runner import Trajectory
+
+pytestmark = [pytest.mark.slow, pytest.mark.subprocess]
 
 TIMEOUT = 300  # s: generous for a shared 2-core machine; the commands take ~5-40 s
 
@@ -130,3 +135,25 @@ def test_sweep_interrupted_resumes(tmp_path, sig, whole_group, code):
     assert len(after) == 16
     assert {name: after[name] for name in before} == before
     assert len((tmp_path / "out" / "results.csv").read_text().splitlines()) == 17
+
+
+def test_an_interrupt_while_writing_keeps_the_runs_that_were_running(tmp_path):
+    """The executor's side of an interrupt: Ctrl-C lands while the driver writes the first
+    result. That result is written whole, the runs already running finish and are written,
+    the rest is cancelled, then the KeyboardInterrupt propagates; the next call reuses all."""
+    config = ExperimentConfig(duration=0.5)
+    specs = [RunSpec("clean", name, seed, config) for seed in range(5) for name in ("SMC", "MPC")]
+    written: list[str] = []
+
+    def on_result(task, result) -> None:
+        written.append(task.id)
+        if len(written) == 1:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        run_tasks(specs, run_one, TrajectoryFiles(tmp_path), LocalExecutor(workers=2), on_result=on_result)
+    files = sorted(tmp_path.glob("*.npz"))
+    assert 2 <= len(files) < len(specs)  # the first result and at least the other worker's run
+    assert len(set(written)) == len(files) and not list(tmp_path.glob(".*.tmp"))
+    finished, todo = TrajectoryFiles(tmp_path).lookup(specs)
+    assert sorted(finished) == sorted(f.stem for f in files) and len(todo) == len(specs) - len(files)

@@ -11,8 +11,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hydroarm.studies.reproduce import FIGURES, RunSpec, load_finished
 from hydroarm.studies.experiment import ExperimentConfig
+from hydroarm.studies.figures import FIGURES
+from hydroarm.studies.reproduce import RunSpec, load_finished
+
+pytestmark = [pytest.mark.slow, pytest.mark.subprocess]
 
 ENV = {**os.environ, "MPLBACKEND": "Agg"}
 
@@ -31,7 +34,16 @@ def quick_run(tmp_path_factory) -> Path:
 
 
 def test_quick_reproduction_writes_everything(quick_run):
-    for name in ["metrics.json", "summary.json", "report.md", "table1.md", "table1.csv", "table2.md", "table2.csv", *FIGURES]:
+    for name in [
+        "metrics.json",
+        "summary.json",
+        "report.md",
+        "table1.md",
+        "table1.csv",
+        "table2.md",
+        "table2.csv",
+        *FIGURES,
+    ]:
         assert (quick_run / name).is_file(), name
         assert (quick_run / name).stat().st_size > 0, name
     runs = sorted((quick_run / "runs").glob("*.npz"))
@@ -119,7 +131,9 @@ def test_cli_run_arms_and_urdf(tmp_path):
 def test_every_controller_runs_on_the_alpha5_without_code_changes(tmp_path):
     for controller in ("smc", "mpc", "gp-mpc"):
         out = tmp_path / controller
-        result = hydroarm_cli("run", "--arm", "alpha5", "--controller", controller, "--set", "duration=1.0", "--out", str(out), "--json")
+        result = hydroarm_cli(
+            "run", "--arm", "alpha5", "--controller", controller, "--set", "duration=1.0", "--out", str(out), "--json"
+        )
         metrics = json.loads(result.stdout.strip().splitlines()[-1])
         assert len(metrics["Ep"]) == 4 and not metrics["diverged"]
 

@@ -11,8 +11,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hydroarm.model.loading import load_arm
 from hydroarm.config import ConfigError, read_mapping
+from hydroarm.model.loading import load_arm
+from hydroarm.model.plant import UnderwaterPlant
+from hydroarm.model.task import task_for_arm
+from hydroarm.studies.executor import SerialExecutor
 from hydroarm.studies.experiment import (
     ExperimentConfig,
     InitialState,
@@ -21,12 +24,9 @@ from hydroarm.studies.experiment import (
     start_for_arm,
     with_overrides,
 )
-from hydroarm.model.task import task_for_arm
-from hydroarm.model.plant import UnderwaterPlant
 from hydroarm.studies.runner import run_closed_loop
 from hydroarm.studies.sweep import (
     Robustness,
-    SerialExecutor,
     error_envelope,
     load_sweep,
     plan_sweep,
@@ -166,6 +166,7 @@ def test_the_stress_file_is_the_documented_study():
         assert low <= min(values) and max(values) <= high, key
 
 
+@pytest.mark.slow
 def test_stress_sweep_in_miniature_then_resume(tmp_path):
     config = validate_sweep(tiny_stress(), "stress-tiny")
     summary = run_sweep(config, tmp_path, executor=SerialExecutor())

@@ -12,15 +12,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hydroarm.model.loading import load_arm
 from hydroarm.config import ConfigError
-from hydroarm.model.task import task_for_arm
-from hydroarm.studies.experiment import ExperimentConfig, build_controller, run_experiment, with_overrides
+from hydroarm.model.loading import load_arm
 from hydroarm.model.plant import UnderwaterPlant
+from hydroarm.model.task import task_for_arm
+from hydroarm.studies.executor import SerialExecutor
+from hydroarm.studies.experiment import ExperimentConfig, build_controller, run_experiment, with_overrides
 from hydroarm.studies.runner import Trajectory, run_closed_loop, tracking_metrics
 from hydroarm.studies.sweep import (
     Mismatch,
-    SerialExecutor,
     SweepConfig,
     arm_digest,
     load_sweep,
@@ -51,6 +51,7 @@ def small(**extra) -> SweepConfig:
 # --- a whole sweep on the local process pool ---------------------------------------------
 
 
+@pytest.mark.slow
 def test_local_sweep_end_to_end_then_rerun_skips_and_recomputes_corrupt(tmp_path):
     calls = []
     out = tmp_path / "out"
@@ -121,8 +122,8 @@ def test_runs_that_differ_only_in_another_controllers_settings_are_shared(tmp_pa
 
 def test_interrupted_sweep_leaves_a_readable_table_and_resumes(tmp_path):
     class StopAfterTwo(SerialExecutor):
-        def map(self, tasks, arms):
-            for count, item in enumerate(super().map(tasks, arms)):
+        def map(self, run, tasks, arms, on_step=None):
+            for count, item in enumerate(super().map(run, tasks, arms, on_step)):
                 if count == 2:
                     raise KeyboardInterrupt
                 yield item
@@ -138,8 +139,8 @@ def test_interrupted_sweep_leaves_a_readable_table_and_resumes(tmp_path):
 
 def test_a_failed_run_is_reported_and_retried(tmp_path):
     class FailFirst(SerialExecutor):
-        def map(self, tasks, arms):
-            for count, (task, outcome) in enumerate(super().map(tasks, arms)):
+        def map(self, run, tasks, arms, on_step=None):
+            for count, (task, outcome) in enumerate(super().map(run, tasks, arms, on_step)):
                 yield task, (RuntimeError("solver exploded") if count == 0 else outcome)
 
     config = small(base={"duration": 0.1}, seeds=1)
@@ -237,7 +238,8 @@ def test_sweep_file_dotted_keys_relative_arm_and_base_file(tmp_path):
     shutil.copy(EXAMPLES / "myarm.toml", tmp_path / "arm.toml")
     (tmp_path / "experiment.toml").write_text("duration = 0.2\n[mpc]\nhorizon = 5\n")
     (tmp_path / "s.toml").write_text(
-        'controllers = ["gp-mpc"]\nbase = "experiment.toml"\n[parameters]\nmpc.r = [0.01]\narm = ["arm.toml", "paper"]\n'
+        'controllers = ["gp-mpc"]\nbase = "experiment.toml"\n'
+        '[parameters]\nmpc.r = [0.01]\narm = ["arm.toml", "paper"]\n'
     )
     config = load_sweep(tmp_path / "s.toml")
     assert config.base.duration == 0.2 and config.base.mpc.horizon == 5 and config.controllers == ["GP-MPC"]
@@ -306,6 +308,8 @@ def test_mismatch_sweep_runs_the_perturbed_plant_with_the_nominal_controller(tmp
 # --- Ray --------------------------------------------------------------------------------------
 
 
+@pytest.mark.slow
+@pytest.mark.ray
 @pytest.mark.skipif(importlib.util.find_spec("ray") is None, reason="ray is not installed (pip install hydroarm[ray])")
 def test_ray_sweep_end_to_end_matches_the_local_one(tmp_path, monkeypatch):
     import ray

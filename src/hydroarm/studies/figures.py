@@ -1,4 +1,5 @@
-"""Figures of a run or a comparison, one panel per joint (the paper's Figures 4-15).
+"""Figures of a run or a comparison, one panel per joint (the paper's Figures 4-15), and
+the names of a reproduction's figure files (:data:`FIGURES`, :data:`ANIMATION`).
 
 Every function takes trajectories (:class:`hydroarm.studies.runner.Trajectory`) and a
 path, writes a PNG and returns the path. Headless (Agg backend).
@@ -17,6 +18,25 @@ import numpy as np  # noqa: E402
 from hydroarm.studies.runner import Trajectory  # noqa: E402
 
 COLOURS = {"SMC": "tab:green", "MPC": "tab:blue", "GP-MPC": "tab:red", "reference": "black"}
+"""One colour per controller (and the reference), in every figure and sweep plot."""
+
+ANIMATION = "gpmpc_arm.gif"
+"""The first seconds of the clean GP-MPC run: links as cylinders, the reference ghosted."""
+
+FIGURES = {
+    "fig04_disturbance.png": "Fig. 4: true vs GP-estimated disturbance (no noise)",
+    "fig05_disturbance_error.png": "Fig. 5: disturbance estimate error (no noise)",
+    "fig06_disturbance_noisy.png": "Fig. 6: true vs GP-estimated disturbance (noise)",
+    "fig07_disturbance_error_noisy.png": "Fig. 7: disturbance estimate error (noise)",
+    "fig08_position.png": "Fig. 8: position tracking, GP-MPC (no noise)",
+    "fig09_error_comparison.png": "Fig. 9: tracking error of SMC, MPC, GP-MPC (no noise)",
+    "fig10_velocity.png": "Fig. 10: velocity tracking, GP-MPC (no noise)",
+    "fig11_torque.png": "Fig. 11: joint torques, GP-MPC (no noise)",
+    "fig12_position_noisy.png": "Fig. 12: position tracking, GP-MPC (noise)",
+    "fig13_velocity_noisy.png": "Fig. 13: velocity tracking, GP-MPC (noise)",
+    "fig14_torque_noisy.png": "Fig. 14: joint torques, GP-MPC (noise)",
+    "fig15_error_comparison_noisy.png": "Fig. 15: tracking error of SMC, MPC, GP-MPC (noise)",
+}
 
 
 def _panels(n: int, title: str, sharex: bool = True):

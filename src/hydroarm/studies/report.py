@@ -10,26 +10,29 @@ from pathlib import Path
 
 import numpy as np
 
-CONTROLLERS = ("SMC", "MPC", "GP-MPC")
+from hydroarm.control.registry import PAPER_CONTROLLERS
+from hydroarm.studies.figures import ANIMATION, FIGURES
 
 
 def _ordering_sentence(block: dict, case: str) -> str:
-    ep = {name: np.asarray(block[name]["Ep"]) for name in CONTROLLERS}
-    means = {name: float(ep[name].mean()) for name in CONTROLLERS}
-    order = " < ".join(sorted(CONTROLLERS, key=lambda n: means[n]))
+    ep = {name: np.asarray(block[name]["Ep"]) for name in PAPER_CONTROLLERS}
+    means = {name: float(ep[name].mean()) for name in PAPER_CONTROLLERS}
+    order = " < ".join(sorted(PAPER_CONTROLLERS, key=lambda n: means[n]))
     gp_beats_mpc = [j + 1 for j in range(len(ep["MPC"])) if ep["GP-MPC"][j] < ep["MPC"][j]]
     mpc_beats_smc = [j + 1 for j in range(len(ep["MPC"])) if ep["MPC"][j] < ep["SMC"][j]]
     gain = block["gain_gp_mpc_over_mpc_percent"]
     bound = block["MPC_dry_arm_bound"]
+    per_joint = ", ".join(f"{g:.1f}" for g in bound["gain_over_MPC_percent"])
     return (
         f"- **{case}**: mean E_p ordering {order} "
-        f"({', '.join(f'{n} {means[n]:.4g}' for n in CONTROLLERS)} rad^2). "
+        f"({', '.join(f'{n} {means[n]:.4g}' for n in PAPER_CONTROLLERS)} rad^2). "
         f"GP-MPC beats MPC on joints {gp_beats_mpc or 'none'}; MPC beats SMC on joints {mpc_beats_smc or 'none'}. "
-        f"GP-MPC's gain over MPC: {gain['mean_of_joints']:.1f} % as the paper averages it (mean of the per-joint gains; "
-        f"paper {gain['paper_mean_of_joints']} %), {gain['of_mean_Ep']:.1f} % on the mean E_p, "
+        f"GP-MPC's gain over MPC: {gain['mean_of_joints']:.1f} % as the paper averages it "
+        f"(mean of the per-joint gains; paper {gain['paper_mean_of_joints']} %), "
+        f"{gain['of_mean_Ep']:.1f} % on the mean E_p, "
         f"{np.mean(gain['steady_per_joint']):.1f} % after the start-up (t > 2 s). "
         f"Perfect disturbance knowledge (the same MPC on the arm without water) would gain "
-        f"{bound['gain_mean_of_joints']:.1f} % (per joint: {', '.join(f'{g:.1f}' for g in bound['gain_over_MPC_percent'])})."
+        f"{bound['gain_mean_of_joints']:.1f} % (per joint: {per_joint})."
     )
 
 
@@ -37,6 +40,8 @@ def render_report(metrics: dict, out: Path) -> str:
     settings = metrics["settings"]
     experiment = settings["experiment"]
     clean, noisy = metrics["clean"], metrics["noisy"]
+    water, mpc, machine = experiment["water"], experiment["mpc"], metrics["machine"]
+    gp_settings, gpmpc = experiment["gp"], experiment["gpmpc"]
     lines = [
         "# Reproduction of Liu et al. 2023 (J. Mar. Sci. Eng. 11, 1641)",
         "",
@@ -44,24 +49,25 @@ def render_report(metrics: dict, out: Path) -> str:
         "plain MPC and sliding-mode control, without (Table 1) and with (Table 2) measurement noise.",
         "",
         f"Wall time: {metrics['wall_time_s']['total']:.1f} s for all runs, tables and figures "
-        f"({settings['workers']} worker processes; {metrics['machine']['cpus']} CPUs; Python {metrics['machine']['python']}).",
+        f"({settings['workers']} worker processes; {machine['cpus']} CPUs; Python {machine['python']}).",
         "",
         "## Settings",
         "",
         f"- Arm `{experiment['arm']}` (paper Tables A1-A2), true plant = Pinocchio rigid body + Morison water "
-        f"(rho = {experiment['water']['rho']:g}, C_d = {experiment['water']['cd']:g}, C_m = {experiment['water']['cm']:g}, "
-        f"{experiment['water']['quadrature_points']} Gauss points per cylinder) + buoyancy + the paper's current "
-        f"(model `{experiment['water']['current']['model']}`), RK4 with {experiment['plant']['inner_step'] * 1e3:g} ms steps.",
+        f"(rho = {water['rho']:g}, C_d = {water['cd']:g}, C_m = {water['cm']:g}, "
+        f"{water['quadrature_points']} Gauss points per cylinder) + buoyancy + the paper's current "
+        f"(model `{water['current']['model']}`), RK4 with {experiment['plant']['inner_step'] * 1e3:g} ms steps.",
         f"- Task: eq. (21), first six terms, {experiment['duration']:g} s from rest at q = 0; control period "
         f"{experiment['control_period'] * 1e3:g} ms; torque limit from the arm file.",
-        f"- MPC: N = {experiment['mpc']['horizon']}, Q = diag({experiment['mpc']['q_position']:g} x 6, "
-        f"{experiment['mpc']['q_velocity']:g} x 6), R = {experiment['mpc']['r']:g} I, terminal cost from the DARE, "
-        f"terminal set `{experiment['mpc']['terminal_set']}`, solver {experiment['mpc']['solver']}, "
-        f"prediction model `{experiment['mpc'].get('discretisation', 'euler')}` (docs/deviations.md).",
-        f"- GP: window {experiment['gp']['window']}, {experiment['gp']['hyper_steps']} hyperparameter step(s) per control step, "
-        f"features `{experiment['gpmpc']['features']}`, estimate fed forward as `{experiment['gpmpc']['feedforward']}`.",
+        f"- MPC: N = {mpc['horizon']}, Q = diag({mpc['q_position']:g} x 6, "
+        f"{mpc['q_velocity']:g} x 6), R = {mpc['r']:g} I, terminal cost from the DARE, "
+        f"terminal set `{mpc['terminal_set']}`, solver {mpc['solver']}, "
+        f"prediction model `{mpc.get('discretisation', 'euler')}` (docs/deviations.md).",
+        f"- GP: window {gp_settings['window']}, {gp_settings['hyper_steps']} hyperparameter step(s) per control step, "
+        f"features `{gpmpc['features']}`, estimate fed forward as `{gpmpc['feedforward']}`.",
         f"- SMC: lambda = {experiment['smc']['surface_slope']}, k = {experiment['smc']['switching_gain']}, "
-        f"phi = {experiment['smc']['boundary_layer']}, k_s = {experiment['smc']['linear_gain']} (best of a grid, tuned on the dry arm).",
+        f"phi = {experiment['smc']['boundary_layer']}, k_s = {experiment['smc']['linear_gain']} "
+        "(best of a grid, tuned on the dry arm).",
         f"- Noise: variance {settings['noise_variance']} on measured q and q' (Table 2), "
         f"{settings['noisy_seeds']} seeds; Table 2 shows the mean over seeds and its spread.",
         "",
@@ -79,8 +85,16 @@ def render_report(metrics: dict, out: Path) -> str:
     ]
     for case, block in (("no noise", clean), ("noise", noisy)):
         gp = block["GP-MPC"]
-        lines.append(f"| {case} | RMS estimate error after 1 s (N m) | " + " | ".join(f"{x:.3g}" for x in gp["disturbance_estimate_rms_after_1s"]) + " |")
-        lines.append(f"| {case} | RMS of the disturbance after 1 s (N m) | " + " | ".join(f"{x:.3g}" for x in gp["disturbance_rms_after_1s"]) + " |")
+        lines.append(
+            f"| {case} | RMS estimate error after 1 s (N m) | "
+            + " | ".join(f"{x:.3g}" for x in gp["disturbance_estimate_rms_after_1s"])
+            + " |"
+        )
+        lines.append(
+            f"| {case} | RMS of the disturbance after 1 s (N m) | "
+            + " | ".join(f"{x:.3g}" for x in gp["disturbance_rms_after_1s"])
+            + " |"
+        )
     lines += [
         "",
         "Noise floor: a velocity noise of standard deviation 0.0316 rad/s on two consecutive samples puts",
@@ -92,22 +106,20 @@ def render_report(metrics: dict, out: Path) -> str:
         "| controller | median (ms) | p99 (ms) |",
         "|---|---|---|",
     ]
-    for name in CONTROLLERS:
+    for name in PAPER_CONTROLLERS:
         lines.append(f"| {name} | {clean[name]['step_ms_median']:.3f} | {clean[name]['step_ms_p99']:.3f} |")
     lines += ["", "(Measured inside the closed loop on a shared machine; `hydroarm bench` measures it properly.)", ""]
     lines += ["### Faults met during the runs (docs/reliability.md)", ""]
     faults = [
         f"- {case}, {name}: " + ", ".join(f"{key} x {count}" for key, count in sorted(block[name]["faults"].items()))
         for case, block in (("no noise", clean), ("noise", noisy))
-        for name in CONTROLLERS
+        for name in PAPER_CONTROLLERS
         if block[name].get("faults")
     ]
     lines += (faults or ["None: no measurement held, no GP or QP fallback, no clipped torque, no stopped run."]) + [""]
     if (out / "ablation.md").exists():
         lines += ["## Ablation", "", (out / "ablation.md").read_text()]
     lines += ["## Figures", ""]
-    from hydroarm.studies.reproduce import ANIMATION, FIGURES
-
     lines += [f"![GP-MPC on the task: the arm (colour) and the reference (grey)]({ANIMATION})", ""]
     for name, title in FIGURES.items():
         lines.append(f"![{title}]({name})")

@@ -14,10 +14,11 @@ settings, and writes into ``out_dir``:
 * ``gpmpc_arm.gif``: the arm moving under GP-MPC, the reference ghosted;
 * ``report.md``: settings, tables, figures, and where and why we differ.
 
-Each run is saved atomically as soon as it finishes; a later call with the same
-settings loads the finished runs (their settings digest, controller and seed
-must match, and a file that cannot be read is recomputed) and runs only the
-rest, so an interrupted reproduction loses nothing.
+Each run is written atomically as soon as it finishes (``runs/<case>__<controller>__seed<n>.npz``,
+through the studies' one executor and resume cache, :mod:`hydroarm.studies.executor`); a
+later call with the same settings loads the finished runs (their settings digest,
+controller and seed must match, and a file that cannot be read is recomputed) and runs
+only the rest, so an interrupted reproduction loses nothing.
 """
 
 from __future__ import annotations
@@ -25,25 +26,33 @@ from __future__ import annotations
 import csv
 import json
 import math
-import multiprocessing
 import os
 import platform
-import signal
 import time
-from collections.abc import Callable
-from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from hydroarm.control.registry import PAPER_CONTROLLERS
+from hydroarm.model.loading import load_arm
 from hydroarm.studies import figures
 from hydroarm.studies.animate import animate
-from hydroarm.model.loading import load_arm
+from hydroarm.studies.executor import (
+    Executor,
+    ProgressHook,
+    RunCache,
+    StepHook,
+    atomic_write,
+    file_bytes,
+    make_executor,
+    run_tasks,
+)
 from hydroarm.studies.experiment import ExperimentConfig, run_experiment, with_overrides
+from hydroarm.studies.figures import ANIMATION, FIGURES
+from hydroarm.studies.report import render_report
 from hydroarm.studies.runner import Trajectory, fault_counts, stop_reason, tracking_metrics
 
-CONTROLLERS = ("SMC", "MPC", "GP-MPC")
 NOISE_VARIANCE = 0.001
 
 PAPER_EP = {
@@ -74,6 +83,19 @@ class RunSpec:
     @property
     def key(self) -> str:
         return f"{self.case}__{self.controller}__seed{self.seed}".replace("/", "-").replace("+", "p")
+
+    @property
+    def id(self) -> str:
+        """The run id: the name of its file in ``runs/`` (the settings are checked on loading)."""
+        return self.key
+
+    @property
+    def label(self) -> str:
+        return self.key
+
+    @property
+    def arm_key(self) -> None:
+        return None  # the run loads its arm itself (run_experiment)
 
 
 def ablation_cases(base: ExperimentConfig) -> list[tuple[str, str, dict]]:
@@ -110,8 +132,8 @@ def plan_runs(base: ExperimentConfig, noisy_seeds: int, ablation: bool) -> list[
     """Every run of the study: clean (seed 0), noisy (seeds 0..noisy_seeds-1), the
     dry-arm bound (MPC with the water removed: perfect disturbance knowledge), ablation."""
     noisy = with_overrides(base, {"plant.noise_variance": NOISE_VARIANCE})
-    runs = [RunSpec("clean", name, 0, base) for name in CONTROLLERS]
-    runs += [RunSpec("noisy", name, seed, noisy) for seed in range(noisy_seeds) for name in CONTROLLERS]
+    runs = [RunSpec("clean", name, 0, base) for name in PAPER_CONTROLLERS]
+    runs += [RunSpec("noisy", name, seed, noisy) for seed in range(noisy_seeds) for name in PAPER_CONTROLLERS]
     runs.append(RunSpec("bound-clean", "MPC", 0, with_overrides(base, DRY)))
     runs += [RunSpec("bound-noisy", "MPC", seed, with_overrides(noisy, DRY)) for seed in range(noisy_seeds)]
     if ablation:
@@ -131,72 +153,52 @@ def load_finished(path: Path, spec: RunSpec) -> Trajectory | None:
     except Exception:  # corrupt or partial file: recompute it
         return None
     meta = traj.meta
-    if meta.get("digest") != spec.config.digest() or meta.get("controller") != spec.controller or meta.get("seed") != spec.seed:
+    if (
+        meta.get("digest") != spec.config.digest()
+        or meta.get("controller") != spec.controller
+        or meta.get("seed") != spec.seed
+    ):
         return None
     return traj
 
 
-def _run_one(spec: RunSpec, path: str, queue) -> str:
-    """Worker: run, save atomically, report progress through ``queue``."""
+class TrajectoryFiles(RunCache):
+    """The reproduction's resume cache: ``runs/<key>.npz``, one trajectory per run."""
 
-    def progress(k: int, total: int) -> None:
-        if queue is not None and (k % 50 == 0 or k == total):
-            queue.put((spec.key, k, total))
+    suffix = ".npz"
 
+    def read(self, task: RunSpec) -> Trajectory | None:
+        return load_finished(self.path(task), task)
+
+    def write(self, task: RunSpec, outcome: bytes) -> Trajectory:
+        atomic_write(self.path(task), outcome)
+        return Trajectory.load(self.path(task))
+
+
+def run_one(spec: RunSpec, arm: None, progress: StepHook | None) -> bytes:
+    """Worker: run ``spec``; the trajectory as ``.npz`` bytes (the driver writes them)."""
     traj = run_experiment(spec.config, spec.controller, spec.seed, progress=progress)
     traj.meta["case"] = spec.case
-    traj.save(path)
-    return spec.key
+    return file_bytes(traj.save, "run.npz")
 
 
-ProgressHook = Callable[[str, int, int], None]
-
-
-def _ignore_sigint() -> None:
-    """Worker initializer: Ctrl-C reaches the whole process group; only the main process
-    handles it (running runs finish and are saved, the rest is cancelled)."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-
-
-def execute(runs: list[RunSpec], run_dir: Path, workers: int, on_progress: ProgressHook | None = None) -> dict[str, Trajectory]:
-    """Run what is not finished yet (in ``workers`` processes), return every trajectory by key."""
-    run_dir.mkdir(parents=True, exist_ok=True)
-    results: dict[str, Trajectory] = {}
-    todo = []
-    for spec in runs:
-        finished = load_finished(run_dir / f"{spec.key}.npz", spec)
-        if finished is None:
-            todo.append(spec)
-        else:
-            results[spec.key] = finished
-            if on_progress:
-                on_progress(spec.key, 1, 1)
-    if not todo:
-        return results
-    context = multiprocessing.get_context("spawn")
-    with context.Manager() as manager:
-        queue = manager.Queue()
-        with ProcessPoolExecutor(max_workers=max(1, workers), mp_context=context, initializer=_ignore_sigint) as pool:
-            futures = {pool.submit(_run_one, spec, str(run_dir / f"{spec.key}.npz"), queue): spec for spec in todo}
-            pending = set(futures)
-            try:
-                while pending:
-                    done, pending = wait(pending, timeout=0.2, return_when=FIRST_COMPLETED)
-                    while not queue.empty():
-                        key, k, total = queue.get()
-                        if on_progress:
-                            on_progress(key, k, total)
-                    for future in done:
-                        spec = futures[future]
-                        future.result()  # a failed run raises here; finished ones are on disk
-                        results[spec.key] = Trajectory.load(run_dir / f"{spec.key}.npz")
-                        if on_progress:
-                            on_progress(spec.key, 1, 1)
-            except BaseException:
-                for future in pending:
-                    future.cancel()
-                raise
-    return results
+def execute(
+    runs: list[RunSpec],
+    run_dir: Path,
+    workers: int = 2,
+    on_progress: ProgressHook | None = None,
+    on_step: ProgressHook | None = None,
+    executor: Executor | None = None,
+) -> dict[str, Trajectory]:
+    """Run what is not finished yet (in ``workers`` processes, or on ``executor``) and return
+    every trajectory by key; the first run that raised is raised once the others are done."""
+    cache = TrajectoryFiles(run_dir)
+    finished, todo = cache.lookup(runs)
+    runner = executor if executor is not None else make_executor(max(1, workers))
+    report = run_tasks(todo, run_one, cache, runner, reused=len(finished), on_progress=on_progress, on_step=on_step)
+    if report.failed:
+        raise report.failed[0][1]
+    return {**finished, **report.results}
 
 
 # --- summaries ---------------------------------------------------------------------
@@ -227,7 +229,7 @@ def summarise(runs: list[RunSpec], results: dict[str, Trajectory]) -> dict:
     metrics: dict = {}
     for case in ("clean", "noisy"):
         metrics[case] = {}
-        for name in CONTROLLERS:
+        for name in PAPER_CONTROLLERS:
             trajs = [results[s.key] for s in runs if s.case == case and s.controller == name]
             per_seed = [tracking_metrics(t) for t in trajs]
             ep = np.array([m["Ep"] for m in per_seed])
@@ -308,7 +310,7 @@ def write_tables(metrics: dict, out: Path) -> None:
         n = len(block["MPC"]["Ep"])
         header = ["row"] + [f"joint {j + 1}" for j in range(n)] + ["mean"]
         rows = []
-        for name in CONTROLLERS:
+        for name in PAPER_CONTROLLERS:
             ep = block[name]["Ep"]
             label = f"{name} (ours" + (f", mean of {len(block[name]['seeds'])} seeds)" if case == "noisy" else ")")
             rows.append([label] + [_fmt(x) for x in ep] + [_fmt(np.mean(ep))])
@@ -318,19 +320,46 @@ def write_tables(metrics: dict, out: Path) -> None:
             rows.append([f"{name} (paper)"] + [_fmt(x) for x in paper] + [_fmt(np.mean(paper))])
         bound = block["MPC_dry_arm_bound"]["Ep"]
         rows.append(["MPC on the arm without water (bound)"] + [_fmt(x) for x in bound] + [_fmt(np.mean(bound))])
-        for name in CONTROLLERS:
+        for name in PAPER_CONTROLLERS:
             steady = block[name]["Ep_steady"]
             rows.append([f"{name} (ours, t > 2 s)"] + [_fmt(x) for x in steady] + [_fmt(np.mean(steady))])
         gain = block["gain_gp_mpc_over_mpc_percent"]
-        rows.append(["GP-MPC gain over MPC, % (ours)"] + [f"{g:.1f}" for g in gain["per_joint"]] + [f"{gain['mean_of_joints']:.1f}"])
+        rows.append(
+            ["GP-MPC gain over MPC, % (ours)"]
+            + [f"{g:.1f}" for g in gain["per_joint"]]
+            + [f"{gain['mean_of_joints']:.1f}"]
+        )
         paper_gain = gain_percent(PAPER_EP[case]["MPC"][:n], PAPER_EP[case]["GP-MPC"][:n])
-        rows.append(["GP-MPC gain over MPC, % (paper)"] + [f"{g:.1f}" for g in paper_gain] + [f"{PAPER_GAIN[case]:.2f}"])
+        rows.append(
+            ["GP-MPC gain over MPC, % (paper)"] + [f"{g:.1f}" for g in paper_gain] + [f"{PAPER_GAIN[case]:.2f}"]
+        )
         bound_gain = block["MPC_dry_arm_bound"]["gain_over_MPC_percent"]
-        rows.append(["bound: gain of perfect compensation, %"] + [f"{g:.1f}" for g in bound_gain] + [f"{np.mean(bound_gain):.1f}"])
-        rows.append(["GP-MPC gain, t > 2 s, % (ours)"] + [f"{g:.1f}" for g in gain["steady_per_joint"]] + [f"{np.mean(gain['steady_per_joint']):.1f}"])
-        title = "Table 1: E_p (rad^2), no measurement noise" if case == "clean" else "Table 2: E_p (rad^2), measurement noise of variance 0.001"
+        rows.append(
+            ["bound: gain of perfect compensation, %"]
+            + [f"{g:.1f}" for g in bound_gain]
+            + [f"{np.mean(bound_gain):.1f}"]
+        )
+        rows.append(
+            ["GP-MPC gain, t > 2 s, % (ours)"]
+            + [f"{g:.1f}" for g in gain["steady_per_joint"]]
+            + [f"{np.mean(gain['steady_per_joint']):.1f}"]
+        )
+        title = (
+            "Table 1: E_p (rad^2), no measurement noise"
+            if case == "clean"
+            else "Table 2: E_p (rad^2), measurement noise of variance 0.001"
+        )
         _write_table(out / f"table{number}", title, header, rows)
-    header = ["setting", "value", "MPC E_p mean", "GP-MPC E_p mean", "gain, mean of joints (%)", "GP-MPC t>2 s E_p mean", "MPC step median (ms)", "GP-MPC step median (ms)"]
+    header = [
+        "setting",
+        "value",
+        "MPC E_p mean",
+        "GP-MPC E_p mean",
+        "gain, mean of joints (%)",
+        "GP-MPC t>2 s E_p mean",
+        "MPC step median (ms)",
+        "GP-MPC step median (ms)",
+    ]
     rows = []
     for group, values in metrics["ablation"].items():
         for label, row in values.items():
@@ -341,7 +370,9 @@ def write_tables(metrics: dict, out: Path) -> None:
                 f"{mpc.get('step_ms_median', math.nan):.3f}", f"{gp.get('step_ms_median', math.nan):.3f}",
             ])  # fmt: skip
     if rows:
-        _write_table(out / "ablation", "Ablation of the GP-MPC (clean, seed 0; one setting changed at a time)", header, rows)
+        _write_table(
+            out / "ablation", "Ablation of the GP-MPC (clean, seed 0; one setting changed at a time)", header, rows
+        )
 
 
 def _write_table(stem: Path, title: str, header: list[str], rows: list[list[str]]) -> None:
@@ -354,30 +385,11 @@ def _write_table(stem: Path, title: str, header: list[str], rows: list[list[str]
     stem.with_suffix(".md").write_text("\n".join(lines) + "\n")
 
 
-ANIMATION = "gpmpc_arm.gif"
-"""The first seconds of the clean GP-MPC run: links as cylinders, the reference ghosted."""
-
-FIGURES = {
-    "fig04_disturbance.png": "Fig. 4: true vs GP-estimated disturbance (no noise)",
-    "fig05_disturbance_error.png": "Fig. 5: disturbance estimate error (no noise)",
-    "fig06_disturbance_noisy.png": "Fig. 6: true vs GP-estimated disturbance (noise)",
-    "fig07_disturbance_error_noisy.png": "Fig. 7: disturbance estimate error (noise)",
-    "fig08_position.png": "Fig. 8: position tracking, GP-MPC (no noise)",
-    "fig09_error_comparison.png": "Fig. 9: tracking error of SMC, MPC, GP-MPC (no noise)",
-    "fig10_velocity.png": "Fig. 10: velocity tracking, GP-MPC (no noise)",
-    "fig11_torque.png": "Fig. 11: joint torques, GP-MPC (no noise)",
-    "fig12_position_noisy.png": "Fig. 12: position tracking, GP-MPC (noise)",
-    "fig13_velocity_noisy.png": "Fig. 13: velocity tracking, GP-MPC (noise)",
-    "fig14_torque_noisy.png": "Fig. 14: joint torques, GP-MPC (noise)",
-    "fig15_error_comparison_noisy.png": "Fig. 15: tracking error of SMC, MPC, GP-MPC (noise)",
-}
-
-
 def write_figures(runs: list[RunSpec], results: dict[str, Trajectory], out: Path, torque_limit: np.ndarray) -> None:
     """The paper's Figures 4-15 from the clean run and the noisy seed-0 run."""
     pick = {(s.case, s.controller): results[s.key] for s in runs if s.seed == 0 and s.case in ("clean", "noisy")}
     titles = FIGURES
-    for case, suffix in (("clean", ""), ("noisy", "_noisy")):
+    for case in ("clean", "noisy"):
         gp = pick[(case, "GP-MPC")]
         names = list(titles)
         if case == "clean":
@@ -389,7 +401,9 @@ def write_figures(runs: list[RunSpec], results: dict[str, Trajectory], out: Path
         figures.plot_tracking(gp, out / pos, titles[pos], "position")
         figures.plot_tracking(gp, out / vel, titles[vel], "velocity")
         figures.plot_torque(gp, out / tor, titles[tor], torque_limit)
-        figures.plot_error_comparison({name: pick[(case, name)] for name in CONTROLLERS}, out / comp, titles[comp])
+        figures.plot_error_comparison(
+            {name: pick[(case, name)] for name in PAPER_CONTROLLERS}, out / comp, titles[comp]
+        )
 
 
 def reproduce(
@@ -400,11 +414,13 @@ def reproduce(
     workers: int = 2,
     config: ExperimentConfig | None = None,
     on_progress: ProgressHook | None = None,
+    on_step: ProgressHook | None = None,
 ) -> dict:
     """Run the whole study into ``out`` (see the module docstring); returns metrics.json's content.
 
     ``quick``: a 3 s task, 2 noisy seeds and no ablation (for CI); defaults:
-    10 s, 5 noisy seeds, ablation on.
+    10 s, 5 noisy seeds, ablation on. ``on_progress(done, total, label)``: the runs
+    (finished or reused); ``on_step(k, total, label)``: the control steps of a run.
     """
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -415,7 +431,7 @@ def reproduce(
     do_ablation = ablation if ablation is not None else not quick
     runs = plan_runs(base, seeds, do_ablation)
     start = time.perf_counter()
-    results = execute(runs, out / "runs", workers, on_progress)
+    results = execute(runs, out / "runs", workers, on_progress, on_step)
     run_wall = time.perf_counter() - start
     metrics = summarise(runs, results)
     metrics["settings"] = {
@@ -440,6 +456,4 @@ def reproduce(
 
 def write_report(metrics: dict, out: Path) -> None:
     """report.md: settings, tables, figures, differences from the paper and why."""
-    from hydroarm.studies.report import render_report
-
     (out / "report.md").write_text(render_report(metrics, out))

@@ -34,6 +34,7 @@ import numpy as np
 
 from hydroarm.control.interface import FAULT_EVENTS, Controller, Reference
 from hydroarm.model.plant import UnderwaterPlant
+from hydroarm.studies.executor import atomic_file
 
 DIVERGENCE_SPEED = 1e3  # rad/s: beyond this the run is declared diverged
 
@@ -94,10 +95,8 @@ class Trajectory:
         for key, value in self.timings.items():
             arrays[f"timing__{key}"] = value
         arrays["meta_json"] = np.asarray(json.dumps(self.meta))
-        tmp = path.with_name(path.name + ".tmp")
-        with tmp.open("wb") as handle:
+        with atomic_file(path) as handle:
             np.savez_compressed(handle, **arrays)
-        tmp.replace(path)
         return path
 
     @classmethod
