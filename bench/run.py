@@ -1,37 +1,15 @@
 """Run the benchmark suite: ``python bench/run.py --out DIR [--quick]``.
 
-The same as ``hydroarm bench --out DIR [--quick]``: writes ``DIR/bench.json`` and
-``DIR/bench.md`` (see ``hydroarm.benchmark`` and ``bench/README.md``). BLAS is
-limited to one thread before NumPy is imported (environment variables) and
-again with threadpoolctl inside the suite.
+The same as ``hydroarm bench --out DIR [--quick]`` and ``python -m hydroarm_bench``
+(with ``bench/`` on ``PYTHONPATH``): the suite is the ``hydroarm_bench`` package next to
+this file (see ``bench/README.md``). Running this file puts ``bench/`` on ``sys.path``.
 """
 
 from __future__ import annotations
 
-import os
+import sys
 
-for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "BLIS_NUM_THREADS"):
-    os.environ.setdefault(_name, "1")
-
-import argparse  # noqa: E402
-import json  # noqa: E402
-import sys  # noqa: E402
-from pathlib import Path  # noqa: E402
-
-from hydroarm.benchmark import run_benchmarks, validate_report  # noqa: E402
-
-
-def main() -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--out", type=Path, required=True, help="directory for bench.json and bench.md")
-    parser.add_argument("--quick", action="store_true", help="fewer samples and peer problems (CI)")
-    args = parser.parse_args()
-    report = run_benchmarks(args.out, quick=args.quick)
-    problems = validate_report(report)
-    status = {key: row["met"] for key, row in report["target_status"].items()}
-    print(json.dumps({"out": str(args.out), "targets_met": status, "problems": problems}, indent=2))
-    return 1 if problems else 0
-
+from hydroarm_bench.__main__ import main
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -1,5 +1,6 @@
-"""The benchmark suite (quick mode: shape and sanity, no timing thresholds) and the
-compiled kernels behind its numbers, each against the readable reference it replaces."""
+"""The benchmark suite bench/hydroarm_bench (quick mode: shape and sanity, no timing
+thresholds; importable through pytest's ``pythonpath = ["bench"]``) and the compiled
+kernels behind its numbers, each against the plain-NumPy twin it replaces."""
 
 from __future__ import annotations
 
@@ -10,13 +11,17 @@ import numpy as np
 import pytest
 
 import hydroarm
-from hydroarm.model.nominal import NominalModel
-from hydroarm.control import gp as gp_module
 from hydroarm.control import mpc as mpc_module
-from hydroarm.benchmark import _missing, growth_exponent, run_benchmarks, stats_ms, validate_report
+from hydroarm.control.gp import _batched as gp_module
+from hydroarm.model.nominal import NominalModel
 from hydroarm.model.plant import PlantConfig, UnderwaterPlant
 from hydroarm.model.task import paper_reference
 from hydroarm.model.water import CurrentConfig, Water
+from hydroarm_bench import growth_exponent, run_benchmarks, stats_ms, validate_report
+from hydroarm_bench import mpc_peers as mpc_peers_module
+from hydroarm_bench.control_steps import mpc_snapshot_hook
+from hydroarm_bench.loop import closed_loop
+from hydroarm_bench.stats import missing
 
 HEADLINE = ("speedup_vs_do_mpc", "speedup_vs_cvxpy", "gp_speedup_vs_sklearn")
 
@@ -31,6 +36,7 @@ def quick_report(tmp_path_factory):
     return out, report
 
 
+@pytest.mark.slow
 def test_quick_benchmark_writes_json_and_markdown(quick_report):
     out, report = quick_report
     on_disk = json.loads((out / "bench.json").read_text())
@@ -40,6 +46,7 @@ def test_quick_benchmark_writes_json_and_markdown(quick_report):
         assert heading in markdown
 
 
+@pytest.mark.slow
 def test_quick_benchmark_json_is_valid(quick_report):
     _, report = quick_report
     assert validate_report(report) == []
@@ -52,6 +59,7 @@ def test_quick_benchmark_json_is_valid(quick_report):
         assert report[key] is None and report[f"{key}_reason"] or report[key] > 0
 
 
+@pytest.mark.slow
 def test_gp_mpc_total_is_at_least_each_part(quick_report):
     _, report = quick_report
     parts = report["breakdown"]["GP-MPC"]
@@ -62,6 +70,7 @@ def test_gp_mpc_total_is_at_least_each_part(quick_report):
             assert 0 < row[stat] <= parts["total"][stat], (key, stat)
 
 
+@pytest.mark.slow
 def test_peers_that_ran_give_the_same_answers(quick_report):
     _, report = quick_report
     for label, peer in report["peers"]["mpc"]["peers"].items():
@@ -76,6 +85,7 @@ def test_peers_that_ran_give_the_same_answers(quick_report):
     assert plant["plant_step_max_abs_diff_vs_reference"] == 0.0
 
 
+@pytest.mark.slow
 def test_scaling_rows_and_exponents(quick_report):
     _, report = quick_report
     scaling = report["scaling"]
@@ -86,6 +96,7 @@ def test_scaling_rows_and_exponents(quick_report):
         assert math.isfinite(section["growth_exponent"])
 
 
+@pytest.mark.slow
 def test_validation_catches_bad_documents(quick_report):
     _, report = quick_report
     broken = json.loads(json.dumps(report))
@@ -100,15 +111,15 @@ def test_validation_catches_bad_documents(quick_report):
 
 
 def test_helpers():
-    assert _missing("surely_not_an_installed_module_xyz").startswith("not installed")
-    assert _missing("numpy") is None
+    assert missing("surely_not_an_installed_module_xyz").startswith("not installed")
+    assert missing("numpy") is None
     assert growth_exponent([10, 20, 40], [1.0, 4.0, 16.0]) == pytest.approx(2.0)
     row = stats_ms([0.001] * 10)
     assert row["median"] == pytest.approx(1.0) and row["n"] == 10
 
 
 # --------------------------------------------------------------------------------------
-# Compiled kernels equal their references
+# Compiled kernels equal their plain-NumPy twins (*_numpy)
 # --------------------------------------------------------------------------------------
 def _window(rng, n=10, d=12, o=6):
     X = rng.normal(size=(n, d))
@@ -122,11 +133,11 @@ def _window(rng, n=10, d=12, o=6):
 
 @pytest.mark.parametrize("seed", range(5))
 @pytest.mark.parametrize("with_gradient", [True, False])
-def test_gp_evaluate_kernel_equals_reference(seed, with_gradient):
+def test_gp_evaluate_kernel_equals_numpy_twin(seed, with_gradient):
     window, Y, log_theta = _window(np.random.default_rng(seed))
     sn2 = np.exp(log_theta[:, 1])
     fast = gp_module._evaluate(window, Y, log_theta, sn2, 1e-10, 4, with_gradient)
-    reference = gp_module._evaluate_reference(window, Y, log_theta, sn2, 1e-10, 4, with_gradient)
+    reference = gp_module._evaluate_numpy(window, Y, log_theta, sn2, 1e-10, 4, with_gradient)
     for field in ("lml", "grad", "half_trace_w", "alpha", "linv"):
         a, b = getattr(fast, field), getattr(reference, field)
         if b is None:
@@ -135,31 +146,33 @@ def test_gp_evaluate_kernel_equals_reference(seed, with_gradient):
         np.testing.assert_allclose(a, b, rtol=1e-9, atol=1e-9 * np.abs(b).max(), err_msg=field)
     np.testing.assert_array_equal(fast.ok, reference.ok)
     np.testing.assert_array_equal(fast.extra_diag, reference.extra_diag)
-    cached = gp_module._evaluate(window, Y, log_theta, sn2, 1e-10, 4, True, cached=(reference.linv, reference.extra_diag))
+    cached = gp_module._evaluate(
+        window, Y, log_theta, sn2, 1e-10, 4, True, cached=(reference.linv, reference.extra_diag)
+    )
     np.testing.assert_allclose(cached.lml, reference.lml, rtol=1e-12)
 
 
-def test_gp_evaluate_falls_back_to_the_reference_when_a_cholesky_fails():
+def test_gp_evaluate_falls_back_to_the_numpy_twin_when_a_cholesky_fails():
     X = np.zeros((4, 2))  # identical inputs: K = sf2 * ones, singular without noise
     Y = np.ones((2, 4))
     window = gp_module._Window(X, Y, np.zeros(2), np.ones(2))
     log_theta = np.zeros((2, 4))
     sn2 = np.zeros(2)
     fast = gp_module._evaluate(window, Y, log_theta, sn2, 0.0, 4, True)
-    reference = gp_module._evaluate_reference(window, Y, log_theta, sn2, 0.0, 4, True)
+    reference = gp_module._evaluate_numpy(window, Y, log_theta, sn2, 0.0, 4, True)
     np.testing.assert_array_equal(fast.extra_diag, reference.extra_diag)
     assert (fast.extra_diag > 0).all()
     np.testing.assert_array_equal(fast.lml, reference.lml)
 
 
 @pytest.mark.parametrize("seed", range(3))
-def test_gp_predict_kernel_equals_reference(seed):
+def test_gp_predict_kernel_equals_numpy_twin(seed):
     rng = np.random.default_rng(seed)
     window, Y, log_theta = _window(rng)
-    evaluation = gp_module._evaluate_reference(window, Y, log_theta, np.exp(log_theta[:, 1]), 1e-10, 4, False)
+    evaluation = gp_module._evaluate_numpy(window, Y, log_theta, np.exp(log_theta[:, 1]), 1e-10, 4, False)
     X_star = rng.normal(size=(3, window.X.shape[1]))
     fast = gp_module._predict_with_factor(window, X_star, log_theta, evaluation.linv, evaluation.alpha)
-    reference = gp_module._predict_with_factor_reference(window, X_star, log_theta, evaluation.linv, evaluation.alpha)
+    reference = gp_module._predict_with_factor_numpy(window, X_star, log_theta, evaluation.linv, evaluation.alpha)
     for a, b in zip(fast, reference):
         np.testing.assert_allclose(a, b, rtol=1e-9, atol=1e-9 * np.abs(b).max())
 
@@ -184,7 +197,7 @@ def _linearised_window(arm, start: float, horizon: int = 10, period: float = 0.0
 
 
 @pytest.mark.parametrize("start", [0.0, 1.3, 4.7])
-def test_condense_kernel_equals_reference(arm, start):
+def test_condense_kernel_equals_numpy_twin(arm, start):
     A, B, c = _linearised_window(arm, start)
     rng = np.random.default_rng(int(start * 10))
     q_diag = np.concatenate([np.full(6, 300.0), np.full(6, 0.01)])
@@ -193,9 +206,9 @@ def test_condense_kernel_equals_reference(arm, start):
     P = root @ root.T + 100.0 * np.eye(12)
     e0 = rng.normal(size=12) * 0.1
     fast = mpc_module.condense(A, B, c, q_diag, r_diag, P, e0)
-    reference = mpc_module.condense_reference(A, B, c, q_diag, r_diag, P, e0)
+    twin = mpc_module.condense_numpy(A, B, c, q_diag, r_diag, P, e0)
     for field in ("H", "g", "prediction", "free"):
-        a, b = getattr(fast, field), getattr(reference, field)
+        a, b = getattr(fast, field), getattr(twin, field)
         np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-12 * np.abs(b).max(), err_msg=field)
     np.testing.assert_array_equal(fast.H, fast.H.T)
 
@@ -221,13 +234,17 @@ def test_linearisation_fill_is_bit_identical(arm):
     [
         Water(),
         Water(current=CurrentConfig(model="none")),
-        Water(current=CurrentConfig(model="uniform", mean=[0.2, -0.1, 0.0], amplitude=[0.1, 0.0, 0.05], frequency_hz=1.0, phase=0.3)),
+        Water(
+            current=CurrentConfig(
+                model="uniform", mean=[0.2, -0.1, 0.0], amplitude=[0.1, 0.0, 0.05], frequency_hz=1.0, phase=0.3
+            )
+        ),
         Water().off(),
     ],
     ids=["paper", "still", "uniform", "off"],
 )
 @pytest.mark.parametrize("friction", [0.0, 0.05])
-def test_compiled_plant_step_is_bit_identical_to_the_reference(arm, water, friction):
+def test_compiled_plant_step_is_bit_identical_to_the_numpy_twin(arm, water, friction):
     plant = UnderwaterPlant(arm, water, PlantConfig(friction=friction))
     x0 = np.concatenate([[0.3, -0.8, 1.2, 0.4, -0.6, 0.2], [1.0, -0.5, 0.8, 2.0, -1.5, 3.0]])
     u = np.array([20.0, -40.0, 10.0, 2.0, -1.0, 0.5])
@@ -242,17 +259,26 @@ def test_compiled_plant_step_is_bit_identical_to_the_reference(arm, water, frict
 
 def test_a_missing_peer_is_skipped_with_a_reason(monkeypatch):
     """CI installs no do-mpc or GPyTorch: their rows must say why instead of failing."""
-    from hydroarm import benchmark
-
     snapshots = []
-    traj, _, _, controller = benchmark._closed_loop("MPC", 0.05, 0, benchmark._mpc_snapshot_hook(snapshots))
+    traj, _, _, controller = closed_loop("MPC", 0.05, 0, mpc_snapshot_hook(snapshots))
     recorded = {"MPC": {"traj": traj, "controller": controller, "snapshots": snapshots}}
-    monkeypatch.setattr(benchmark, "_missing", lambda *modules: f"not installed: {', '.join(modules)}")
-    report = benchmark.bench_mpc_peers(recorded, stats_ms(traj.timings["total"]), quick=True)
+    monkeypatch.setattr(mpc_peers_module, "missing", lambda *modules: f"not installed: {', '.join(modules)}")
+    report = mpc_peers_module.bench_mpc_peers(recorded, stats_ms(traj.timings["total"]), quick=True)
     assert report["problem"]["problems"] == len(snapshots) == 5
     for label, peer in report["peers"].items():
         assert peer == {"available": False, "reason": peer["reason"]} and "not installed" in peer["reason"], label
     assert report["ours_qp_vs_controller_torque_max_abs_diff_nm"] < 1e-9
+
+
+def test_the_suite_builds_its_runs_with_build_experiment():
+    """The benchmark runs what ``hydroarm run`` runs: the paper scenario of build_experiment."""
+    from hydroarm.studies.experiment import ExperimentConfig, run_experiment
+
+    traj, observe_s, _, controller = closed_loop("SMC", 0.05, 0)
+    expected = run_experiment(ExperimentConfig(duration=0.05), "SMC", seed=0)
+    assert controller.name == "SMC" and len(observe_s) == len(traj.t)
+    np.testing.assert_array_equal(traj.x, expected.x)
+    np.testing.assert_array_equal(traj.u, expected.u)
 
 
 @pytest.mark.parametrize("inner_step", [None, 1e-3])
@@ -262,3 +288,47 @@ def test_compiled_nominal_rk4_step_is_bit_identical(arm, inner_step):
     for _ in range(10):
         y, u = rng.normal(size=12), 50.0 * rng.normal(size=6)
         np.testing.assert_array_equal(nominal.predict(y, u, 0.01), nominal.predict_numpy(y, u, 0.01))
+
+
+# --------------------------------------------------------------------------------------
+# `hydroarm bench`: a thin entry to bench/ in a source checkout
+# --------------------------------------------------------------------------------------
+def _fake_checkout(monkeypatch, tmp_path, suite: str | None):
+    """hydroarm imported from ``tmp_path/src/hydroarm``; ``tmp_path/bench/hydroarm_bench`` holds ``suite``."""
+    monkeypatch.setattr(hydroarm, "__file__", str(tmp_path / "src" / "hydroarm" / "__init__.py"))
+    if suite is not None:
+        package = tmp_path / "bench" / "hydroarm_bench"
+        package.mkdir(parents=True)
+        (package / "__init__.py").write_text("")
+        (package / "__main__.py").write_text(suite)
+
+
+def test_cli_bench_runs_the_suite_of_the_checkout_and_forwards_its_exit_code(monkeypatch, tmp_path):
+    from typer.testing import CliRunner
+
+    from hydroarm.cli import app
+
+    record = tmp_path / "args.json"
+    suite = f"import json, sys\njson.dump(sys.argv[1:], open({str(record)!r}, 'w'))\nsys.exit(3)\n"
+    _fake_checkout(monkeypatch, tmp_path, suite)
+    result = CliRunner().invoke(app, ["bench", "--out", str(tmp_path / "out"), "--quick"])
+    assert result.exit_code == 3, result.output
+    assert json.loads(record.read_text()) == ["--out", str(tmp_path / "out"), "--quick"]
+
+
+def test_cli_bench_without_the_bench_folder_says_where_the_suite_lives(monkeypatch, tmp_path):
+    from typer.testing import CliRunner
+
+    from hydroarm.cli import app
+
+    _fake_checkout(monkeypatch, tmp_path, None)
+    result = CliRunner().invoke(app, ["bench", "--out", str(tmp_path / "out")])
+    assert result.exit_code == 2
+    assert "the benchmark suite lives in the source repository's bench/ folder" in result.output
+    assert not (tmp_path / "out").exists()
+
+
+def test_the_suite_is_not_in_the_package():
+    import importlib.util
+
+    assert importlib.util.find_spec("hydroarm.benchmark") is None

@@ -1,0 +1,84 @@
+"""Section 1 (per-phase control-step statistics) and section 4 (throughput) of bench.json.
+
+Each controller runs the 10 s paper scenario on the true plant (after a short warm-up
+run, so JIT compilation and first allocations are excluded). The controllers time their
+own phases; :class:`~hydroarm_bench.loop.TimedController` adds ``observe``. The MPC's first
+run also records the QPs it solved (for the peers of section 2).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from hydroarm_bench.loop import closed_loop
+from hydroarm_bench.stats import stats_ms
+
+PHASES = {
+    "GP-MPC": ("observe", "gp", "linearise", "riccati", "qp_update", "qp_solve", "compute", "total"),
+    "MPC": ("linearise", "riccati", "qp_update", "qp_solve", "compute", "total"),
+    "SMC": ("compute", "total"),
+}
+DURATION_S = 10.0
+
+
+def bench_control_steps(quick: bool) -> tuple[dict, dict, dict]:
+    """Per-phase step statistics, throughput, and material for the peers (recorded runs)."""
+    runs = 1 if quick else 2
+    breakdown, throughput, recorded = {}, {}, {}
+    for name in ("GP-MPC", "MPC", "SMC"):
+        closed_loop(name, 0.3)  # warm-up: JIT caches, Riccati compile, first allocations
+        phases: dict[str, list[float]] = {key: [] for key in PHASES[name]}
+        walls = []
+        for seed in range(runs):
+            snapshots = []
+            hook = None
+            if name == "MPC" and seed == 0:
+                hook = mpc_snapshot_hook(snapshots)
+            traj, observe_s, wall, controller = closed_loop(name, DURATION_S, seed, hook)
+            walls.append(wall)
+            steps = len(observe_s)  # every step but the last is observed: those count
+            compute = traj.timings["total"][:steps]
+            observe = np.asarray(observe_s)
+            for key in PHASES[name]:
+                if key == "compute":
+                    values = compute
+                elif key == "total":
+                    values = compute + observe
+                elif key == "observe":
+                    values = observe
+                else:
+                    values = traj.timings[key][:steps]
+                phases[key].extend(np.asarray(values, dtype=float).tolist())
+            if seed == 0:
+                recorded[name] = {"traj": traj, "controller": controller, "snapshots": snapshots}
+        breakdown[name] = {key: stats_ms(values) for key, values in phases.items()}
+        throughput[name] = {
+            "simulated_s": DURATION_S,
+            "wall_s": float(np.median(walls)),
+            "wall_s_runs": walls,
+            "simulated_s_per_wall_s": DURATION_S / float(np.median(walls)),
+            "steps": int(round(DURATION_S / controller.control_period)),
+        }
+    return breakdown, throughput, recorded
+
+
+def mpc_snapshot_hook(snapshots: list):
+    """A compute hook that copies what the MPC's QP was built from, every step."""
+
+    def hook(mpc, t, y, out):
+        horizon = mpc.horizon
+        snapshots.append(
+            {
+                "t": float(t),
+                "A": mpc._a[:horizon].copy(),
+                "B": mpc._b[:horizon].copy(),
+                "c": mpc._x_next[:horizon] - mpc._x_ref[1:],
+                "e0": np.asarray(y, dtype=float) - mpc._x_ref[0],
+                "P": mpc._P.copy(),
+                "u_ref": mpc._u_ref[:horizon].copy(),
+                "tau": out.tau.copy(),
+                "status": out.status,
+            }
+        )
+
+    return hook

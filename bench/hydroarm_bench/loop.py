@@ -1,0 +1,62 @@
+"""The paper scenario, built by :func:`hydroarm.studies.experiment.build_experiment`.
+
+Every section of the suite takes its plant, controller and reference from here, so the
+benchmark runs exactly what ``hydroarm run`` runs (the default ``ExperimentConfig``:
+the paper arm, the paper task from its start, the true underwater plant).
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+from hydroarm.studies.experiment import Experiment, ExperimentConfig, build_experiment, with_overrides
+
+
+def paper_config(duration: float = 10.0, overrides: dict[str, Any] | None = None) -> ExperimentConfig:
+    """The default settings (the paper scenario) over ``duration`` s, with dotted-key overrides."""
+    config = ExperimentConfig(duration=float(duration))
+    return with_overrides(config, overrides) if overrides else config
+
+
+def paper_experiment(controller: str, duration: float = 10.0, overrides: dict[str, Any] | None = None) -> Experiment:
+    """``controller`` on the paper scenario (:func:`build_experiment` of :func:`paper_config`)."""
+    return build_experiment(paper_config(duration, overrides), controller)
+
+
+class TimedController:
+    """Wraps a controller so that ``observe`` is timed too (compute times itself);
+    ``on_compute(controller, t, y, out)`` is called after every ``compute``."""
+
+    def __init__(self, controller, on_compute=None) -> None:
+        self.inner = controller
+        self.name = controller.name
+        self.control_period = controller.control_period
+        self.observe_s: list[float] = []
+        self.on_compute = on_compute
+
+    def reset(self) -> None:
+        self.inner.reset()
+        self.observe_s.clear()
+
+    def compute(self, t, y, reference):
+        out = self.inner.compute(t, y, reference)
+        if self.on_compute is not None:
+            self.on_compute(self.inner, t, y, out)
+        return out
+
+    def observe(self, t, y, u, y_next) -> None:
+        start = time.perf_counter_ns()
+        self.inner.observe(t, y, u, y_next)
+        self.observe_s.append((time.perf_counter_ns() - start) * 1e-9)
+
+
+def closed_loop(name: str, duration: float, seed: int = 0, on_compute=None):
+    """(trajectory, observe times (s), wall time (s), controller) of one run on the true plant."""
+    experiment = paper_experiment(name, duration)
+    timed = TimedController(experiment.controller, on_compute)
+    experiment.controller = timed
+    start = time.perf_counter()
+    traj = experiment.run(seed)
+    wall = time.perf_counter() - start
+    return traj, list(timed.observe_s), wall, timed.inner

@@ -1,0 +1,45 @@
+"""The driver: every section in order, then bench.json and bench.md."""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from pathlib import Path
+
+from hydroarm_bench.control_steps import bench_control_steps
+from hydroarm_bench.gp_peers import bench_gp_peers, record_gp_stream
+from hydroarm_bench.markdown import render_markdown
+from hydroarm_bench.mpc_peers import bench_mpc_peers
+from hydroarm_bench.plant import bench_plant
+from hydroarm_bench.profiling import profile_closed_loop
+from hydroarm_bench.report import assemble, json_default
+from hydroarm_bench.scaling import bench_scaling
+from hydroarm_bench.stats import limit_threads
+
+
+def run_benchmarks(out_dir: Path, quick: bool = False) -> dict:
+    """Run the suite; write ``out_dir/bench.json`` and ``out_dir/bench.md``; return the JSON document."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    limiter, blas_threads, how = limit_threads()
+    started = time.perf_counter()
+    load_start = os.getloadavg()
+    try:
+        breakdown, throughput, recorded = bench_control_steps(quick)
+        events = record_gp_stream(4.0 if quick else 13.0)  # 13 s: >= 1000 full windows of 200
+        mpc_peers = bench_mpc_peers(recorded, breakdown["MPC"]["total"], quick)
+        gp_peers = bench_gp_peers(events, quick)
+        plant = bench_plant(recorded, quick)
+        scaling = bench_scaling(events, recorded, quick)
+        profile = profile_closed_loop(1.0 if quick else 3.0)
+    finally:
+        if limiter is not None:
+            limiter.unregister()
+    report = assemble(quick, blas_threads, how, load_start, breakdown, throughput, mpc_peers, gp_peers, plant, scaling)
+    report["profile"] = profile
+    report["suite_wall_s"] = time.perf_counter() - started
+    report = json.loads(json.dumps(report, default=json_default))  # plain JSON types only
+    (out_dir / "bench.json").write_text(json.dumps(report, indent=2) + "\n")
+    (out_dir / "bench.md").write_text(render_markdown(report))
+    return report
