@@ -1,1 +1,54 @@
-"""envs"""
+"""Gymnasium environments of hydroarm (``pip install hydroarm[gym]``).
+
+Importing this package registers ``hydroarm/UnderwaterArm-v0`` with Gymnasium by a
+string entry point (the environment's module is imported only when an environment is
+made). ``import hydroarm`` does not import it, nor Gymnasium. Gymnasium 1.x has no
+plugin discovery (it reads no package entry points), so name the module in the id to
+have Gymnasium import it, or import it yourself::
+
+    import gymnasium
+
+    env = gymnasium.make("hydroarm.envs:hydroarm/UnderwaterArm-v0", arm="alpha5")
+
+    import hydroarm.envs
+
+    gymnasium.register_envs(hydroarm.envs)  # a no-op that shows the import is used
+    env = gymnasium.make("hydroarm/UnderwaterArm-v0", arm="alpha5")
+
+:func:`register` does the registration again if needed (idempotent). The environment
+and :class:`~hydroarm.envs.underwater_arm.ControllerPolicy` are documented in
+:mod:`hydroarm.envs.underwater_arm`.
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import Any
+
+ENV_ID = "hydroarm/UnderwaterArm-v0"
+ENTRY_POINT = "hydroarm.envs.underwater_arm:UnderwaterArmEnv"
+
+__all__ = ["ENV_ID", "ControllerPolicy", "UnderwaterArmEnv", "register"]
+
+
+def register() -> None:
+    """Register ``hydroarm/UnderwaterArm-v0`` with Gymnasium (idempotent; imports Gymnasium,
+    not the environment's module)."""
+    try:
+        import gymnasium
+    except ImportError as error:  # pragma: no cover - depends on the environment
+        raise ImportError("hydroarm.envs needs Gymnasium: pip install 'hydroarm[gym]'") from error
+    if ENV_ID not in gymnasium.registry:
+        gymnasium.register(id=ENV_ID, entry_point=ENTRY_POINT)
+
+
+def __getattr__(name: str) -> Any:
+    """``UnderwaterArmEnv`` and ``ControllerPolicy``, imported on first use (PEP 562)."""
+    if name in ("UnderwaterArmEnv", "ControllerPolicy"):
+        value = getattr(importlib.import_module("hydroarm.envs.underwater_arm"), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module 'hydroarm.envs' has no attribute {name!r}")
+
+
+register()
