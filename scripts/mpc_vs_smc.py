@@ -86,7 +86,9 @@ def plot(summary: dict, path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    rows = [r for r in summary["grid"] if r["settings"]["mpc.q_velocity"] == 0.01 and r["settings"]["mpc.horizon"] == 10]
+    rows = [
+        r for r in summary["grid"] if r["settings"]["mpc.q_velocity"] == 0.01 and r["settings"]["mpc.horizon"] == 10
+    ]
     r_values = [r["settings"]["mpc.r"] for r in rows]
     dry = {d["settings"]["mpc.r"]: d["MPC"] for d in summary["dry_arm"]}
     fig, axes = plt.subplots(2, 4, figsize=(16, 7.5), constrained_layout=True)

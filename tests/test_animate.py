@@ -7,13 +7,13 @@ import pytest
 from PIL import Image
 
 import hydroarm
-from hydroarm.studies.animate import animate, reach, render_frame
 from hydroarm.config import ConfigError
-from hydroarm.model.plant import UnderwaterPlant
-from hydroarm.studies.runner import Trajectory, run_closed_loop
 from hydroarm.control.smc import SlidingModeController
+from hydroarm.model.plant import UnderwaterPlant
 from hydroarm.model.task import paper_reference
 from hydroarm.model.water import Water
+from hydroarm.studies.animate import animate, reach, render_frame
+from hydroarm.studies.runner import Trajectory, run_closed_loop
 
 
 @pytest.fixture(scope="module")
@@ -27,6 +27,7 @@ def run(tmp_path_factory):
     return path
 
 
+@pytest.mark.slow
 def test_gif_of_a_saved_run(run, tmp_path):
     out = animate(run, tmp_path / "arm.gif", fps=10)
     assert out == tmp_path / "arm.gif" and out.stat().st_size < 1_000_000
@@ -42,6 +43,7 @@ def test_gif_of_a_saved_run(run, tmp_path):
     assert np.abs(first - last).mean() > 0.5  # the arm moved
 
 
+@pytest.mark.slow
 def test_window_stride_and_explicit_arm(run, tmp_path):
     traj = Trajectory.load(run)
     out = animate(traj, tmp_path / "part.gif", arm="paper", fps=5, stride=5, start=0.5, duration=0.5)
@@ -49,6 +51,7 @@ def test_window_stride_and_explicit_arm(run, tmp_path):
         assert gif.n_frames == 10  # samples 50, 55, ..., 95
 
 
+@pytest.mark.slow
 def test_frame_png_shows_arm_and_ghost(run, tmp_path):
     """At t = 0.1 s the arm is far from the reference: both the coloured arm and the grey ghost show."""
     png = render_frame(run, tmp_path / "frame.png", time=0.1)
@@ -67,6 +70,7 @@ def test_reach_bounds_the_arm():
     assert all(np.abs(arm.cylinder_endpoints(x)).max() <= extent for x in q)
 
 
+@pytest.mark.slow
 def test_errors(run, tmp_path):
     with pytest.raises(ConfigError, match="unknown movie format"):
         animate(run, tmp_path / "arm.avi")

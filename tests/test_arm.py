@@ -10,18 +10,18 @@ import pinocchio as pin
 import pytest
 
 import hydroarm
-from hydroarm.model.urdf_export import arm_to_urdf
+from hydroarm.config import ConfigError, validate
 from hydroarm.model.arm import ArmSpec
 from hydroarm.model.loading import builtin_arm_path, load_arm_spec
-from hydroarm.config import ConfigError, validate
+from hydroarm.model.urdf_export import arm_to_urdf
 
 RNG = np.random.default_rng(20231641)
 CONFIGS = RNG.uniform(-math.pi, math.pi, size=(25, 6))
 
 
-@pytest.fixture(scope="module")
-def arm():
-    return hydroarm.load_arm("paper")
+@pytest.fixture(scope="session")
+def arm(paper_arm):
+    return paper_arm
 
 
 def _paper_table():
@@ -49,9 +49,7 @@ def test_buoyancy_column_is_the_cylinder_volume():
     for link in table["links"]:
         length = math.hypot(link["a"], link["d"])
         displaced = 1000.0 * math.pi / 4.0 * link["cylinder_diameter"] ** 2 * length
-        assert displaced == pytest.approx(link["buoyancy_kg"], abs=5e-4 * max(1.0, link["buoyancy_kg"])), link[
-            "name"
-        ]
+        assert displaced == pytest.approx(link["buoyancy_kg"], abs=5e-4 * max(1.0, link["buoyancy_kg"])), link["name"]
         # ... and to 0.15 % relative, which is four significant digits for every row.
         assert displaced == pytest.approx(link["buoyancy_kg"], rel=1.5e-3), link["name"]
 
@@ -151,10 +149,16 @@ def test_aba_derivatives_match_finite_differences(arm):
     eps = 1e-6
     eye = np.eye(6)
     fd_q = np.column_stack(
-        [(arm.forward_dynamics(q + eps * e, v, tau) - arm.forward_dynamics(q - eps * e, v, tau)) / (2 * eps) for e in eye]
+        [
+            (arm.forward_dynamics(q + eps * e, v, tau) - arm.forward_dynamics(q - eps * e, v, tau)) / (2 * eps)
+            for e in eye
+        ]
     )
     fd_v = np.column_stack(
-        [(arm.forward_dynamics(q, v + eps * e, tau) - arm.forward_dynamics(q, v - eps * e, tau)) / (2 * eps) for e in eye]
+        [
+            (arm.forward_dynamics(q, v + eps * e, tau) - arm.forward_dynamics(q, v - eps * e, tau)) / (2 * eps)
+            for e in eye
+        ]
     )
     np.testing.assert_allclose(dq, fd_q, rtol=1e-5, atol=1e-4)
     np.testing.assert_allclose(dv, fd_v, rtol=1e-5, atol=1e-4)

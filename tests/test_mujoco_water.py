@@ -97,7 +97,10 @@ def test_mujoco_drag_is_the_derived_ellipsoid_formula(name):
     order, the wind and the (f(v, w) - f(-v, -w)) / 2 split are all as documented."""
     arm = hydroarm.load_arm(name)
     n = arm.n_joints
-    water = Water(cd=0.9, current=CurrentConfig(model="uniform", mean=[0.2, -0.3, 0.15], amplitude=[0.1, 0.0, 0.0], frequency_hz=0.3))
+    water = Water(
+        cd=0.9,
+        current=CurrentConfig(model="uniform", mean=[0.2, -0.3, 0.15], amplitude=[0.1, 0.0, 0.0], frequency_hz=0.3),
+    )
     sim = MujocoWater(arm, water, segments=4)
     for _ in range(4):
         q, v, t = RNG.uniform(-PI, PI, n), RNG.normal(0.0, 2.0, n), float(RNG.uniform(0, 5))
@@ -116,7 +119,9 @@ def test_blunt_coefficient_matches_morison_per_length():
 
 # --- normal flow: within 1 % at 16 segments ---------------------------------------------------
 
-VERTICAL = np.array([0.0, PI / 2, PI, PI / 2, PI, 0.0])  # links 1, 2 (down), 3 (folded back up), 5 along z; 4, 6 along y
+VERTICAL = np.array(
+    [0.0, PI / 2, PI, PI / 2, PI, 0.0]
+)  # links 1, 2 (down), 3 (folded back up), 5 along z; 4, 6 along y
 
 
 def _spin(joint, omega, n=6):
@@ -128,7 +133,11 @@ def _spin(joint, omega, n=6):
 
 NORMAL_FLOW_STATES = [
     # joint 2 spinning with q = (0, 0, 0, +-pi/2, 0, 0): links 2, 3 radial, 4 parallel, 5, 6 radial
-    *[(np.array([0.0, 0.0, 0.0, s * PI / 2, 0.0, 0.0]), _spin(1, w), (0.0, 0.0, 0.0)) for s in (1, -1) for w in (1.5, -2.5)],
+    *[
+        (np.array([0.0, 0.0, 0.0, s * PI / 2, 0.0, 0.0]), _spin(1, w), (0.0, 0.0, 0.0))
+        for s in (1, -1)
+        for w in (1.5, -2.5)
+    ],
     # links along z and y, a horizontal current along x: normal to every link; alone and with single-joint spins
     *[(VERTICAL, _spin(j, 0.8), (c, 0.0, 0.0)) for j in (None, 0, 1, 2, 4) for c in (0.6, -0.4)],
 ]

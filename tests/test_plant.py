@@ -11,9 +11,9 @@ from hydroarm.model.plant import PlantConfig, UnderwaterPlant
 from hydroarm.model.water import CurrentConfig, Water, paper_current_acceleration
 
 
-@pytest.fixture(scope="module")
-def arm():
-    return hydroarm.load_arm("paper")
+@pytest.fixture(scope="session")
+def arm(paper_arm):
+    return paper_arm
 
 
 X0 = np.concatenate([[0.3, -0.8, 1.2, 0.4, -0.6, 0.2], [1.0, -0.5, 0.8, 2.0, -1.5, 3.0]])
@@ -54,7 +54,9 @@ def test_drag_never_increases_energy(arm):
 
 def test_rk4_is_fourth_order(arm):
     """Full water model: halving the step cuts the error about 16x."""
-    water = Water(current=CurrentConfig(model="uniform", mean=[0.2, -0.1, 0.0], amplitude=[0.1, 0, 0], frequency_hz=1.0))
+    water = Water(
+        current=CurrentConfig(model="uniform", mean=[0.2, -0.1, 0.0], amplitude=[0.1, 0, 0], frequency_hz=1.0)
+    )
     u = np.array([20.0, -40.0, 10.0, 2.0, -1.0, 0.5])
 
     def run(step):

@@ -8,14 +8,14 @@ import numpy as np
 import pytest
 
 import hydroarm
+from hydroarm.control.smc import SlidingModeController, SMCConfig
 from hydroarm.model.plant import PlantConfig
 from hydroarm.studies.runner import Trajectory, run_closed_loop, tracking_metrics
-from hydroarm.control.smc import SlidingModeController, SMCConfig
 
 
-@pytest.fixture(scope="module")
-def arm():
-    return hydroarm.load_arm("paper")
+@pytest.fixture(scope="session")
+def arm(paper_arm):
+    return paper_arm
 
 
 def test_smc_respects_limits_and_tracks(arm):

@@ -10,15 +10,15 @@ import pinocchio as pin
 import pytest
 
 import hydroarm
-from hydroarm.model.urdf_export import arm_to_urdf
-from hydroarm.model.loading import BUILTIN_ARMS, builtin_arm_path, load_arm_spec
 from hydroarm.config import ConfigError
-from hydroarm.studies.experiment import ExperimentConfig, build_controller
+from hydroarm.model.loading import BUILTIN_ARMS, builtin_arm_path, load_arm_spec
 from hydroarm.model.plant import UnderwaterPlant
-from hydroarm.studies.runner import run_closed_loop
 from hydroarm.model.task import SinusoidReference
+from hydroarm.model.urdf_export import arm_to_urdf
 from hydroarm.model.urdf_import import arm_from_urdf, hydro_spec_of, load_urdf_arm
 from hydroarm.model.water import CurrentConfig, Water, WaterModel, added_mass_matrix, hydrodynamic_torques
+from hydroarm.studies.experiment import ExperimentConfig, build_controller
+from hydroarm.studies.runner import run_closed_loop
 
 RNG = np.random.default_rng(2023_1641)
 
@@ -38,6 +38,8 @@ def _toml_value(value) -> str:
 def to_toml(data: dict) -> str:
     """A TOML file of inline values (the test extras carry no TOML writer)."""
     return "".join(f"{key} = {_toml_value(value)}\n" for key, value in data.items())
+
+
 CURRENT = CurrentConfig(model="uniform", mean=[0.3, -0.2, 0.1], amplitude=[0.1, 0.0, 0.05], frequency_hz=0.2)
 
 
@@ -174,7 +176,11 @@ def generated_urdf(n_joints: int, seed: int) -> str:
         radius = rng.uniform(0.02, 0.05)
         mass = rng.uniform(0.5, 3.0)
         kind = "continuous" if i == 2 else "revolute"
-        limit = "" if kind == "continuous" else f'<limit lower="{-2.5 + 0.1 * i}" upper="{2.5 - 0.1 * i}" effort="{40 + i}" velocity="2"/>'
+        limit = (
+            ""
+            if kind == "continuous"
+            else f'<limit lower="{-2.5 + 0.1 * i}" upper="{2.5 - 0.1 * i}" effort="{40 + i}" velocity="2"/>'
+        )
         if kind == "continuous":
             limit = '<limit effort="42" velocity="2"/>'
         rpy = " ".join(f"{x:.6f}" for x in rng.uniform(-0.4, 0.4, 3))
@@ -196,7 +202,9 @@ def generated_urdf(n_joints: int, seed: int) -> str:
                 '    <collision><origin xyz="0 0 0.05" rpy="0.3 0 0"/><geometry><cylinder radius="0.015" length="0.1"/></geometry></collision></link>',
             ]
         # the next joint sits at the end of this link
-        parts.append(f'  <link name="l{i}_end"/><joint name="l{i}_end_joint" type="fixed"><parent link="l{i}"/><child link="l{i}_end"/><origin xyz="0 0 {length:.6f}"/></joint>')
+        parts.append(
+            f'  <link name="l{i}_end"/><joint name="l{i}_end_joint" type="fixed"><parent link="l{i}"/><child link="l{i}_end"/><origin xyz="0 0 {length:.6f}"/></joint>'
+        )
         parent = f"l{i}_end"
     parts += [
         f'  <joint name="gripper" type="prismatic"><parent link="{parent}"/><child link="finger"/><axis xyz="0 0 1"/>',
@@ -309,11 +317,20 @@ def test_alpha5_water_closed_forms(alpha5):
 @pytest.mark.parametrize(
     ("hydro", "message"),
     [
-        ({"links": [{"link": "l1", "cylinders": [{"diameter": -0.1, "length": 0.2, "axis": [0, 0, 1]}]}]}, "links.0.cylinders.0.diameter"),
+        (
+            {"links": [{"link": "l1", "cylinders": [{"diameter": -0.1, "length": 0.2, "axis": [0, 0, 1]}]}]},
+            "links.0.cylinders.0.diameter",
+        ),
         ({"links": [{"link": "nope", "collision": True}]}, r"links.0.link = 'nope'"),
-        ({"links": [{"link": "l1", "collision": [1]}]}, r"links.0.collision: <collision> 1 of link 'l1' is not a cylinder"),
+        (
+            {"links": [{"link": "l1", "collision": [1]}]},
+            r"links.0.collision: <collision> 1 of link 'l1' is not a cylinder",
+        ),
         ({"links": [{"link": "l1"}]}, r"links.0"),
-        ({"links": [{"link": "l1", "cylinders": [{"diameter": 0.1, "start": [0, 0, 0], "end": [0, 0, 0]}]}]}, "links.0.cylinders.0"),
+        (
+            {"links": [{"link": "l1", "cylinders": [{"diameter": 0.1, "start": [0, 0, 0], "end": [0, 0, 0]}]}]},
+            "links.0.cylinders.0",
+        ),
         ({"links": [{"link": "l1", "collision": True, "colour": "red"}]}, "unknown key 'links.0.colour'"),
         ({"fixed_joints": {"gripper": 0.0, "nope": 1.0}}, "fixed_joints.nope"),
         ({"fixed_joints": {"gripper": 0.0}, "torque_limit": [1.0, 2.0]}, "torque_limit has 2 values"),

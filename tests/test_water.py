@@ -17,9 +17,9 @@ RNG = np.random.default_rng(1641)
 RHO, CD, CM = 1000.0, 1.0, 2.0
 
 
-@pytest.fixture(scope="module")
-def arm():
-    return hydroarm.load_arm("paper")
+@pytest.fixture(scope="session")
+def arm(paper_arm):
+    return paper_arm
 
 
 def _random_state(rng, speed=3.0):
@@ -140,7 +140,11 @@ def test_paper_appendix_b_joint1(q2, q3):
         return abs(a2 * math.cos(q2) + l * math.cos(q2 + q3))
 
     drag = sum(
-        0.5 * RHO * CD * dia * integrate.quad(lambda l, r=r: r(l) * omega * r(l) * abs(omega * r(l)), 0, length, limit=200)[0]
+        0.5
+        * RHO
+        * CD
+        * dia
+        * integrate.quad(lambda l, r=r: r(l) * omega * r(l) * abs(omega * r(l)), 0, length, limit=200)[0]
         for dia, length, r in ((d2, abs(a2), lambda l: r2(-l)), (d3, abs(a3), lambda l: r3(-l)))
     )
     inertia = sum(
@@ -167,7 +171,9 @@ def per_point_water(arm, water, q, v, a, points=400):
     for cyl in arm.cylinders:
         for s in (np.arange(points) + 0.5) / points:
             local = cyl.start + s * (cyl.end - cyl.start)
-            fid = model.addFrame(pin.Frame(f"{cyl.name}_{s}", cyl.joint_id, pin.SE3(np.eye(3), local), pin.FrameType.OP_FRAME))
+            fid = model.addFrame(
+                pin.Frame(f"{cyl.name}_{s}", cyl.joint_id, pin.SE3(np.eye(3), local), pin.FrameType.OP_FRAME)
+            )
             frames.append((fid, cyl, cyl.length / points))
     data = model.createData()
     pin.forwardKinematics(model, data, q, v, a)
@@ -186,7 +192,11 @@ def per_point_water(arm, water, q, v, a, points=400):
         added += jac.T @ (-water.rho * water.cm * cyl.area * acc) * width
     buoyancy = np.zeros(arm.n_joints)
     for cyl in arm.cylinders:
-        fid = model.addFrame(pin.Frame(f"{cyl.name}_mid", cyl.joint_id, pin.SE3(np.eye(3), 0.5 * (cyl.start + cyl.end)), pin.FrameType.OP_FRAME))
+        fid = model.addFrame(
+            pin.Frame(
+                f"{cyl.name}_mid", cyl.joint_id, pin.SE3(np.eye(3), 0.5 * (cyl.start + cyl.end)), pin.FrameType.OP_FRAME
+            )
+        )
         data = model.createData()
         pin.computeJointJacobians(model, data, q)
         pin.updateFramePlacements(model, data)

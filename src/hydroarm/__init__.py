@@ -3,53 +3,82 @@
 Quick tour::
 
     import hydroarm
-    arm = hydroarm.load_arm("paper")          # Liu et al. 2023's arm; also "ur5" or a file
-    water = hydroarm.Water()                  # rho=1000, cd=1.0, cm=2.0
-    w = hydroarm.hydrodynamic_torques(arm, water, q, v, a)
-    plant = hydroarm.UnderwaterPlant(arm, water)
+    arm = hydroarm.load_arm("paper")               # Liu et al. 2023's arm; also "ur5", "alpha5" or a file
+    plant = hydroarm.UnderwaterPlant(arm, hydroarm.Water())
+    config = hydroarm.ExperimentConfig()           # validated settings (SPEC defaults)
+    traj = hydroarm.run_experiment(config, "gp-mpc", seed=0)
+    hydroarm.tracking_metrics(traj)["Ep"]          # E_p per joint (rad^2)
+
+The package is layered (docs/architecture.md): :mod:`hydroarm.model` (arm, water, plant,
+nominal model) <- :mod:`hydroarm.control` (GP, QP backends, MPC, GP-MPC, SMC, registry)
+<- :mod:`hydroarm.studies` (experiment builder, runner, reproduce, sweep, figures) <-
+:mod:`hydroarm.envs` and :mod:`hydroarm.cli`. The names below are imported on first use,
+so ``import hydroarm`` itself loads no controller, study or Gymnasium.
 """
 
-from hydroarm.model.arm import Arm, ArmSpec, WettedCylinder
-from hydroarm.model.loading import load_arm
-from hydroarm.config import ConfigError
-from hydroarm.model.nominal import NominalModel
-from hydroarm.model.plant import PlantConfig, StepInfo, UnderwaterPlant
-from hydroarm.model.task import SinusoidReference, paper_reference
-from hydroarm.model.water import (
-    CurrentConfig,
-    HydroTorques,
-    Water,
-    WaterModel,
-    added_mass_matrix,
-    hydrodynamic_torques,
-)
+from __future__ import annotations
 
-__all__ = [
-    "Arm",
-    "ArmSpec",
-    "ConfigError",
-    "CurrentConfig",
-    "HydroTorques",
-    "NominalModel",
-    "PlantConfig",
-    "SinusoidReference",
-    "StepInfo",
-    "UnderwaterPlant",
-    "Water",
-    "WaterModel",
-    "WettedCylinder",
-    "added_mass_matrix",
-    "hydrodynamic_torques",
-    "load_arm",
-    "paper_reference",
-]
+import importlib
+from typing import Any
+
 __version__ = "0.1.0"
 
-try:  # Gymnasium is optional (pip install hydroarm[gym])
-    import gymnasium as _gymnasium  # noqa: F401
-except ImportError:  # pragma: no cover - depends on the environment
-    pass
-else:
-    from hydroarm.envs.underwater_arm import register as _register_env
+_EXPORTS: dict[str, str] = {
+    # model
+    "Arm": "hydroarm.model.arm",
+    "ArmSpec": "hydroarm.model.arm",
+    "WettedCylinder": "hydroarm.model.arm",
+    "load_arm": "hydroarm.model.loading",
+    "arm_to_urdf": "hydroarm.model.urdf_export",
+    "CurrentConfig": "hydroarm.model.current",
+    "Water": "hydroarm.model.water",
+    "WaterModel": "hydroarm.model.water",
+    "HydroTorques": "hydroarm.model.water",
+    "hydrodynamic_torques": "hydroarm.model.water",
+    "added_mass_matrix": "hydroarm.model.water",
+    "PlantConfig": "hydroarm.model.plant",
+    "StepInfo": "hydroarm.model.plant",
+    "UnderwaterPlant": "hydroarm.model.plant",
+    "NominalModel": "hydroarm.model.nominal",
+    "SinusoidReference": "hydroarm.model.task",
+    "paper_reference": "hydroarm.model.task",
+    "task_for_arm": "hydroarm.model.task",
+    "ConfigError": "hydroarm.config",
+    # control
+    "ControlOutput": "hydroarm.control.interface",
+    "Controller": "hydroarm.control.interface",
+    "CONTROLLERS": "hydroarm.control.registry",
+    "SMCConfig": "hydroarm.control.smc",
+    "SlidingModeController": "hydroarm.control.smc",
+    "MPCConfig": "hydroarm.control.mpc",
+    "LinearMPC": "hydroarm.control.mpc",
+    "GPMPCConfig": "hydroarm.control.gpmpc",
+    "GPMPC": "hydroarm.control.gpmpc",
+    "GPConfig": "hydroarm.control.gp",
+    "SlidingWindowGP": "hydroarm.control.gp",
+    # studies
+    "ExperimentConfig": "hydroarm.studies.experiment",
+    "Experiment": "hydroarm.studies.experiment",
+    "build_experiment": "hydroarm.studies.experiment",
+    "build_controller": "hydroarm.studies.experiment",
+    "run_experiment": "hydroarm.studies.experiment",
+    "Trajectory": "hydroarm.studies.runner",
+    "run_closed_loop": "hydroarm.studies.runner",
+    "tracking_metrics": "hydroarm.studies.runner",
+}
 
-    _register_env()
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name: str) -> Any:
+    """The public names, imported from their module on first use (PEP 562)."""
+    module = _EXPORTS.get(name)
+    if module is None:
+        raise AttributeError(f"module 'hydroarm' has no attribute {name!r}")
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *_EXPORTS})

@@ -28,7 +28,7 @@ app = typer.Typer(
     no_args_is_help=True,
     help="Simulate and control underwater robot arms (Liu et al. 2023 reproduced and beaten).",
 )
-console = Console(stderr=True)
+console = Console(stderr=True, soft_wrap=True)  # never break an error or summary line mid-phrase
 
 
 def _fail(message: str, code: int = 2) -> None:
@@ -99,10 +99,17 @@ SetOption = Annotated[
 def reproduce(
     out: Annotated[Path, typer.Option("--out", help="Output folder (created).")] = Path("results"),
     quick: Annotated[bool, typer.Option("--quick", help="3 s task, 2 noisy seeds, no ablation (CI).")] = False,
-    seeds: Annotated[int | None, typer.Option("--seeds", min=1, max=100, help="Noisy seeds (default 5; quick 2).")] = None,
-    ablation: Annotated[bool | None, typer.Option("--ablation/--no-ablation", help="Run the ablation (default: on unless --quick).")] = None,
+    seeds: Annotated[
+        int | None, typer.Option("--seeds", min=1, max=100, help="Noisy seeds (default 5; quick 2).")
+    ] = None,
+    ablation: Annotated[
+        bool | None, typer.Option("--ablation/--no-ablation", help="Run the ablation (default: on unless --quick).")
+    ] = None,
     workers: Annotated[int, typer.Option("--workers", min=1, max=64, help="Parallel processes.")] = 2,
-    arm: Annotated[str | None, typer.Option("--arm", help="Another arm (built-in name or file); the task is scaled to its joint limits.")] = None,
+    arm: Annotated[
+        str | None,
+        typer.Option("--arm", help="Another arm (built-in name or file); the task is scaled to its joint limits."),
+    ] = None,
     config_file: ConfigOption = None,
     overrides: SetOption = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print metrics.json's tables to stdout.")] = False,
@@ -111,6 +118,7 @@ def reproduce(
 
     Examples: hydroarm reproduce --out results;  hydroarm reproduce --arm alpha5 --out alpha5
     """
+    from hydroarm.control.registry import PAPER_CONTROLLERS
     from hydroarm.model.loading import load_arm
     from hydroarm.studies.experiment import check_settings_for_arm, with_overrides
     from hydroarm.studies.reproduce import reproduce as run
@@ -127,20 +135,29 @@ def reproduce(
         TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(), console=console,
         transient=False,
     ) as progress:  # fmt: skip
-        tasks: dict[str, int] = {}
+        runs = progress.add_task("runs", total=None)
+        bars: dict[str, int] = {}
 
-        def hook(key: str, k: int, total: int) -> None:
-            if key not in tasks:
-                tasks[key] = progress.add_task(key, total=total)
-            task = tasks[key]
-            if k == 1 and total == 1:
-                progress.update(task, completed=progress.tasks[task].total)
-            else:
-                progress.update(task, completed=k, total=total)
+        def on_run(done: int, total: int, label: str) -> None:
+            progress.update(runs, completed=done, total=total)
+
+        def on_step(k: int, total: int, label: str) -> None:
+            if label not in bars:
+                bars[label] = progress.add_task(label, total=total)
+            progress.update(bars[label], completed=k, total=total)
 
         try:
             with _sigterm_as_interrupt():
-                metrics = run(out, quick=quick, noisy_seeds=seeds, ablation=ablation, workers=workers, config=config, on_progress=hook)
+                metrics = run(
+                    out,
+                    quick=quick,
+                    noisy_seeds=seeds,
+                    ablation=ablation,
+                    workers=workers,
+                    config=config,
+                    on_progress=on_run,
+                    on_step=on_step,
+                )
         except KeyboardInterrupt as error:
             _interrupted(error, out)
         except ConfigError as error:
@@ -152,13 +169,11 @@ def reproduce(
     table.add_column("controller")
     table.add_column("clean")
     table.add_column("noisy")
-    for name in ("SMC", "MPC", "GP-MPC"):
+    for name in PAPER_CONTROLLERS:
         table.add_row(name, f"{metrics['clean'][name]['Ep_mean']:.4g}", f"{metrics['noisy'][name]['Ep_mean']:.4g}")
     for case in ("clean", "noisy"):
         gain = metrics[case]["gain_gp_mpc_over_mpc_percent"]
-        table.add_row(
-            f"gain {case} (%)", f"{gain['mean_of_joints']:.1f} (paper {gain['paper_mean_of_joints']})", ""
-        )
+        table.add_row(f"gain {case} (%)", f"{gain['mean_of_joints']:.1f} (paper {gain['paper_mean_of_joints']})", "")
     Console().print(table)
     console.print(f"report: {out / 'report.md'}  ({metrics['wall_time_s']['total']:.1f} s)")
 
@@ -171,7 +186,9 @@ def run(
     ] = None,
     noise: Annotated[
         float | None,
-        typer.Option("--noise", min=0.0, max=10.0, help="Measurement noise variance (default: plant.noise_variance, 0)."),
+        typer.Option(
+            "--noise", min=0.0, max=10.0, help="Measurement noise variance (default: plant.noise_variance, 0)."
+        ),
     ] = None,
     seed: Annotated[int, typer.Option("--seed", min=0, help="Noise seed.")] = 0,
     out: Annotated[Path, typer.Option("--out", help="Output folder.")] = Path("run"),
@@ -183,8 +200,8 @@ def run(
 
     Example: hydroarm run --controller gp-mpc --arm paper --noise 0.001 --seed 3 --out DIR
     """
-    from hydroarm.studies import figures
     from hydroarm.model.loading import load_arm
+    from hydroarm.studies import figures
     from hydroarm.studies.experiment import canonical_name, check_settings_for_arm, run_experiment, with_overrides
     from hydroarm.studies.runner import tracking_metrics
 
@@ -202,7 +219,9 @@ def run(
     except ConfigError as error:
         _fail(str(error))
     out.mkdir(parents=True, exist_ok=True)
-    with Progress(TextColumn(name), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(), console=console) as progress:
+    with Progress(
+        TextColumn(name), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(), console=console
+    ) as progress:
         task = progress.add_task(name, total=int(round(config.duration / config.control_period)))
         traj = run_experiment(config, name, seed, progress=lambda k, total: progress.update(task, completed=k))
     traj.save(out / "trajectory.npz")
@@ -228,14 +247,16 @@ def animate(
     arm: Annotated[str | None, typer.Option("--arm", help="Arm of the run (default: from the file).")] = None,
     fps: Annotated[int, typer.Option("--fps", min=1, max=100)] = 10,
     start: Annotated[float, typer.Option("--start", min=0.0, help="First second to show.")] = 0.0,
-    duration: Annotated[float | None, typer.Option("--duration", min=0.0, help="Seconds to show (default: all).")] = None,
+    duration: Annotated[
+        float | None, typer.Option("--duration", min=0.0, help="Seconds to show (default: all).")
+    ] = None,
 ) -> None:
     """Render the arm following a saved trajectory, the reference ghosted, the error in a corner.
 
     Example: hydroarm animate results/runs/clean__GP-MPC__seed0.npz --out arm.gif
     """
-    from hydroarm.studies.animate import animate as render
     from hydroarm.model.loading import load_arm
+    from hydroarm.studies.animate import animate as render
     from hydroarm.studies.runner import Trajectory
 
     if not run_file.is_file():
@@ -261,7 +282,14 @@ def arms(as_json: Annotated[bool, typer.Option("--json")] = False) -> None:
     for name in BUILTIN_ARMS:
         arm = load_arm(name)
         description = getattr(arm.spec, "description", "") if arm.spec is not None else "URDF arm"
-        rows.append({"name": name, "joints": arm.n_joints, "description": description, "torque_limit": arm.torque_limit.tolist()})
+        rows.append(
+            {
+                "name": name,
+                "joints": arm.n_joints,
+                "description": description,
+                "torque_limit": arm.torque_limit.tolist(),
+            }
+        )
     if as_json:
         print(json.dumps(rows))
         return
@@ -269,7 +297,9 @@ def arms(as_json: Annotated[bool, typer.Option("--json")] = False) -> None:
     for column in ("name", "joints", "description", "torque limit (N m)"):
         table.add_column(column)
     for row in rows:
-        table.add_row(row["name"], str(row["joints"]), row["description"], ", ".join(f"{x:g}" for x in row["torque_limit"]))
+        table.add_row(
+            row["name"], str(row["joints"]), row["description"], ", ".join(f"{x:g}" for x in row["torque_limit"])
+        )
     Console().print(table)
 
 
@@ -300,14 +330,29 @@ def export_urdf(
 @app.command()
 def sweep(
     sweep_file: Annotated[Path, typer.Argument(help="Sweep file (TOML/YAML), e.g. examples/sweep.toml.")],
-    out: Annotated[Path, typer.Option("--out", help="Output folder (created; the same command resumes).")] = Path("sweep"),
-    workers: Annotated[int, typer.Option("--workers", min=1, max=256, help="Parallel processes (or the CPUs of a local Ray instance).")] = 2,
-    ray: Annotated[bool, typer.Option("--ray", help="Run on Ray: a local Ray instance with --workers CPUs (pip install 'hydroarm[ray]').")] = False,
+    out: Annotated[Path, typer.Option("--out", help="Output folder (created; the same command resumes).")] = Path(
+        "sweep"
+    ),
+    workers: Annotated[
+        int, typer.Option("--workers", min=1, max=256, help="Parallel processes (or the CPUs of a local Ray instance).")
+    ] = 2,
+    ray: Annotated[
+        bool,
+        typer.Option(
+            "--ray", help="Run on Ray: a local Ray instance with --workers CPUs (pip install 'hydroarm[ray]')."
+        ),
+    ] = False,
     ray_address: Annotated[
         str | None,
-        typer.Option("--ray-address", metavar="ADDRESS", help="Run on this Ray cluster instead (implies --ray): auto, HOST:6379 or ray://HOST:10001."),
+        typer.Option(
+            "--ray-address",
+            metavar="ADDRESS",
+            help="Run on this Ray cluster instead (implies --ray): auto, HOST:6379 or ray://HOST:10001.",
+        ),
     ] = None,
-    trajectories: Annotated[bool, typer.Option("--trajectories", help="Also keep every trajectory (runs/<id>.npz).")] = False,
+    trajectories: Annotated[
+        bool, typer.Option("--trajectories", help="Also keep every trajectory (runs/<id>.npz).")
+    ] = False,
     as_json: Annotated[bool, typer.Option("--json", help="Print the summary as JSON.")] = False,
 ) -> None:
     """Run a grid or random sweep over controllers, seeds, arms, water, noise, mismatch and settings.
@@ -334,12 +379,14 @@ def sweep(
                 source = f"{sweep_file}: the runs with {where}" if where else f"{sweep_file}: base"
                 check_settings_for_arm(row.config, plan.arms[arm_key], source)
         if ray or ray_address:
-            from hydroarm.studies.sweep import import_ray
+            from hydroarm.studies.executor import import_ray
 
             import_ray()
     except ConfigError as error:
         _fail(str(error))
-    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(), console=console) as progress:
+    with Progress(
+        TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(), console=console
+    ) as progress:
         task = progress.add_task("sweep", total=None)
 
         def hook(done: int, total: int, label: str) -> None:
@@ -347,8 +394,14 @@ def sweep(
 
         try:
             with _sigterm_as_interrupt():
-                summary = run_sweep(sweep_file, out, workers=workers, ray_address=ray_address or ('local' if ray else None), on_progress=hook,
-                                    save_trajectories=True if trajectories else None)
+                summary = run_sweep(
+                    sweep_file,
+                    out,
+                    workers=workers,
+                    ray_address=ray_address or ("local" if ray else None),
+                    on_progress=hook,
+                    save_trajectories=True if trajectories else None,
+                )
         except ConfigError as error:
             _fail(str(error))
         except KeyboardInterrupt as error:
@@ -361,28 +414,57 @@ def sweep(
             table.add_column(column)
         for name, entry in summary["controllers"].items():
             cell = lambda x: "-" if x is None else f"{x:.4g}"  # noqa: E731
-            table.add_row(name, f"{entry['finished']}/{entry['rows']}", cell(entry["median"]), cell(entry["p90"]), str(entry["diverged"]))
+            table.add_row(
+                name,
+                f"{entry['finished']}/{entry['rows']}",
+                cell(entry["median"]),
+                cell(entry["p90"]),
+                str(entry["diverged"]),
+            )
         Console().print(table)
-        console.print(f"{summary['ran']} runs done, {summary['reused']} reused, {len(summary['failed'])} failed ({summary['wall_s']:.1f} s)")
+        console.print(
+            f"{summary['ran']} runs done, {summary['reused']} reused, {len(summary['failed'])} failed "
+            f"({summary['wall_s']:.1f} s)"
+        )
     if summary["failed"]:
         raise typer.Exit(1)
 
 
 @app.command()
 def bench(
-    out: Annotated[Path, typer.Option("--out", help="Output folder for bench.json and bench.md.")] = Path("bench-results"),
+    out: Annotated[Path, typer.Option("--out", help="Output folder for bench.json and bench.md.")] = Path(
+        "bench-results"
+    ),
     quick: Annotated[bool, typer.Option("--quick", help="A few hundred samples (CI).")] = False,
 ) -> None:
     """Benchmark the control steps, the plant, peers (do-mpc, cvxpy, scikit-learn, GPyTorch) and scaling.
 
+    The suite is development tooling in the source repository's bench/ folder (not in the
+    wheel): this command runs it there (python -m hydroarm_bench) and exits with its code.
+
     Example: hydroarm bench --out bench-results
     """
-    from hydroarm.benchmark import run_benchmarks, validate_report
+    import os
+    import subprocess
 
-    report = run_benchmarks(out, quick=quick)
-    problems = validate_report(report)
-    if problems:
-        _fail("benchmark report is malformed: " + "; ".join(problems), code=1)
+    import hydroarm
+
+    folder = Path(hydroarm.__file__).resolve().parents[2] / "bench"
+    if not (folder / "hydroarm_bench" / "__main__.py").is_file():
+        _fail(
+            "the benchmark suite lives in the source repository's bench/ folder; clone the repository to run it",
+            code=2,
+        )
+    _check_out(out)
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join(p for p in (str(folder), env.get("PYTHONPATH", "")) if p)
+    command = [sys.executable, "-m", "hydroarm_bench", "--out", str(out)] + (["--quick"] if quick else [])
+    try:
+        code = subprocess.call(command, env=env)
+    except KeyboardInterrupt:
+        raise typer.Exit(130) from None
+    if code != 0:
+        _fail(f"the benchmark suite exited with code {code}", code=code if code > 0 else 128 - code)  # -N: signal N
     console.print(f"wrote {out / 'bench.json'} and {out / 'bench.md'}")
 
 

@@ -105,9 +105,7 @@ class LinkSpec(FrozenModel):
                 raise field_error("inertia", self.inertia, "must be symmetric")
             eig = np.linalg.eigvalsh(tensor)
             if eig[0] <= 0.0:
-                raise field_error(
-                    "inertia", self.inertia, f"must be positive definite (eigenvalues {eig.tolist()})"
-                )
+                raise field_error("inertia", self.inertia, f"must be positive definite (eigenvalues {eig.tolist()})")
             if eig[2] > eig[0] + eig[1] + 1e-12:
                 raise field_error(
                     "inertia",
@@ -164,12 +162,15 @@ class ArmSpec(FrozenModel):
             raise field_error(
                 "torque_limit",
                 self.torque_limit,
-                f"{len(self.torque_limit)} values for {len(self.links)} links: give one value or a list of {len(self.links)}",
+                f"{len(self.torque_limit)} values for {len(self.links)} links: "
+                f"give one value or a list of {len(self.links)}",
             )
         names = [link.name for link in self.links]
         for index, name in enumerate(names):
             if name in names[:index]:
-                raise field_error(f"links.{index}.name", name, f"link names must differ (links.{names.index(name)} too)")
+                raise field_error(
+                    f"links.{index}.name", name, f"link names must differ (links.{names.index(name)} too)"
+                )
         return self
 
 
@@ -230,9 +231,7 @@ class Arm:
     def __post_init__(self) -> None:
         if self.model.nq != self.model.nv:
             raise ConfigError("only revolute/prismatic 1-DOF joints are supported (nq == nv)")
-        self.torque_limit = np.broadcast_to(
-            np.asarray(self.torque_limit, dtype=float), (self.model.nv,)
-        ).copy()
+        self.torque_limit = np.broadcast_to(np.asarray(self.torque_limit, dtype=float), (self.model.nv,)).copy()
         if self.position_limit is not None:
             limits = np.asarray(self.position_limit, dtype=float)
             if limits.shape != (self.model.nv, 2) or np.any(limits[:, 0] > limits[:, 1]):
@@ -281,22 +280,24 @@ class Arm:
     def gravity(self, q: np.ndarray, *, data: pin.Data | None = None) -> np.ndarray:
         """G(q) (N m), shape (n,): the torque that holds the dry arm still."""
         data = self._data(data)
-        return pin.computeGeneralizedGravity(
-            self.model, data, _vec(q, self.n_joints, "q")
-        ).copy()
+        return pin.computeGeneralizedGravity(self.model, data, _vec(q, self.n_joints, "q")).copy()
 
     def nonlinear_effects(self, q: np.ndarray, v: np.ndarray, *, data: pin.Data | None = None) -> np.ndarray:
         """C(q, v) v + G(q) (N m), shape (n,)."""
         data = self._data(data)
         return pin.nonLinearEffects(self.model, data, q, v).copy()
 
-    def inverse_dynamics(self, q: np.ndarray, v: np.ndarray, a: np.ndarray, *, data: pin.Data | None = None) -> np.ndarray:
+    def inverse_dynamics(
+        self, q: np.ndarray, v: np.ndarray, a: np.ndarray, *, data: pin.Data | None = None
+    ) -> np.ndarray:
         """tau = M a + C v + G (RNEA), shape (n,)."""
         data = self._data(data)
         n = self.n_joints
         return pin.rnea(self.model, data, _vec(q, n, "q"), _vec(v, n, "v"), _vec(a, n, "a")).copy()
 
-    def forward_dynamics(self, q: np.ndarray, v: np.ndarray, tau: np.ndarray, *, data: pin.Data | None = None) -> np.ndarray:
+    def forward_dynamics(
+        self, q: np.ndarray, v: np.ndarray, tau: np.ndarray, *, data: pin.Data | None = None
+    ) -> np.ndarray:
         """q'' = M^-1 (tau - C v - G) (ABA), shape (n,)."""
         data = self._data(data)
         n = self.n_joints
@@ -352,7 +353,6 @@ class Arm:
         return out
 
 
-
 def _vec(x: np.ndarray, n: int, name: str) -> np.ndarray:
     arr = np.asarray(x, dtype=float)
     if arr.shape != (n,):
@@ -375,11 +375,7 @@ def build_arm(spec: ArmSpec) -> Arm:
         model.addFrame(pin.Frame(link.name, joint_id, pin.SE3.Identity(), pin.FrameType.BODY))
         length = link.cylinder_length
         area = math.pi * link.cylinder_diameter**2 / 4.0
-        volume = (
-            link.buoyancy_kg / REFERENCE_WATER_DENSITY
-            if link.buoyancy_kg is not None
-            else area * length
-        )
+        volume = link.buoyancy_kg / REFERENCE_WATER_DENSITY if link.buoyancy_kg is not None else area * length
         cylinders.append(
             WettedCylinder(
                 name=link.name,
@@ -392,9 +388,7 @@ def build_arm(spec: ArmSpec) -> Arm:
         )
         placement = link.dh_transform()  # joint i+1 sits at DH frame i
         parent = joint_id
-    model.addFrame(
-        pin.Frame("flange", parent, placement, pin.FrameType.OP_FRAME)
-    )
+    model.addFrame(pin.Frame("flange", parent, placement, pin.FrameType.OP_FRAME))
     limit = spec.torque_limit
     return Arm(name=spec.name, model=model, cylinders=tuple(cylinders), torque_limit=np.asarray(limit), spec=spec)
 

@@ -58,7 +58,6 @@ class CurrentConfig(FrozenModel):
     phase: float = 0.0
 
 
-
 class CurrentField:
     """The current of one :class:`CurrentConfig` on an n-joint arm, as the compiled code takes it.
 

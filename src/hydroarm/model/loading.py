@@ -9,7 +9,6 @@ from hydroarm.config import ConfigError, load_model
 from hydroarm.model.arm import Arm, ArmSpec, build_arm
 from hydroarm.model.urdf_import import load_urdf_arm
 
-
 BUILTIN_ARMS = ("paper", "ur5", "alpha5")
 BUILTIN_URDF_ARMS = ("alpha5",)
 """Built-in arms given as a URDF plus a hydrodynamics file (``arms/<name>.hydro.toml``)."""
@@ -35,9 +34,7 @@ def is_urdf_source(source: str | Path) -> bool:
 def load_arm_spec(source: str | Path) -> ArmSpec:
     """Read and validate a DH arm file, or a built-in DH arm by name."""
     if is_urdf_source(source):
-        raise ConfigError(
-            f"arm {str(source)!r} is a URDF arm: it has no DH arm file; load it with load_arm()"
-        )
+        raise ConfigError(f"arm {str(source)!r} is a URDF arm: it has no DH arm file; load it with load_arm()")
     if isinstance(source, str) and source in BUILTIN_ARMS:
         return load_model(ArmSpec, builtin_arm_path(source))
     path = Path(source)

@@ -59,8 +59,7 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
-from hydroarm.model.arm import Arm
-from hydroarm.model.arm import revolute_axes
+from hydroarm.model.arm import Arm, revolute_axes
 from hydroarm.model.water import Water, WaterModel, current_velocity
 
 TINY_MASS = 1e-6  # kg: given to massless moving bodies (MuJoCo skips fluid forces on them)
@@ -156,7 +155,8 @@ def arm_to_mjcf(
         full = [tensor[0, 0], tensor[1, 1], tensor[2, 2], tensor[0, 1], tensor[0, 2], tensor[1, 2]]
         name = model.names[joint_id]
         lines = [
-            f'{indent}<body name="{name}" pos="{_fmt(placement.translation)}" quat="{_fmt(_quat(placement.rotation))}">',
+            f'{indent}<body name="{name}" pos="{_fmt(placement.translation)}" '
+            f'quat="{_fmt(_quat(placement.rotation))}">',
             f'{indent}  <joint name="{name}" type="hinge" axis="{_fmt(axes[joint_id])}" limited="false" damping="0"/>',
             f'{indent}  <inertial pos="{_fmt(lever)}" mass="{mass:.17g}" fullinertia="{_fmt(full)}"/>',
         ]
@@ -199,9 +199,7 @@ class FluidSplit:
 class MujocoWater:
     """MuJoCo's ellipsoid fluid forces on an arm (see :func:`arm_to_mjcf`)."""
 
-    def __init__(
-        self, arm: Arm, water: Water | None = None, segments: int = 16, blunt: Sequence[bool] | None = None
-    ):
+    def __init__(self, arm: Arm, water: Water | None = None, segments: int = 16, blunt: Sequence[bool] | None = None):
         import mujoco
 
         self._mujoco = mujoco
@@ -258,12 +256,14 @@ def hydroarm_drag(arm: Arm, water: Water, q: np.ndarray, v: np.ndarray, t: float
 
 def only_cylinder(arm: Arm, index: int) -> Arm:
     """The same arm with C_d = 0 on every cylinder but ``index`` (for per-link hydroarm drag)."""
-    cylinders = tuple(
-        c if k == index else dataclasses.replace(c, cd=0.0) for k, c in enumerate(arm.cylinders)
-    )
+    cylinders = tuple(c if k == index else dataclasses.replace(c, cd=0.0) for k, c in enumerate(arm.cylinders))
     return Arm(
-        name=arm.name, model=arm.model, cylinders=cylinders, torque_limit=arm.torque_limit,
-        spec=arm.spec, position_limit=arm.position_limit,
+        name=arm.name,
+        model=arm.model,
+        cylinders=cylinders,
+        torque_limit=arm.torque_limit,
+        spec=arm.spec,
+        position_limit=arm.position_limit,
     )
 
 

@@ -273,5 +273,3 @@ def rk4_stage_kernel(
         x[i] = xs[i]
     for i in range(n):
         average[i] += dists[0, i] + 2.0 * dists[1, i] + 2.0 * dists[2, i] + dists[3, i]
-
-

@@ -48,9 +48,7 @@ class StripGeometry:
         model = arm.model
         self.parents = np.asarray(model.parents, dtype=np.int64)
         self.placement_rotation = np.stack([model.jointPlacements[i].rotation for i in range(model.njoints)])
-        self.placement_translation = np.stack(
-            [model.jointPlacements[i].translation for i in range(model.njoints)]
-        )
+        self.placement_translation = np.stack([model.jointPlacements[i].translation for i in range(model.njoints)])
         self.axes = revolute_axes(arm)
         self.idx_v = np.asarray([-1] + [model.joints[i].idx_v for i in range(1, model.njoints)], dtype=np.int64)
 
@@ -131,9 +129,7 @@ def _drag_piece(s0, s1, a_n, b_n, j0, jr, coefficient, nodes, weights, force):
         scale = -coefficient * w * np.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
         f0, f1, f2 = scale * v0, scale * v1, scale * v2
         for c in range(n):
-            force[c] += (j0[0, c] + s * jr[0, c]) * f0 + (j0[1, c] + s * jr[1, c]) * f1 + (
-                j0[2, c] + s * jr[2, c]
-            ) * f2
+            force[c] += (j0[0, c] + s * jr[0, c]) * f0 + (j0[1, c] + s * jr[1, c]) * f1 + (j0[2, c] + s * jr[2, c]) * f2
 
 
 @numba.njit(cache=True)
@@ -300,5 +296,3 @@ def underwater_dynamics_kernel(
     acc = np.linalg.solve(mass + added, rhs) + joint_acceleration
     disturbance = mass @ acc + nonlinear - tau
     return acc, disturbance
-
-

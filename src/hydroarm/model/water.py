@@ -52,6 +52,7 @@ __all__ = [
     "paper_current_acceleration",
 ]
 
+
 class Water(FrozenModel):
     """Water properties and the quadrature of the strip integrals.
 

@@ -29,9 +29,9 @@ from matplotlib.lines import Line2D  # noqa: E402
 from matplotlib.ticker import MaxNLocator  # noqa: E402
 from mpl_toolkits.mplot3d.art3d import Poly3DCollection  # noqa: E402
 
+from hydroarm.config import ConfigError  # noqa: E402
 from hydroarm.model.arm import Arm
 from hydroarm.model.loading import load_arm  # noqa: E402
-from hydroarm.config import ConfigError  # noqa: E402
 from hydroarm.studies.runner import Trajectory  # noqa: E402
 
 SIDES = 10  # facets per tube
@@ -121,7 +121,9 @@ class _Scene:
         )
         thinnest = 0.012 * extent
         self.radii = [max(c.diameter / 2.0, thinnest) for c in arm.cylinders]
-        colours = [LINK_COLOURS[(c.joint_id - 1) % len(LINK_COLOURS)] if c.joint_id > 0 else "dimgray" for c in arm.cylinders]
+        colours = [
+            LINK_COLOURS[(c.joint_id - 1) % len(LINK_COLOURS)] if c.joint_id > 0 else "dimgray" for c in arm.cylinders
+        ]
         self.ghost = Poly3DCollection(
             [], facecolors=(0.5, 0.5, 0.5, 0.28), edgecolors=(0.35, 0.35, 0.35, 0.25), linewidths=0.3
         )

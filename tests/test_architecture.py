@@ -1,0 +1,85 @@
+"""The package's shape: module sizes, import cycles, a light `import hydroarm` (the layer
+contracts themselves are import-linter's, run by CI: `lint-imports`)."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import grimp
+import pytest
+
+import hydroarm
+
+SOURCE = Path(hydroarm.__file__).parent
+MAX_LINES = 500
+
+
+def test_no_source_module_is_over_500_lines():
+    sizes = {str(p.relative_to(SOURCE)): len(p.read_text().splitlines()) for p in SOURCE.rglob("*.py")}
+    assert sizes, "no modules found"
+    assert {name: n for name, n in sizes.items() if n > MAX_LINES} == {}
+
+
+def _strongly_connected(graph: dict[str, set[str]]) -> list[list[str]]:
+    """Tarjan's algorithm: the components of more than one module (import cycles)."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    found: list[list[str]] = []
+
+    def visit(node: str) -> None:
+        index[node] = low[node] = len(index)
+        stack.append(node)
+        on_stack.add(node)
+        for target in graph.get(node, ()):
+            if target not in index:
+                visit(target)
+                low[node] = min(low[node], low[target])
+            elif target in on_stack:
+                low[node] = min(low[node], index[target])
+        if low[node] == index[node]:
+            component = []
+            while True:
+                member = stack.pop()
+                on_stack.discard(member)
+                component.append(member)
+                if member == node:
+                    break
+            if len(component) > 1:
+                found.append(sorted(component))
+
+    sys.setrecursionlimit(max(sys.getrecursionlimit(), 10_000))
+    for node in sorted(graph):
+        if node not in index:
+            visit(node)
+    return found
+
+
+def test_no_import_cycles():
+    graph = grimp.build_graph("hydroarm")
+    edges = {module: graph.find_modules_directly_imported_by(module) for module in graph.modules}
+    assert _strongly_connected(edges) == []
+
+
+def test_cycle_finder_finds_a_cycle():
+    assert _strongly_connected({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
+
+
+@pytest.mark.subprocess
+def test_import_hydroarm_is_light():
+    code = (
+        "import sys, hydroarm; heavy = [m for m in sys.modules if m.startswith(('hydroarm.', 'gymnasium', "
+        "'pinocchio', 'numba', 'matplotlib'))]; print(heavy); assert not heavy"
+    )
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert result.returncode == 0, result.stdout + result.stderr
+
+
+def test_public_api_names_resolve():
+    for name in hydroarm.__all__:
+        assert getattr(hydroarm, name) is not None, name
+    with pytest.raises(AttributeError, match="no attribute 'nope'"):
+        hydroarm.nope  # noqa: B018
