@@ -32,7 +32,9 @@ class ControlOutput:
     disturbance estimate (N m, (N m)^2) fed forward, None if the controller
     has none; ``terminal_violation``: slack of the soft terminal set (0 if off);
     ``events``: the faults met and recovered from since the previous step
-    (names from :data:`FAULT_EVENTS`), counted by the runner.
+    (names from :data:`FAULT_EVENTS`), counted by the runner; ``acceleration`` (n,)
+    rad/s^2: the joint acceleration the controller commands, when it plans in
+    accelerations (a state estimator is driven by it), else None.
     """
 
     tau: np.ndarray
@@ -42,6 +44,7 @@ class ControlOutput:
     disturbance_var: np.ndarray | None = None
     terminal_violation: float = 0.0
     events: tuple[str, ...] = ()
+    acceleration: np.ndarray | None = None
 
 
 FAULT_EVENTS: dict[str, str] = {

@@ -17,23 +17,28 @@ from dataclasses import dataclass
 from typing import Any
 
 from hydroarm.config import ConfigError
+from hydroarm.control.estimator import EstimatorConfig, FilteredController, JointKalmanFilter
 from hydroarm.control.gpmpc import GPMPC
+from hydroarm.control.idmpc import InverseDynamicsMPC
 from hydroarm.control.interface import Controller
 from hydroarm.control.mpc import LinearMPC
 from hydroarm.control.smc import SlidingModeController
 from hydroarm.model.arm import Arm
+from hydroarm.model.nominal import NominalModel
 
 
 @dataclass(frozen=True)
 class ControllerSpec:
     """A controller of the registry: its canonical ``name``, the config ``sections`` it reads
-    (keys of the ``sections`` mapping :func:`build_controller` takes), a one-line
-    ``description`` and its ``build(arm, sections, control_period)``."""
+    (keys of the ``sections`` mapping :func:`build_controller` takes; every controller also
+    reads ``estimator``), a one-line ``description``, its ``build(arm, sections,
+    control_period)`` and the state estimator it uses when ``estimator.kind = "auto"``."""
 
     name: str
     sections: tuple[str, ...]
     description: str
     build: Callable[[Arm, Mapping[str, Any], float], Controller]
+    default_estimator: str = "none"
 
 
 def _smc(arm: Arm, sections: Mapping[str, Any], period: float) -> Controller:
@@ -48,6 +53,14 @@ def _gpmpc(arm: Arm, sections: Mapping[str, Any], period: float) -> Controller:
     return GPMPC(arm, LinearMPC(arm, sections["mpc"], control_period=period), sections["gp"], sections["gpmpc"])
 
 
+def _idmpc(arm: Arm, sections: Mapping[str, Any], period: float) -> Controller:
+    return InverseDynamicsMPC(arm, sections["idmpc"], control_period=period)
+
+
+def _gp_idmpc(arm: Arm, sections: Mapping[str, Any], period: float) -> Controller:
+    return InverseDynamicsMPC(arm, sections["idmpc"], control_period=period, gp_config=sections["gp"])
+
+
 REGISTRY: dict[str, ControllerSpec] = {
     spec.name: spec
     for spec in (
@@ -56,11 +69,28 @@ REGISTRY: dict[str, ControllerSpec] = {
         ControllerSpec(
             "GP-MPC", ("mpc", "gp", "gpmpc"), "the paper's MPC with a sliding-window GP disturbance model", _gpmpc
         ),
+        ControllerSpec(
+            "IDMPC",
+            ("idmpc",),
+            "hydroarm's inverse-dynamics MPC (acceleration-space MPC + computed torque)",
+            _idmpc,
+            default_estimator="kalman",
+        ),
+        ControllerSpec(
+            "GP-IDMPC",
+            ("idmpc", "gp"),
+            "hydroarm's best: the inverse-dynamics MPC with the GP fed forward",
+            _gp_idmpc,
+            default_estimator="kalman",
+        ),
     )
 }
 
 CONTROLLERS: tuple[str, ...] = tuple(REGISTRY)
 """Canonical controller names, in the order tables show them."""
+
+PAPER_CONTROLLERS: tuple[str, ...] = ("SMC", "MPC", "GP-MPC")
+"""The controllers of Liu et al. 2023's tables (the reproduction's rows)."""
 
 
 def _key(name: str) -> str:
@@ -84,8 +114,22 @@ def controller_spec(name: str) -> ControllerSpec:
     return REGISTRY[canonical_name(name)]
 
 
+def estimator_kind(name: str, estimator: EstimatorConfig | None) -> str:
+    """``"none"`` or ``"kalman"``: the estimator controller ``name`` runs behind (``"auto"`` =
+    the controller's default)."""
+    kind = "auto" if estimator is None else estimator.kind
+    return controller_spec(name).default_estimator if kind == "auto" else kind
+
+
 def build_controller(name: str, arm: Arm, sections: Mapping[str, Any], control_period: float) -> Controller:
     """Controller ``name`` on ``arm`` from its config ``sections`` (section name -> config
-    model, e.g. ``{"mpc": MPCConfig()}``) with the control period (s)."""
+    model, e.g. ``{"mpc": MPCConfig()}``) with the control period (s), behind the state
+    estimator of ``sections["estimator"]`` (an :class:`EstimatorConfig`; absent = ``auto``)."""
     spec = controller_spec(name)
-    return spec.build(arm, sections, control_period)
+    controller = spec.build(arm, sections, control_period)
+    estimator = sections.get("estimator")
+    if estimator_kind(spec.name, estimator) == "kalman":
+        config = estimator if estimator is not None else EstimatorConfig()
+        kalman = JointKalmanFilter(arm.n_joints, control_period, config)
+        controller = FilteredController(controller, kalman, NominalModel(arm, inner_step=None))
+    return controller

@@ -39,9 +39,9 @@ class SMCConfig(FrozenModel):
 
     surface_slope: GainOrList = pydantic.Field(40.0, description="lambda (1/s)")
     switching_gain: GainOrList = pydantic.Field(50.0, description="k (rad/s^2)")
-    boundary_layer: Annotated[float, pydantic.Field(ge=1e-6, le=1e6)] | list[
-        Annotated[float, pydantic.Field(ge=1e-6, le=1e6)]
-    ] = pydantic.Field(2.0, description="phi (rad/s)")
+    boundary_layer: (
+        Annotated[float, pydantic.Field(ge=1e-6, le=1e6)] | list[Annotated[float, pydantic.Field(ge=1e-6, le=1e6)]]
+    ) = pydantic.Field(2.0, description="phi (rad/s)")
     linear_gain: NonNegativeGain | list[NonNegativeGain] = pydantic.Field(30.0, description="k_s (1/s), >= 0")
     torque_limit: Annotated[float, pydantic.Field(gt=0.0)] | list[Annotated[float, pydantic.Field(gt=0.0)]] | None = (
         pydantic.Field(None, description="N m; None: the arm's")

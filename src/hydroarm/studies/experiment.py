@@ -21,8 +21,10 @@ import pydantic
 
 from hydroarm.config import ConfigError, FrozenModel, check_joint_counts, shown, validate
 from hydroarm.control import registry
+from hydroarm.control.estimator import EstimatorConfig
 from hydroarm.control.gp import GPConfig
 from hydroarm.control.gpmpc import GPMPCConfig, feature_size
+from hydroarm.control.idmpc import IDMPCConfig
 from hydroarm.control.interface import Controller
 from hydroarm.control.mpc import MPCConfig
 from hydroarm.control.registry import CONTROLLERS, canonical_name
@@ -51,10 +53,12 @@ __all__ = [
 MAX_CONTROL_STEPS = 1_000_000
 """Most control steps of one run (duration / control_period): every step's row is stored."""
 
-CONTROLLER_SECTIONS: tuple[str, ...] = ("smc", "mpc", "gp", "gpmpc")
+CONTROLLER_SECTIONS: tuple[str, ...] = ("smc", "mpc", "gp", "gpmpc", "idmpc", "estimator")
 """The sections of :class:`ExperimentConfig` that only controllers read."""
 
-CONTROLLER_SETTINGS: dict[str, tuple[str, ...]] = {name: spec.sections for name, spec in registry.REGISTRY.items()}
+CONTROLLER_SETTINGS: dict[str, tuple[str, ...]] = {
+    name: (*spec.sections, "estimator") for name, spec in registry.REGISTRY.items()
+}
 """The controller sections each controller reads (from the registry): a sweep leaves the
 other sections out of a run's id, so sweeping ``mpc.r`` runs SMC once."""
 
@@ -102,6 +106,8 @@ class ExperimentConfig(FrozenModel):
     mpc: MPCConfig = MPCConfig()
     gp: GPConfig = GPConfig()
     gpmpc: GPMPCConfig = GPMPCConfig()
+    idmpc: IDMPCConfig = IDMPCConfig()
+    estimator: EstimatorConfig = EstimatorConfig()
     initial_state: InitialState = InitialState()
 
     @pydantic.model_validator(mode="after")
@@ -184,14 +190,15 @@ class Experiment:
     """A closed loop ready to run: what :func:`build_experiment` returns.
 
     ``arm``: the arm the controller knows; ``plant``: the true plant (its arm may differ:
-    a mismatch study); ``controller`` (canonical ``controller.name``); ``reference``: the
-    task on this arm; ``x0`` (2n,): the start state; ``config``: the settings.
+    a mismatch study); ``controller`` (canonical ``controller.name``; None when the torques
+    come from outside, e.g. the Gymnasium env); ``reference``: the task on this arm; ``x0``
+    (2n,): the start state; ``config``: the settings.
     """
 
     config: ExperimentConfig
     arm: Arm
     plant: UnderwaterPlant
-    controller: Controller
+    controller: Controller | None
     reference: SinusoidReference
     x0: np.ndarray
 
@@ -202,6 +209,8 @@ class Experiment:
     def run(self, seed: int = 0, progress: Callable[[int, int], None] | None = None) -> Trajectory:
         """The closed loop over ``config.duration`` with measurement-noise ``seed``; the
         trajectory's ``meta`` records the settings and their digest."""
+        if self.controller is None:
+            raise ValueError("this experiment has no controller (built with controller=None): nothing to run")
         traj = run_closed_loop(
             self.plant, self.controller, self.reference, self.config.duration, seed, x0=self.x0, progress=progress
         )
@@ -213,13 +222,14 @@ class Experiment:
 
 def build_experiment(
     config: ExperimentConfig,
-    controller: str,
+    controller: str | None,
     arm: Arm | None = None,
     plant_arm: Arm | None = None,
 ) -> Experiment:
     """The one experiment builder: plant, controller, reference and start from ``config``.
 
-    ``controller``: any spelling of a registered controller (``"gp-mpc"``, ``"GP-MPC"``).
+    ``controller``: any spelling of a registered controller (``"gp-mpc"``, ``"GP-MPC"``), or
+    None for no controller (the torques come from outside: the Gymnasium env).
     ``arm``: the arm, if already loaded (default: ``load_arm(config.arm)``); ``plant_arm``:
     a different arm for the true plant only (default: ``arm``). The settings are checked
     against the arm first (:func:`check_settings_for_arm`); the reference and start are
@@ -229,7 +239,8 @@ def build_experiment(
     check_settings_for_arm(config, arm)
     plant = UnderwaterPlant(arm if plant_arm is None else plant_arm, config.water, config.plant)
     reference, x0 = start_for_arm(arm, config)
-    return Experiment(config, arm, plant, build_controller(controller, arm, config), reference, x0)
+    built = None if controller is None else build_controller(controller, arm, config)
+    return Experiment(config, arm, plant, built, reference, x0)
 
 
 def run_experiment(
