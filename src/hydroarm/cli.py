@@ -180,7 +180,7 @@ def reproduce(
 
 @app.command()
 def run(
-    controller: Annotated[str, typer.Option("--controller", help="smc, mpc or gp-mpc.")] = "gp-mpc",
+    controller: Annotated[str, typer.Option("--controller", help="smc, mpc, gp-mpc, idmpc or gp-idmpc.")] = "gp-mpc",
     arm: Annotated[
         str | None, typer.Option("--arm", help="Built-in arm name or arm file (default: the settings' arm, paper).")
     ] = None,
@@ -466,6 +466,73 @@ def bench(
     if code != 0:
         _fail(f"the benchmark suite exited with code {code}", code=code if code > 0 else 128 - code)  # -N: signal N
     console.print(f"wrote {out / 'bench.json'} and {out / 'bench.md'}")
+
+
+@app.command()
+def tune(
+    controller: Annotated[str, typer.Option("--controller", help="smc, mpc, gp-mpc, idmpc or gp-idmpc.")],
+    arm: Annotated[str, typer.Option("--arm", help="Built-in arm name or arm file.")] = "paper",
+    out: Annotated[
+        Path, typer.Option("--out", help="Settings file (TOML) to write or update; --config reads it.")
+    ] = Path("tuned.toml"),
+    workers: Annotated[int, typer.Option("--workers", min=0, max=256, help="Parallel processes (0: this one).")] = 2,
+    config_file: ConfigOption = None,
+    overrides: SetOption = None,
+) -> None:
+    """Tune a controller's gains on the arm without water ("tuned once on land") and write them.
+
+    Every point of the controller's grid runs the arm's task clean and noisy on the dry arm;
+    the best mean E_p wins. Example: hydroarm tune --arm alpha5 --controller smc --out alpha5.toml
+    """
+    from hydroarm.model.loading import load_arm
+    from hydroarm.studies.experiment import canonical_name, check_settings_for_arm, with_overrides
+    from hydroarm.studies.tune import TUNING_GRIDS, write_settings
+    from hydroarm.studies.tune import tune as run_tune
+
+    try:
+        name = canonical_name(controller)
+        config = with_overrides(_experiment_config(config_file, overrides or []), {"arm": arm})
+        check_settings_for_arm(config, load_arm(config.arm))
+    except ConfigError as error:
+        _fail(str(error))
+    if out.exists() and not out.is_file():
+        _fail(f"--out '{out}': exists and is not a file")
+    grid = TUNING_GRIDS[name]
+    with (
+        _sigterm_as_interrupt(),
+        Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                 console=console) as progress,
+    ):  # fmt: skip
+        bar = progress.add_task(f"tune {name}", total=None)
+        try:
+            result = run_tune(
+                config, name, out.with_name(out.name + ".runs"), workers,
+                on_progress=lambda done, total, label: progress.update(bar, completed=done, total=total),
+            )  # fmt: skip
+        except KeyboardInterrupt as error:
+            progress.stop()
+            console.print(f"[yellow]interrupted:[/] finished runs are kept in {out.name}.runs; run again to resume")
+            raise typer.Exit(143 if isinstance(error, Terminated) else 130) from None
+        except ConfigError as error:
+            progress.stop()
+            _fail(str(error))
+    header = (
+        f"hydroarm tune --controller {name.lower()} --arm {arm}: tuned on the dry arm (clean + noisy, mean E_p)\n"
+        f"grid: {json.dumps(grid)}\nbest score {result.rows[0]['score']:.6g} rad^2"
+    )
+    write_settings(out, {"arm": arm, **result.best}, header)
+    out.with_name(out.name + ".json").write_text(
+        json.dumps({"controller": name, "arm": arm, "rows": result.rows}, indent=1)
+    )
+    table = Table(title=f"{name} on {arm}, dry arm: best of {len(result.rows)} points")
+    for column in (*(key.split(".")[-1] for key in result.best), "clean", "noisy", "score"):
+        table.add_column(column)
+    for row in result.rows[:5]:
+        cells = [f"{row['point'][k]:g}" for k in result.best]
+        cells += [("diverged" if row[k] is None else f"{row[k]:.5g}") for k in ("clean", "noisy")]
+        table.add_row(*cells, f"{row['score']:.5g}")
+    Console(soft_wrap=True).print(table)
+    console.print(f"wrote {out} (read it with --config {out}) and {out.name}.json")
 
 
 def main() -> None:  # pragma: no cover - entry point
