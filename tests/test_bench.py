@@ -50,7 +50,7 @@ def test_quick_benchmark_writes_json_and_markdown(quick_report):
 def test_quick_benchmark_json_is_valid(quick_report):
     _, report = quick_report
     assert validate_report(report) == []
-    for key in ("gp_mpc_step_ms", "mpc_step_ms", "smc_step_ms"):
+    for key in ("gp_idmpc_step_ms", "gp_mpc_step_ms", "mpc_step_ms", "smc_step_ms"):
         assert set(report[key]) == {"median", "p90", "p99", "max"}
         assert all(value > 0 for value in report[key].values())
     assert report["paper_scenario_wall_s"] > 0

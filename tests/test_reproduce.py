@@ -47,7 +47,33 @@ def test_quick_reproduction_writes_everything(quick_run):
         assert (quick_run / name).is_file(), name
         assert (quick_run / name).stat().st_size > 0, name
     runs = sorted((quick_run / "runs").glob("*.npz"))
-    assert len(runs) == 3 + 3 * 2 + 1 + 2  # clean, noisy x 2 seeds, dry-arm bound (clean + 2 noisy)
+    # the paper's 3 controllers and the 4 extra rows (hydroarm's best, 3 behind the Kalman filter),
+    # clean and noisy x 2 seeds, and the dry-arm bound (clean + 2 noisy)
+    assert len(runs) == (3 + 4) * (1 + 2) + 1 + 2
+
+
+def test_tables_carry_hydroarms_best_beside_the_paper_rows(quick_run):
+    """The paper's rows are unchanged in name and order; hydroarm's best and the paper's
+    controllers behind the same Kalman filter come after them, and the report says how it compares."""
+    metrics = json.loads((quick_run / "metrics.json").read_text())
+    for number, case in ((1, "clean"), (2, "noisy")):
+        table = (quick_run / f"table{number}.md").read_text()
+        rows = [line.split("|")[1].strip() for line in table.splitlines() if line.startswith("| ")][1:]
+        if case == "clean":
+            paper_rows = [row for name in ("SMC", "MPC", "GP-MPC") for row in (f"{name} (ours)", f"{name} (paper)")]
+        else:
+            paper_rows = [
+                row
+                for name in ("SMC", "MPC", "GP-MPC")
+                for row in (f"{name} (ours, mean of 2 seeds)", f"{name} (ours, std over seeds)", f"{name} (paper)")
+            ]
+        assert rows[: len(paper_rows)] == paper_rows
+        assert "hydroarm's best: GP-IDMPC, Kalman filter" in rows
+        assert {"SMC + Kalman filter", "MPC + Kalman filter", "GP-MPC + Kalman filter"} <= set(rows)
+        best = metrics[case]["GP-IDMPC+KF"]
+        assert len(best["Ep"]) == 6 and not best["diverged"]
+        assert metrics[case]["best"]["row"] == "GP-IDMPC+KF"
+    assert "GP-IDMPC+KF" in (quick_run / "report.md").read_text()
 
 
 def test_metrics_json_has_the_required_shape(quick_run):

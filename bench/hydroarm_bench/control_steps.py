@@ -14,10 +14,12 @@ from hydroarm_bench.loop import closed_loop
 from hydroarm_bench.stats import stats_ms
 
 PHASES = {
+    "GP-IDMPC": None,  # its phases as it reports them (plus observe, compute, total)
     "GP-MPC": ("observe", "gp", "linearise", "riccati", "qp_update", "qp_solve", "compute", "total"),
     "MPC": ("linearise", "riccati", "qp_update", "qp_solve", "compute", "total"),
     "SMC": ("compute", "total"),
 }
+"""The controllers timed and their phases (``timings`` keys of their control outputs)."""
 DURATION_S = 10.0
 
 
@@ -25,9 +27,10 @@ def bench_control_steps(quick: bool) -> tuple[dict, dict, dict]:
     """Per-phase step statistics, throughput, and material for the peers (recorded runs)."""
     runs = 1 if quick else 2
     breakdown, throughput, recorded = {}, {}, {}
-    for name in ("GP-MPC", "MPC", "SMC"):
-        closed_loop(name, 0.3)  # warm-up: JIT caches, Riccati compile, first allocations
-        phases: dict[str, list[float]] = {key: [] for key in PHASES[name]}
+    for name in PHASES:
+        warm, *_ = closed_loop(name, 0.3)  # warm-up: JIT caches, Riccati compile, first allocations
+        keys = PHASES[name] or ("observe", *sorted(set(warm.timings) - {"total"}), "compute", "total")
+        phases: dict[str, list[float]] = {key: [] for key in keys}
         walls = []
         for seed in range(runs):
             snapshots = []
@@ -39,7 +42,7 @@ def bench_control_steps(quick: bool) -> tuple[dict, dict, dict]:
             steps = len(observe_s)  # every step but the last is observed: those count
             compute = traj.timings["total"][:steps]
             observe = np.asarray(observe_s)
-            for key in PHASES[name]:
+            for key in keys:
                 if key == "compute":
                     values = compute
                 elif key == "total":

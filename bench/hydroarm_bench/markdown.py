@@ -90,6 +90,8 @@ def render_markdown(report: dict) -> str:
         "|---|---:|---:|:---:|",
     ]
     labels = {
+        "gp_idmpc_median_ms": ("GP-IDMPC step median, Kalman filter included (ms)", "<="),
+        "gp_idmpc_p99_ms": ("GP-IDMPC step p99, Kalman filter included (ms)", "<="),
         "gp_mpc_median_ms": ("GP-MPC step median (ms)", "<="),
         "gp_mpc_p99_ms": ("GP-MPC step p99 (ms)", "<="),
         "speedup_vs_do_mpc": ("MPC speed-up vs do-mpc/IPOPT", ">="),
@@ -114,7 +116,7 @@ def render_markdown(report: dict) -> str:
         "`gp` = hyperparameter step + prediction; `qp_update` = condensing + box.",
         "",
     ]
-    for name in ("GP-MPC", "MPC", "SMC"):
+    for name in breakdown:
         lines += [f"### {name}", "", STAT_HEADER]
         for key, row in breakdown[name].items():
             lines.append(_stat_row(key, row))

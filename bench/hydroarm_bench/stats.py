@@ -10,6 +10,8 @@ import time
 import numpy as np
 
 TARGETS = {
+    "gp_idmpc_median_ms": 0.3,
+    "gp_idmpc_p99_ms": 0.6,
     "gp_mpc_median_ms": 1.0,
     "gp_mpc_p99_ms": 2.0,
     "speedup_vs_do_mpc": 20.0,

@@ -17,7 +17,15 @@ import numpy as np  # noqa: E402
 
 from hydroarm.studies.runner import Trajectory  # noqa: E402
 
-COLOURS = {"SMC": "tab:green", "MPC": "tab:blue", "GP-MPC": "tab:red", "reference": "black"}
+COLOURS = {
+    "SMC": "tab:green",
+    "MPC": "tab:blue",
+    "GP-MPC": "tab:red",
+    "IDMPC": "tab:olive",
+    "GP-IDMPC": "tab:purple",
+    "GP-IDMPC+KF": "tab:purple",
+    "reference": "black",
+}
 """One colour per controller (and the reference), in every figure and sweep plot."""
 
 ANIMATION = "gpmpc_arm.gif"

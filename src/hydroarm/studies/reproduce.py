@@ -14,6 +14,11 @@ settings, and writes into ``out_dir``:
 * ``gpmpc_arm.gif``: the arm moving under GP-MPC, the reference ghosted;
 * ``report.md``: settings, tables, figures, and where and why we differ.
 
+Beside the paper's rows (SMC, MPC, GP-MPC on the raw measurement, exactly as the paper's
+study), the tables carry hydroarm's own best controller (:data:`BEST`, behind its Kalman
+filter) and the paper's controllers behind the same filter (``SMC+KF``, ...), so that every
+comparison with it uses the same estimator; ``ablation_idmpc.md`` varies its choices.
+
 Each run is written atomically as soon as it finishes (``runs/<case>__<controller>__seed<n>.npz``,
 through the studies' one executor and resume cache, :mod:`hydroarm.studies.executor`); a
 later call with the same settings loads the finished runs (their settings digest,
@@ -23,9 +28,7 @@ only the rest, so an interrupted reproduction loses nothing.
 
 from __future__ import annotations
 
-import csv
 import json
-import math
 import os
 import platform
 import time
@@ -51,24 +54,8 @@ from hydroarm.studies.executor import (
 from hydroarm.studies.experiment import ExperimentConfig, run_experiment, with_overrides
 from hydroarm.studies.figures import ANIMATION, FIGURES
 from hydroarm.studies.report import render_report
-from hydroarm.studies.runner import Trajectory, fault_counts, stop_reason, tracking_metrics
-
-NOISE_VARIANCE = 0.001
-
-PAPER_EP = {
-    "clean": {
-        "SMC": [1.5872, 2.9348, 2.3282, 9.1378, 1.9941, 2.8227],
-        "MPC": [0.09138, 0.1068, 0.2648, 0.3525, 0.2296, 0.2039],
-        "GP-MPC": [0.0504, 0.0986, 0.1963, 0.1552, 0.1351, 0.1452],
-    },
-    "noisy": {
-        "SMC": [3.2783, 5.391, 2.3581, 5.2402, 4.7431, 5.1747],
-        "MPC": [0.1996, 0.2092, 0.4074, 0.5832, 2.3808, 0.3379],
-        "GP-MPC": [0.1226, 0.1333, 0.1591, 0.3152, 0.2011, 0.2017],
-    },
-}
-PAPER_GAIN = {"clean": 34.05, "noisy": 52.27}
-"""The paper's "average control accuracy" gain: the mean of the per-joint gains (%)."""
+from hydroarm.studies.reproduce_tables import BEST, EXTRA_ROWS, NOISE_VARIANCE, summarise, write_tables
+from hydroarm.studies.runner import Trajectory
 
 
 @dataclass(frozen=True)
@@ -79,6 +66,8 @@ class RunSpec:
     controller: str
     seed: int
     config: ExperimentConfig
+    build: str | None = None
+    """The registered controller to build, when ``controller`` is a row name (``"SMC+KF"``)."""
 
     @property
     def key(self) -> str:
@@ -128,12 +117,32 @@ DRY = {"water.drag": False, "water.added_mass": False, "water.buoyancy": False, 
 """The plant without water: MPC on it bounds what any disturbance compensation can reach."""
 
 
+def idmpc_ablation_cases() -> list[tuple[str, str, str, dict]]:
+    """(group, label, controller, overrides) of the ablation of hydroarm's best controller."""
+    cases: list[tuple[str, str, str, dict]] = [
+        ("GP", "off (IDMPC)", "IDMPC", {}),
+        ("GP", "on (GP-IDMPC)", "GP-IDMPC", {}),
+    ]
+    for kind in ("none", "kalman"):
+        cases.append(("state estimator", kind, "GP-IDMPC", {"estimator.kind": kind}))
+    for limits in ("allocation", "qp", "clip"):
+        cases.append(("torque limits", limits, "GP-IDMPC", {"idmpc.limits": limits}))
+    for r in (1e-4, 1e-5, 1e-6):
+        cases.append(("R_a", f"{r:g}", "GP-IDMPC", {"idmpc.r_acceleration": r}))
+    return cases
+
+
 def plan_runs(base: ExperimentConfig, noisy_seeds: int, ablation: bool) -> list[RunSpec]:
-    """Every run of the study: clean (seed 0), noisy (seeds 0..noisy_seeds-1), the
-    dry-arm bound (MPC with the water removed: perfect disturbance knowledge), ablation."""
+    """Every run of the study: clean (seed 0), noisy (seeds 0..noisy_seeds-1), the paper's
+    controllers and :data:`EXTRA_ROWS`, the dry-arm bound (MPC with the water removed:
+    perfect disturbance knowledge), the ablations."""
     noisy = with_overrides(base, {"plant.noise_variance": NOISE_VARIANCE})
     runs = [RunSpec("clean", name, 0, base) for name in PAPER_CONTROLLERS]
     runs += [RunSpec("noisy", name, seed, noisy) for seed in range(noisy_seeds) for name in PAPER_CONTROLLERS]
+    for row, (name, overrides) in EXTRA_ROWS.items():
+        runs.append(RunSpec("clean", row, 0, with_overrides(base, overrides), name))
+        noisy_row = with_overrides(noisy, overrides)
+        runs += [RunSpec("noisy", row, seed, noisy_row, name) for seed in range(noisy_seeds)]
     runs.append(RunSpec("bound-clean", "MPC", 0, with_overrides(base, DRY)))
     runs += [RunSpec("bound-noisy", "MPC", seed, with_overrides(noisy, DRY)) for seed in range(noisy_seeds)]
     if ablation:
@@ -141,6 +150,10 @@ def plan_runs(base: ExperimentConfig, noisy_seeds: int, ablation: bool) -> list[
             config = with_overrides(base, overrides)
             for name in ("MPC", "GP-MPC"):
                 runs.append(RunSpec(f"ablation/{group}={label}", name, 0, config))
+        for group, label, name, overrides in idmpc_ablation_cases():
+            config = with_overrides(base, overrides)
+            row = f"{name}+KF" if config.estimator.kind != "none" else name
+            runs.append(RunSpec(f"ablation-idmpc/{group}={label}", row, 0, config, name))
     return runs
 
 
@@ -177,7 +190,7 @@ class TrajectoryFiles(RunCache):
 
 def run_one(spec: RunSpec, arm: None, progress: StepHook | None) -> bytes:
     """Worker: run ``spec``; the trajectory as ``.npz`` bytes (the driver writes them)."""
-    traj = run_experiment(spec.config, spec.controller, spec.seed, progress=progress)
+    traj = run_experiment(spec.config, spec.build or spec.controller, spec.seed, progress=progress)
     traj.meta["case"] = spec.case
     return file_bytes(traj.save, "run.npz")
 
@@ -201,190 +214,6 @@ def execute(
     return {**finished, **report.results}
 
 
-# --- summaries ---------------------------------------------------------------------
-
-
-def gain_percent(baseline: list[float], improved: list[float]) -> list[float]:
-    """Per-joint improvement (%) of ``improved`` over ``baseline`` E_p (paper's definition)."""
-    return [100.0 * (b - i) / b if b > 0 else 0.0 for b, i in zip(baseline, improved)]
-
-
-def fault_totals(trajs: list[Trajectory]) -> dict[str, int]:
-    """The runs' fault events (``meta["faults"]``) summed, only those that occurred; a run
-    that stopped early adds ``stopped:<why>``."""
-    totals: dict[str, int] = {}
-    for traj in trajs:
-        for name, count in fault_counts(traj).items():
-            if count:
-                totals[name] = totals.get(name, 0) + count
-        stopped = stop_reason(traj)
-        if stopped:
-            key = f"stopped:{stopped}"
-            totals[key] = totals.get(key, 0) + 1
-    return totals
-
-
-def summarise(runs: list[RunSpec], results: dict[str, Trajectory]) -> dict:
-    """metrics.json: per case and controller, E_p per joint (mean over seeds) and more."""
-    metrics: dict = {}
-    for case in ("clean", "noisy"):
-        metrics[case] = {}
-        for name in PAPER_CONTROLLERS:
-            trajs = [results[s.key] for s in runs if s.case == case and s.controller == name]
-            per_seed = [tracking_metrics(t) for t in trajs]
-            ep = np.array([m["Ep"] for m in per_seed])
-            steady = np.array([m["Ep_steady"] for m in per_seed])
-            after = [t.t > 1.0 for t in trajs]
-            entry = {
-                "Ep": ep.mean(axis=0).tolist(),
-                "Ep_std": ep.std(axis=0).tolist(),
-                "Ep_mean": float(ep.mean()),
-                "Ep_steady": steady.mean(axis=0).tolist(),
-                "Ep_per_seed": ep.tolist(),
-                "rms": np.mean([m["rms"] for m in per_seed], axis=0).tolist(),
-                "max": np.max([m["max"] for m in per_seed], axis=0).tolist(),
-                "torque_rms": np.mean([m["torque_rms"] for m in per_seed], axis=0).tolist(),
-                "time_to_band": np.mean([m["time_to_band"] for m in per_seed], axis=0).tolist(),
-                "seeds": [s.seed for s in runs if s.case == case and s.controller == name],
-                "diverged": any(m["diverged"] for m in per_seed),
-                "faults": fault_totals(trajs),
-                "step_ms_median": float(np.median(np.concatenate([t.timings["total"] for t in trajs])) * 1e3),
-                "step_ms_p99": float(np.percentile(np.concatenate([t.timings["total"] for t in trajs]), 99) * 1e3),
-            }
-            if name == "GP-MPC":
-                errors = np.concatenate([t.disturbance_estimate[a] - t.disturbance[a] for t, a in zip(trajs, after)])
-                truth = np.concatenate([t.disturbance[a] for t, a in zip(trajs, after)])
-                entry["disturbance_estimate_rms_after_1s"] = np.sqrt(np.mean(errors**2, axis=0)).tolist()
-                entry["disturbance_rms_after_1s"] = np.sqrt(np.mean(truth**2, axis=0)).tolist()
-            metrics[case][name] = entry
-        bound = [tracking_metrics(results[s.key]) for s in runs if s.case == f"bound-{case}"]
-        bound_ep = np.mean([m["Ep"] for m in bound], axis=0).tolist()
-        bound_gain = gain_percent(metrics[case]["MPC"]["Ep"], bound_ep)
-        metrics[case]["MPC_dry_arm_bound"] = {
-            "Ep": bound_ep,
-            "gain_over_MPC_percent": bound_gain,
-            "gain_mean_of_joints": float(np.mean(bound_gain)),
-            "note": "MPC on the arm without water: what perfect disturbance compensation could reach",
-        }
-        gains = gain_percent(metrics[case]["MPC"]["Ep"], metrics[case]["GP-MPC"]["Ep"])
-        metrics[case]["gain_gp_mpc_over_mpc_percent"] = {
-            "per_joint": gains,
-            "mean_of_joints": float(np.mean(gains)),
-            "of_mean_Ep": 100.0 * (1 - metrics[case]["GP-MPC"]["Ep_mean"] / metrics[case]["MPC"]["Ep_mean"]),
-            "steady_per_joint": gain_percent(metrics[case]["MPC"]["Ep_steady"], metrics[case]["GP-MPC"]["Ep_steady"]),
-            "paper_mean_of_joints": PAPER_GAIN[case],
-        }
-    ablation: dict = {}
-    for spec in runs:
-        if not spec.case.startswith("ablation/"):
-            continue
-        group, label = spec.case.removeprefix("ablation/").split("=", 1)
-        traj = results[spec.key]
-        m = tracking_metrics(traj)
-        row = ablation.setdefault(group, {}).setdefault(label, {})
-        row[spec.controller] = {
-            "Ep_mean": float(np.mean(m["Ep"])),
-            "Ep": m["Ep"],
-            "Ep_steady_mean": float(np.mean(m["Ep_steady"])),
-            "step_ms_median": float(np.median(traj.timings["total"]) * 1e3),
-            "diverged": m["diverged"],
-            "faults": fault_totals([traj]),
-        }
-    for rows in ablation.values():
-        for row in rows.values():
-            if "MPC" in row and "GP-MPC" in row:
-                gains = gain_percent(row["MPC"]["Ep"], row["GP-MPC"]["Ep"])
-                row["gain_mean_of_joints"] = float(np.mean(gains))
-    metrics["ablation"] = ablation
-    return metrics
-
-
-def _fmt(x: float) -> str:
-    return f"{x:.4g}"
-
-
-def write_tables(metrics: dict, out: Path) -> None:
-    """table1/2 (.md and .csv): ours beside the paper's, steady state, gains; ablation table."""
-    for number, case in ((1, "clean"), (2, "noisy")):
-        block = metrics[case]
-        n = len(block["MPC"]["Ep"])
-        header = ["row"] + [f"joint {j + 1}" for j in range(n)] + ["mean"]
-        rows = []
-        for name in PAPER_CONTROLLERS:
-            ep = block[name]["Ep"]
-            label = f"{name} (ours" + (f", mean of {len(block[name]['seeds'])} seeds)" if case == "noisy" else ")")
-            rows.append([label] + [_fmt(x) for x in ep] + [_fmt(np.mean(ep))])
-            if case == "noisy":
-                rows.append([f"{name} (ours, std over seeds)"] + [_fmt(x) for x in block[name]["Ep_std"]] + [""])
-            paper = PAPER_EP[case][name][:n]
-            rows.append([f"{name} (paper)"] + [_fmt(x) for x in paper] + [_fmt(np.mean(paper))])
-        bound = block["MPC_dry_arm_bound"]["Ep"]
-        rows.append(["MPC on the arm without water (bound)"] + [_fmt(x) for x in bound] + [_fmt(np.mean(bound))])
-        for name in PAPER_CONTROLLERS:
-            steady = block[name]["Ep_steady"]
-            rows.append([f"{name} (ours, t > 2 s)"] + [_fmt(x) for x in steady] + [_fmt(np.mean(steady))])
-        gain = block["gain_gp_mpc_over_mpc_percent"]
-        rows.append(
-            ["GP-MPC gain over MPC, % (ours)"]
-            + [f"{g:.1f}" for g in gain["per_joint"]]
-            + [f"{gain['mean_of_joints']:.1f}"]
-        )
-        paper_gain = gain_percent(PAPER_EP[case]["MPC"][:n], PAPER_EP[case]["GP-MPC"][:n])
-        rows.append(
-            ["GP-MPC gain over MPC, % (paper)"] + [f"{g:.1f}" for g in paper_gain] + [f"{PAPER_GAIN[case]:.2f}"]
-        )
-        bound_gain = block["MPC_dry_arm_bound"]["gain_over_MPC_percent"]
-        rows.append(
-            ["bound: gain of perfect compensation, %"]
-            + [f"{g:.1f}" for g in bound_gain]
-            + [f"{np.mean(bound_gain):.1f}"]
-        )
-        rows.append(
-            ["GP-MPC gain, t > 2 s, % (ours)"]
-            + [f"{g:.1f}" for g in gain["steady_per_joint"]]
-            + [f"{np.mean(gain['steady_per_joint']):.1f}"]
-        )
-        title = (
-            "Table 1: E_p (rad^2), no measurement noise"
-            if case == "clean"
-            else "Table 2: E_p (rad^2), measurement noise of variance 0.001"
-        )
-        _write_table(out / f"table{number}", title, header, rows)
-    header = [
-        "setting",
-        "value",
-        "MPC E_p mean",
-        "GP-MPC E_p mean",
-        "gain, mean of joints (%)",
-        "GP-MPC t>2 s E_p mean",
-        "MPC step median (ms)",
-        "GP-MPC step median (ms)",
-    ]
-    rows = []
-    for group, values in metrics["ablation"].items():
-        for label, row in values.items():
-            mpc, gp = row.get("MPC", {}), row.get("GP-MPC", {})
-            rows.append([
-                group, label, _fmt(mpc.get("Ep_mean", math.nan)), _fmt(gp.get("Ep_mean", math.nan)),
-                f"{row.get('gain_mean_of_joints', math.nan):.1f}", _fmt(gp.get("Ep_steady_mean", math.nan)),
-                f"{mpc.get('step_ms_median', math.nan):.3f}", f"{gp.get('step_ms_median', math.nan):.3f}",
-            ])  # fmt: skip
-    if rows:
-        _write_table(
-            out / "ablation", "Ablation of the GP-MPC (clean, seed 0; one setting changed at a time)", header, rows
-        )
-
-
-def _write_table(stem: Path, title: str, header: list[str], rows: list[list[str]]) -> None:
-    with stem.with_suffix(".csv").open("w", newline="") as handle:
-        writer = csv.writer(handle)
-        writer.writerow(header)
-        writer.writerows(rows)
-    lines = [f"### {title}", "", "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    lines += ["| " + " | ".join(row) + " |" for row in rows]
-    stem.with_suffix(".md").write_text("\n".join(lines) + "\n")
-
-
 def write_figures(runs: list[RunSpec], results: dict[str, Trajectory], out: Path, torque_limit: np.ndarray) -> None:
     """The paper's Figures 4-15 from the clean run and the noisy seed-0 run."""
     pick = {(s.case, s.controller): results[s.key] for s in runs if s.seed == 0 and s.case in ("clean", "noisy")}
@@ -402,7 +231,7 @@ def write_figures(runs: list[RunSpec], results: dict[str, Trajectory], out: Path
         figures.plot_tracking(gp, out / vel, titles[vel], "velocity")
         figures.plot_torque(gp, out / tor, titles[tor], torque_limit)
         figures.plot_error_comparison(
-            {name: pick[(case, name)] for name in PAPER_CONTROLLERS}, out / comp, titles[comp]
+            {name: pick[(case, name)] for name in (*PAPER_CONTROLLERS, BEST)}, out / comp, titles[comp]
         )
 
 

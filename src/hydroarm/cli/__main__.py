@@ -1,0 +1,5 @@
+"""``python -m hydroarm.cli``."""
+
+from hydroarm.cli import main
+
+main()
