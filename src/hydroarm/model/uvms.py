@@ -1,0 +1,328 @@
+"""The floating underwater vehicle-manipulator system (UVMS): one Pinocchio model, one set of water forces.
+
+The model has a free-flyer root (the vehicle's body frame, origin at the body reference
+point) carrying the vehicle's dry rigid body, and the arm's joints mounted at
+``Vehicle.mount`` (``pin.appendModel``): q = [p (3, world), quaternion (x, y, z, w), q_arm],
+v = [nu (6: body-frame linear and angular velocity, Fossen's [u v w p q r]), v_arm]. Bodies
+the arm file fixes to its base (e.g. the Alpha 5's base module) become part of the root.
+
+Equations of motion (docs/vehicle.md), solved for v' at every RK4 stage:
+
+    (M(q) + M_A,arm(q) + M_A,veh) v' = tau - nle(q, v) - h_A,arm + f_arm + F_veh + B_thr f_thr
+
+* ``M``, ``nle`` (Coriolis + weight of vehicle and arm): Pinocchio (CRBA, NLE);
+* ``M_A,arm``, ``h_A,arm``, ``f_arm`` (drag on the velocity relative to the current, buoyancy):
+  the arm's Morison strips, by the same compiled kernel as the fixed-base arm
+  (:func:`hydroarm.model.strips.water_terms_kernel`). It works from the world joint Jacobian
+  of the whole system (6 + n columns: the base's 6 DOF move every cylinder) and from the
+  world placements of the arm's joints, which its revolute-only forward kinematics computes
+  once the joints hung on the base are given the base's current world placement
+  (:func:`floating_placements`). With the base fixed at the identity the operations on the
+  arm's columns are those of the fixed-base arm, in the same order: the same numbers;
+* ``M_A,veh`` (6 x 6, root block), ``F_veh``: the vehicle's added-mass Coriolis term,
+  damping and buoyancy (:func:`hydroarm.model.vehicle.vehicle_generalised_force`);
+* ``B_thr f_thr``: the thrusters' body wrench (allocation matrix times thrust).
+
+The added mass of both arm and vehicle is in the matrix that is solved: no acceleration is
+lagged a step.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numba
+import numpy as np
+import pinocchio as pin
+
+from hydroarm.model.arm import Arm
+from hydroarm.model.current import CurrentField
+from hydroarm.model.loading import load_arm
+from hydroarm.model.strips import StripGeometry, water_terms_kernel
+from hydroarm.model.vehicle import Vehicle, load_vehicle, quaternion_matrix, vehicle_generalised_force
+from hydroarm.model.water import Water
+
+ROOT_JOINT = 1
+"""Pinocchio joint id of the free-flyer root (the vehicle)."""
+
+
+@dataclass
+class UVMS:
+    """A vehicle with an arm (or none): constants only (Pinocchio model + arm + vehicle).
+
+    ``model``: free-flyer root + the arm's joints; ``arm_joint_ids[i]``: the system joint id
+    of the arm's joint i + 1; ``n_arm`` arm DOF; ``mount`` the arm base in the body frame.
+    """
+
+    vehicle: Vehicle
+    arm: Arm | None
+    model: pin.Model
+    mount: pin.SE3
+    arm_joint_ids: np.ndarray
+
+    @property
+    def n_arm(self) -> int:
+        return 0 if self.arm is None else self.arm.n_joints
+
+    @property
+    def nq(self) -> int:
+        return int(self.model.nq)
+
+    @property
+    def nv(self) -> int:
+        return int(self.model.nv)
+
+    def create_data(self) -> pin.Data:
+        return self.model.createData()
+
+    def neutral(self, position=(0.0, 0.0, 0.0), q_arm: np.ndarray | None = None) -> np.ndarray:
+        """A configuration (nq,): the vehicle level at ``position`` (m), the arm at ``q_arm`` (default 0)."""
+        q = pin.neutral(self.model)
+        q[:3] = position
+        if q_arm is not None:
+            q[7:] = q_arm
+        return q
+
+
+def build_uvms(
+    vehicle: Vehicle | str | None = None,
+    arm: Arm | str | None = "mount",
+    *,
+    mount: pin.SE3 | None = None,
+    gravity: float | None = None,
+) -> UVMS:
+    """The floating system of ``vehicle`` (default the BlueROV2 Heavy) with ``arm`` mounted.
+
+    ``arm``: an :class:`Arm`, a built-in name or file (``load_arm``), ``"mount"`` (the arm
+    the vehicle file names, the Alpha 5 for the BlueROV2 Heavy) or None (the vehicle alone).
+    ``mount``: override the vehicle file's mounting pose. ``gravity`` (m/s^2 along -z of the
+    world): default the arm's (9.81 without an arm).
+    """
+    if vehicle is None or isinstance(vehicle, str):
+        vehicle = load_vehicle(vehicle or "bluerov2_heavy")
+    if isinstance(arm, str):
+        arm = load_arm(vehicle.mount_arm if arm == "mount" else arm)
+    mount = vehicle.mount if mount is None else mount
+    root = pin.Model()
+    root.name = vehicle.name
+    joint = root.addJoint(0, pin.JointModelFreeFlyer(), pin.SE3.Identity(), "vehicle")
+    root.appendBodyToJoint(joint, vehicle.rigid_inertia(), pin.SE3.Identity())
+    root.addFrame(pin.Frame("vehicle", joint, pin.SE3.Identity(), pin.FrameType.BODY))
+    if arm is None:
+        model, ids = root, np.zeros(0, dtype=np.int64)
+    else:
+        frame = root.getFrameId("vehicle")
+        model = pin.appendModel(root, arm.model, frame, mount)
+        ids = np.asarray([model.getJointId(arm.model.names[i]) for i in range(1, arm.model.njoints)], dtype=np.int64)
+        if not np.array_equal(ids, np.arange(2, arm.model.njoints + 1)):
+            raise RuntimeError(f"unexpected joint order after appendModel: {ids.tolist()}")
+    g = gravity if gravity is not None else (arm.gravity_acceleration if arm is not None else 9.81)
+    model.gravity = pin.Motion(np.array([0.0, 0.0, -g]), np.zeros(3))
+    return UVMS(vehicle=vehicle, arm=arm, model=model, mount=mount, arm_joint_ids=ids)
+
+
+class FloatingStrips:
+    """The arm's strip geometry on a floating base: the fixed-base :class:`StripGeometry` with
+    (i) one pseudo joint appended to its chain (parent: the universe, axis z, angle 0) that
+    carries the cylinders the arm file fixes to its base, and (ii) the placements of the
+    joints hung on the universe replaced at every call by their world placement
+    (:func:`floating_placements`). ``support`` gains the base's 6 columns (all ones: the
+    base moves every cylinder)."""
+
+    def __init__(self, uvms: UVMS, water: Water):
+        arm = uvms.arm
+        geometry = StripGeometry(arm, water)
+        nj = geometry.parents.shape[0]
+        mount = uvms.mount
+        self.parents = np.append(geometry.parents, 0).astype(np.int64)
+        self.axes = np.vstack([geometry.axes, [0.0, 0.0, 1.0]])
+        self.idx_v = np.append(geometry.idx_v, arm.n_joints).astype(np.int64)
+        rotations = np.vstack([geometry.placement_rotation, np.eye(3)[None]])
+        translations = np.vstack([geometry.placement_translation, np.zeros((1, 3))])
+        # rows hung on the universe: their placement in the vehicle body frame (mount * X)
+        self.root_rows = np.asarray([i for i in range(1, nj + 1) if self.parents[i] == 0], dtype=np.int64)
+        self.body_rotation = rotations.copy()
+        self.body_translation = translations.copy()
+        for i in self.root_rows:
+            placement = mount * pin.SE3(rotations[i], translations[i])
+            self.body_rotation[i] = placement.rotation
+            self.body_translation[i] = placement.translation
+        self.placement_rotation = rotations
+        self.placement_translation = translations
+        self.joint_ids = np.where(geometry.joint_ids == 0, nj, geometry.joint_ids).astype(np.int64)
+        n_cyl = geometry.joint_ids.shape[0]
+        self.support = np.hstack([np.ones((n_cyl, 6)), geometry.support]).reshape(n_cyl, 6 + arm.n_joints)
+        self.geometry = geometry
+
+    def constants(self) -> tuple:
+        """Arguments of :func:`floating_water_terms` after the state, in their order."""
+        g = self.geometry
+        return (
+            self.root_rows, self.body_rotation, self.body_translation,
+            self.parents, self.placement_rotation, self.placement_translation, self.axes, self.idx_v,
+            self.joint_ids, g.start, g.axis, g.length, self.support,
+            g.drag_per_length, g.mass_per_length, g.buoyancy_force, g.nodes, g.weights,
+        )  # fmt: skip
+
+
+@numba.njit(cache=True)
+def floating_placements(
+    q, root_rows, body_rotation, body_translation, placement_rotation, placement_translation
+):  # pragma: no cover - compiled
+    """Write the world placement of every chain row hung on the universe: root placement
+    (q[:3], quaternion q[3:7]) times its placement in the body frame."""
+    rot = quaternion_matrix(q[3], q[4], q[5], q[6])
+    for k in range(root_rows.shape[0]):
+        i = root_rows[k]
+        for a in range(3):
+            placement_translation[i, a] = q[a] + (
+                rot[a, 0] * body_translation[i, 0] + rot[a, 1] * body_translation[i, 1]
+                + rot[a, 2] * body_translation[i, 2]
+            )  # fmt: skip
+            for b in range(3):
+                placement_rotation[i, a, b] = (
+                    rot[a, 0] * body_rotation[i, 0, b] + rot[a, 1] * body_rotation[i, 1, b]
+                    + rot[a, 2] * body_rotation[i, 2, b]
+                )  # fmt: skip
+    return rot
+
+
+@numba.njit(cache=True)
+def floating_water_terms(
+    q, v, water_velocity, jac, djac,
+    root_rows, body_rotation, body_translation,
+    parents, placement_rotation, placement_translation, axes, idx_v,
+    joint_ids, start, axis, length, support, drag_per_length, mass_per_length, buoyancy_force,
+    nodes, weights, use_drag, use_added_mass, use_buoyancy,
+):  # fmt: skip  # pragma: no cover - compiled
+    """The arm's strip integrals on the floating system: ``(M_A (nv, nv), h_A (nv,), f (nv,))``.
+
+    ``q`` (7 + n), ``v`` (6 + n), ``jac``/``djac`` Pinocchio's world Jacobian of the whole
+    system and its time derivative (6, nv). The chain's forward kinematics runs on the arm
+    angles plus the pseudo joint's zero angle.
+    """
+    n_arm = q.shape[0] - 7
+    angles = np.zeros(n_arm + 1)
+    for i in range(n_arm):
+        angles[i] = q[7 + i]
+    floating_placements(q, root_rows, body_rotation, body_translation, placement_rotation, placement_translation)
+    return water_terms_kernel(
+        angles, v, water_velocity, jac, djac,
+        parents, placement_rotation, placement_translation, axes, idx_v,
+        joint_ids, start, axis, length, support, drag_per_length, mass_per_length, buoyancy_force,
+        nodes, weights, use_drag, use_added_mass, use_buoyancy,
+    )  # fmt: skip
+
+
+@numba.njit(cache=True)
+def uvms_acceleration_kernel(
+    q, v, tau, thrust, water_velocity, mass_upper, nonlinear, jac, djac,
+    allocation, added_mass, linear_damping, quadratic_damping, buoyancy, cb,
+    root_rows, body_rotation, body_translation,
+    parents, placement_rotation, placement_translation, axes, idx_v,
+    joint_ids, start, axis, length, support, drag_per_length, mass_per_length, buoyancy_force,
+    nodes, weights, use_drag, use_added_mass, use_buoyancy, has_strips,
+):  # fmt: skip  # pragma: no cover - compiled
+    """v' (nv,) of the floating system (see the module docstring).
+
+    ``tau`` (nv,): generalised force besides the water and thrusters (zero on the base, the
+    arm's joint torques); ``thrust`` (n_thr,) thruster forces (N) after saturation;
+    ``mass_upper``, ``nonlinear``: Pinocchio's CRBA (upper triangle) and NLE at (q, v).
+    """
+    nv = v.shape[0]
+    mass = np.empty((nv, nv))
+    for a in range(nv):
+        for b in range(a, nv):
+            mass[a, b] = mass_upper[a, b]
+            mass[b, a] = mass_upper[a, b]
+    rhs = tau - nonlinear
+    if has_strips:
+        added, bias, force = floating_water_terms(
+            q, v, water_velocity, jac, djac,
+            root_rows, body_rotation, body_translation,
+            parents, placement_rotation, placement_translation, axes, idx_v,
+            joint_ids, start, axis, length, support, drag_per_length, mass_per_length, buoyancy_force,
+            nodes, weights, use_drag, use_added_mass, use_buoyancy,
+        )  # fmt: skip
+        mass += added
+        rhs += force - bias
+    rot = quaternion_matrix(q[3], q[4], q[5], q[6])
+    body = vehicle_generalised_force(
+        v[:6], rot, water_velocity, added_mass, linear_damping, quadratic_damping, buoyancy, cb,
+        use_added_mass, use_drag, use_buoyancy,
+    )  # fmt: skip
+    wrench = allocation @ thrust
+    for i in range(6):
+        rhs[i] += body[i] + wrench[i]
+        if use_added_mass:
+            for j in range(6):
+                mass[i, j] += added_mass[i, j]
+    return np.linalg.solve(mass, rhs)
+
+
+class UVMSDynamics:
+    """The floating system's dynamics at one instant, with its own Pinocchio workspace.
+
+    ``water``: the water (rho, coefficients, switches, current; the ``paper`` current is a
+    fixed-base joint disturbance and is rejected here); the vehicle's damping and added mass
+    follow ``water.drag`` / ``water.added_mass``, its buoyancy ``water.buoyancy``.
+    """
+
+    def __init__(self, uvms: UVMS, water: Water | None = None):
+        water = water if water is not None else Water()
+        if water.current.model == "paper":
+            water = water.model_copy(update={"current": water.current.model_copy(update={"model": "none"})})
+        self.uvms = uvms
+        self.water = water
+        self.data = uvms.create_data()
+        self.current = CurrentField(water.current, 0)
+        vehicle = uvms.vehicle
+        self.strips = FloatingStrips(uvms, water) if uvms.arm is not None and uvms.arm.cylinders else None
+        strip_constants = self.strips.constants() if self.strips is not None else _empty_strip_constants(uvms)
+        buoyancy = water.rho * water.gravity * vehicle.displaced_volume
+        self.vehicle_constants = (
+            vehicle.allocation, vehicle.added_mass, vehicle.linear_damping, vehicle.quadratic_damping,
+            float(buoyancy), vehicle.cb,
+        )  # fmt: skip
+        self.kernel_constants = (*self.vehicle_constants, *strip_constants)
+        self.flags = (water.drag, water.added_mass, water.buoyancy, self.strips is not None)
+
+    def pinocchio_terms(self, q: np.ndarray, v: np.ndarray):
+        """``(M upper, nle, J, dJ)`` from Pinocchio at (q, v) (three calls)."""
+        model, data = self.uvms.model, self.data
+        pin.crba(model, data, q)
+        nonlinear = pin.nonLinearEffects(model, data, q, v)
+        pin.computeJointJacobiansTimeVariation(model, data, q, v)
+        return data.M, nonlinear, data.J, data.dJ
+
+    def acceleration(self, t: float, q: np.ndarray, v: np.ndarray, tau: np.ndarray, thrust: np.ndarray) -> np.ndarray:
+        """v' (nv,) at time t under generalised force ``tau`` (nv,) and thruster forces ``thrust``."""
+        mass, nonlinear, jac, djac = self.pinocchio_terms(q, v)
+        return uvms_acceleration_kernel(
+            q, v, np.asarray(tau, dtype=float), np.asarray(thrust, dtype=float), self.current.at(t)[1],
+            mass, nonlinear, jac, djac, *self.kernel_constants, *self.flags,
+        )  # fmt: skip
+
+    def arm_water_terms(self, q: np.ndarray, v: np.ndarray, t: float = 0.0, *, drag=None, added_mass=None,
+                        buoyancy=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+        """The arm's strip integrals ``(M_A (nv, nv), h_A (nv,), f (nv,))`` on the floating system;
+        each effect defaults to the water's switch."""
+        w = self.water
+        _, _, jac, djac = self.pinocchio_terms(q, v)
+        return floating_water_terms(
+            q, v, self.current.at(t)[1], jac, djac, *self.strips.constants(),
+            w.drag if drag is None else drag, w.added_mass if added_mass is None else added_mass,
+            w.buoyancy if buoyancy is None else buoyancy,
+        )  # fmt: skip
+
+
+def _empty_strip_constants(uvms: UVMS) -> tuple:
+    """Placeholder strip arguments (typed like the real ones) for a system without wetted cylinders."""
+    nv = uvms.nv
+    i3 = np.eye(3)[None]
+    return (
+        np.zeros(0, dtype=np.int64), i3.copy(), np.zeros((1, 3)),
+        np.zeros(1, dtype=np.int64), i3.copy(), np.zeros((1, 3)), np.zeros((1, 3)), np.zeros(1, dtype=np.int64),
+        np.zeros(0, dtype=np.int64), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), np.zeros((0, nv)),
+        np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(1), np.ones(1),
+    )  # fmt: skip

@@ -1,0 +1,256 @@
+"""The true floating plant: vehicle + arm + water + thrusters, integrated by a Lie-group RK4.
+
+State ``x = [q (7 + n), v (6 + n), f (n_thr)]``: the configuration (base position, base
+quaternion (x, y, z, w), arm angles), the velocity (body twist of the base, arm rates) and
+the thrusters' actual forces (N). Input ``u = [tau_arm (n), f_cmd (n_thr)]`` (N m, N), held
+over the control period: the commanded thrust is clipped to each thruster's limits and,
+with a thrust time constant T > 0, reached with the first-order lag ``f' = (f_cmd - f) / T``,
+solved in closed form at every RK4 stage time (so the lag adds no stiffness).
+
+Integration: RKMK4 (Munthe-Kaas' Runge-Kutta on Lie groups, classic RK4 tableau). A stage's
+configuration is ``q0 (+) xi`` (Pinocchio's ``integrate``: the base moves by the SE(3)
+exponential of ``xi``'s 6 first entries, the arm angles add); the base's stage slope is the
+body velocity corrected by the inverse differential of the exponential,
+``xi' = V + 1/2 [xi, V] + 1/12 [xi, [xi, V]]`` (the terms RK4 needs for fourth order; the
+arm's angles commute and need none). The RK4 arithmetic and the exponential are compiled;
+three Pinocchio calls per stage (CRBA, NLE, Jacobians and their time variation) remain.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numba
+import numpy as np
+import pinocchio as pin
+import pydantic
+
+from hydroarm.config import FrozenModel
+from hydroarm.model.current import current_at
+from hydroarm.model.plant import inner_steps
+from hydroarm.model.uvms import UVMS, UVMSDynamics, uvms_acceleration_kernel
+from hydroarm.model.water import Water
+
+
+class UVMSPlantConfig(FrozenModel):
+    """``inner_step`` (s, in [1e-5, 0.1]): the longest RK4 step (the control period is split
+    into equal steps no longer than this)."""
+
+    inner_step: float = pydantic.Field(1e-3, ge=1e-5, le=0.1, description="RK4 step (s)")
+
+
+@dataclass(frozen=True)
+class UVMSStepInfo:
+    """``thrust_wrench`` (6,): the thrusters' body wrench averaged over the step with the RK4
+    weights (N, N m)."""
+
+    thrust_wrench: np.ndarray
+
+
+class UVMSPlant:
+    """The floating plant (module docstring). Owns its :class:`UVMSDynamics` (and Pinocchio
+    workspace): one plant per thread."""
+
+    def __init__(self, uvms: UVMS, water: Water | None = None, config: UVMSPlantConfig | None = None):
+        self.uvms = uvms
+        self.config = config if config is not None else UVMSPlantConfig()
+        self.dynamics = UVMSDynamics(uvms, water)
+        self.water = self.dynamics.water
+        self.nq, self.nv = uvms.nq, uvms.nv
+        self.n_arm = uvms.n_arm
+        self.n_thr = uvms.vehicle.n_thrusters
+        self.n_state = self.nq + self.nv + self.n_thr
+
+    def initial_state(self, q: np.ndarray | None = None, v: np.ndarray | None = None) -> np.ndarray:
+        """``[q, v, f = 0]`` (default: the neutral configuration at rest)."""
+        q = self.uvms.neutral() if q is None else np.asarray(q, dtype=float)
+        v = np.zeros(self.nv) if v is None else np.asarray(v, dtype=float)
+        return np.concatenate([q, v, np.zeros(self.n_thr)])
+
+    def split(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(q, v, thrust)`` views of a state."""
+        return x[: self.nq], x[self.nq : self.nq + self.nv], x[self.nq + self.nv :]
+
+    def step(self, t: float, x: np.ndarray, u: np.ndarray, dt: float) -> tuple[np.ndarray, UVMSStepInfo]:
+        """Integrate from (t, x) over dt (s) under the held input ``u = [tau_arm, f_cmd]``."""
+        nq, nv = self.nq, self.nv
+        steps, h = inner_steps(dt, self.config.inner_step)
+        vehicle = self.uvms.vehicle
+        u = np.asarray(u, dtype=float)
+        tau = np.zeros(nv)
+        tau[6:] = u[: self.n_arm]
+        target = np.clip(u[self.n_arm :], vehicle.thrust_min, vehicle.thrust_max)
+        x = np.array(x, dtype=float)
+        thrust0 = x[nq + nv :].copy()
+        q0, v0 = x[:nq].copy(), x[nq : nq + nv].copy()
+        qs, vs = q0.copy(), v0.copy()
+        slopes = np.empty((4, nv))
+        accelerations = np.empty((4, nv))
+        wrench = np.zeros(6)
+        dyn = self.dynamics
+        model, data = self.uvms.model, dyn.data
+        world = dyn.current.world
+        constants, flags = dyn.kernel_constants, dyn.flags
+        lag = float(vehicle.thrust_time_constant)
+        time = t
+        for _ in range(steps):
+            half = time + 0.5 * h
+            for stage, stage_time in enumerate((time, half, half, time + h)):
+                pin.crba(model, data, qs)
+                nonlinear = pin.nonLinearEffects(model, data, qs, vs)
+                pin.computeJointJacobiansTimeVariation(model, data, qs, vs)
+                rkmk4_stage_kernel(
+                    stage, stage_time, t, h, q0, v0, qs, vs, slopes, accelerations, wrench, tau, thrust0, target,
+                    lag, world, data.M, nonlinear, data.J, data.dJ, *constants, *flags,
+                )  # fmt: skip
+            q0[:], v0[:] = qs, vs
+            time += h
+        thrust = thrust_at(target, thrust0, dt, lag)
+        return np.concatenate([q0, v0, thrust]), UVMSStepInfo(thrust_wrench=wrench / (6.0 * steps))
+
+    def acceleration(self, t: float, x: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """v' (nv,) at state x under input u, the thrust being the state's ``f``."""
+        q, v, thrust = self.split(np.asarray(x, dtype=float))
+        tau = np.zeros(self.nv)
+        tau[6:] = np.asarray(u, dtype=float)[: self.n_arm]
+        return self.dynamics.acceleration(t, q, v, tau, thrust)
+
+
+@numba.njit(cache=True)
+def thrust_at(target, thrust0, elapsed, lag):  # pragma: no cover - compiled
+    """Thrust after ``elapsed`` s of the first-order lag toward ``target`` from ``thrust0``."""
+    if lag <= 0.0:
+        return target.copy()
+    decay = np.exp(-elapsed / lag)
+    return target + (thrust0 - target) * decay
+
+
+@numba.njit(cache=True)
+def se3_exp_quaternion(xi):  # pragma: no cover - compiled
+    """SE(3) exponential of the twist ``xi`` = (v, omega): ``(translation (3,), quaternion (4,) x y z w)``."""
+    wx, wy, wz = xi[3], xi[4], xi[5]
+    theta2 = wx * wx + wy * wy + wz * wz
+    theta = np.sqrt(theta2)
+    if theta2 < 1e-8:
+        a = 0.5 - theta2 / 24.0 + theta2 * theta2 / 720.0  # (1 - cos) / theta^2
+        b = 1.0 / 6.0 - theta2 / 120.0 + theta2 * theta2 / 5040.0  # (theta - sin) / theta^3
+        c = 0.5 - theta2 / 48.0 + theta2 * theta2 / 3840.0  # sin(theta/2) / theta
+        w = 1.0 - theta2 / 8.0 + theta2 * theta2 / 384.0  # cos(theta/2)
+    else:
+        a = (1.0 - np.cos(theta)) / theta2
+        b = (theta - np.sin(theta)) / (theta2 * theta)
+        c = np.sin(0.5 * theta) / theta
+        w = np.cos(0.5 * theta)
+    v = xi[:3]
+    om = xi[3:]
+    wv = np.array([wy * v[2] - wz * v[1], wz * v[0] - wx * v[2], wx * v[1] - wy * v[0]])
+    wwv = np.array([wy * wv[2] - wz * wv[1], wz * wv[0] - wx * wv[2], wx * wv[1] - wy * wv[0]])
+    translation = v + a * wv + b * wwv
+    quaternion = np.array([c * om[0], c * om[1], c * om[2], w])
+    return translation, quaternion
+
+
+@numba.njit(cache=True)
+def integrate_configuration(q0, xi, out):  # pragma: no cover - compiled
+    """``out = q0 (+) xi``: Pinocchio's ``integrate`` for a free-flyer root and 1-DOF joints."""
+    translation, dq = se3_exp_quaternion(xi[:6])
+    x0, y0, z0, w0 = q0[3], q0[4], q0[5], q0[6]
+    rot = np.empty((3, 3))
+    rot[0, 0] = 1.0 - 2.0 * (y0 * y0 + z0 * z0)
+    rot[0, 1] = 2.0 * (x0 * y0 - z0 * w0)
+    rot[0, 2] = 2.0 * (x0 * z0 + y0 * w0)
+    rot[1, 0] = 2.0 * (x0 * y0 + z0 * w0)
+    rot[1, 1] = 1.0 - 2.0 * (x0 * x0 + z0 * z0)
+    rot[1, 2] = 2.0 * (y0 * z0 - x0 * w0)
+    rot[2, 0] = 2.0 * (x0 * z0 - y0 * w0)
+    rot[2, 1] = 2.0 * (y0 * z0 + x0 * w0)
+    rot[2, 2] = 1.0 - 2.0 * (x0 * x0 + y0 * y0)
+    for i in range(3):
+        out[i] = q0[i] + rot[i, 0] * translation[0] + rot[i, 1] * translation[1] + rot[i, 2] * translation[2]
+    x1, y1, z1, w1 = dq[0], dq[1], dq[2], dq[3]
+    x = w0 * x1 + x0 * w1 + y0 * z1 - z0 * y1
+    y = w0 * y1 + y0 * w1 + z0 * x1 - x0 * z1
+    z = w0 * z1 + z0 * w1 + x0 * y1 - y0 * x1
+    w = w0 * w1 - x0 * x1 - y0 * y1 - z0 * z1
+    norm = np.sqrt(x * x + y * y + z * z + w * w)
+    out[3], out[4], out[5], out[6] = x / norm, y / norm, z / norm, w / norm
+    for i in range(7, q0.shape[0]):
+        out[i] = q0[i] + xi[i - 1]
+
+
+@numba.njit(cache=True)
+def _ad(xi, eta):  # pragma: no cover - compiled
+    """se(3) bracket [xi, eta] of twists (v, omega): (w1 x v2 + v1 x w2, w1 x w2)."""
+    out = np.empty(6)
+    v1, w1, v2, w2 = xi[:3], xi[3:6], eta[:3], eta[3:6]
+    out[0] = w1[1] * v2[2] - w1[2] * v2[1] + v1[1] * w2[2] - v1[2] * w2[1]
+    out[1] = w1[2] * v2[0] - w1[0] * v2[2] + v1[2] * w2[0] - v1[0] * w2[2]
+    out[2] = w1[0] * v2[1] - w1[1] * v2[0] + v1[0] * w2[1] - v1[1] * w2[0]
+    out[3] = w1[1] * w2[2] - w1[2] * w2[1]
+    out[4] = w1[2] * w2[0] - w1[0] * w2[2]
+    out[5] = w1[0] * w2[1] - w1[1] * w2[0]
+    return out
+
+
+@numba.njit(cache=True)
+def rkmk4_stage_kernel(
+    stage, stage_time, step_start, h, q0, v0, qs, vs, slopes, accelerations, wrench, tau, thrust0, target,
+    lag, current_world, mass_upper, nonlinear, jac, djac,
+    allocation, added_mass, linear_damping, quadratic_damping, buoyancy, cb,
+    root_rows, body_rotation, body_translation,
+    parents, placement_rotation, placement_translation, axes, idx_v,
+    joint_ids, start, axis, length, support, drag_per_length, mass_per_length, buoyancy_force,
+    nodes, weights, use_drag, use_added_mass, use_buoyancy, has_strips,
+):  # fmt: skip  # pragma: no cover - compiled
+    """One RKMK4 stage at the stage state (qs, vs), Pinocchio's terms evaluated there.
+
+    Stores the stage's acceleration and its configuration slope (the velocity, the base part
+    corrected by dexp^-1 of the stage's increment ``xi = qs (-) q0``), then writes the next
+    stage's state into (qs, vs); after stage 3 the step's result. ``wrench`` accumulates the
+    thrust wrench with the RK4 weights.
+    """
+    nv = vs.shape[0]
+    thrust = thrust_at(target, thrust0, stage_time - step_start, lag)
+    joint_acceleration = np.empty(0)
+    water_velocity = np.empty(3)
+    current_at(stage_time, np.zeros((3, 0)), current_world, joint_acceleration, water_velocity)
+    acc = uvms_acceleration_kernel(
+        qs, vs, tau, thrust, water_velocity, mass_upper, nonlinear, jac, djac,
+        allocation, added_mass, linear_damping, quadratic_damping, buoyancy, cb,
+        root_rows, body_rotation, body_translation,
+        parents, placement_rotation, placement_translation, axes, idx_v,
+        joint_ids, start, axis, length, support, drag_per_length, mass_per_length, buoyancy_force,
+        nodes, weights, use_drag, use_added_mass, use_buoyancy, has_strips,
+    )  # fmt: skip
+    weight = 1.0 if stage == 0 or stage == 3 else 2.0
+    thrust_wrench = allocation @ thrust
+    for i in range(6):
+        wrench[i] += weight * thrust_wrench[i]
+    # the stage's increment xi (a multiple of the previous slopes), then the corrected slope
+    scale = 0.0 if stage == 0 else (h if stage == 3 else 0.5 * h)
+    xi = np.zeros(6)
+    if stage > 0:
+        for i in range(6):
+            xi[i] = scale * slopes[stage - 1, i]
+    first = _ad(xi, vs[:6])
+    second = _ad(xi, first)
+    for i in range(6):
+        slopes[stage, i] = vs[i] + 0.5 * first[i] + second[i] / 12.0
+    for i in range(6, nv):
+        slopes[stage, i] = vs[i]
+    for i in range(nv):
+        accelerations[stage, i] = acc[i]
+    increment = np.empty(nv)
+    if stage < 3:
+        nxt = h if stage == 2 else 0.5 * h
+        for i in range(nv):
+            increment[i] = nxt * slopes[stage, i]
+            vs[i] = v0[i] + nxt * accelerations[stage, i]
+    else:
+        sixth = h / 6.0
+        for i in range(nv):
+            increment[i] = sixth * (slopes[0, i] + 2.0 * slopes[1, i] + 2.0 * slopes[2, i] + slopes[3, i])
+            vs[i] = v0[i] + sixth * (
+                accelerations[0, i] + 2.0 * accelerations[1, i] + 2.0 * accelerations[2, i] + accelerations[3, i]
+            )
+    integrate_configuration(q0, increment, qs)
