@@ -5,12 +5,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import scipy.linalg
+import scipy.optimize
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import hydroarm
 from hydroarm.control.estimator import EstimatorConfig, JointKalmanFilter, steady_state_covariance
-from hydroarm.control.idmpc import IDMPCConfig, InverseDynamicsMPC, allocate, unconstrained_move
+from hydroarm.control.idmpc import IDMPCConfig, InverseDynamicsMPC, allocate, authority_weights, unconstrained_move
+from hydroarm.control.idmpc_limits import predicted_plan
 from hydroarm.model.task import SinusoidReference, paper_reference
 
 T = 0.01
@@ -31,7 +33,7 @@ def _lqr_by_iteration(q_pos, q_vel, r, period=T, steps=20_000):
 @pytest.mark.parametrize("q_vel, r", [(0.01, 1e-5), (1.0, 1e-3), (0.0, 1e-2)])
 def test_unconstrained_move_is_the_joint_lqr_for_a_constant_acceleration_reference(paper_arm, q_vel, r):
     """A reference of constant acceleration has no one-step defect: the move is -K e0."""
-    controller = InverseDynamicsMPC(paper_arm, IDMPCConfig(q_velocity=q_vel, r_acceleration=r))
+    controller = InverseDynamicsMPC(paper_arm, IDMPCConfig(q_velocity=q_vel, r_acceleration=r, r_scaling="uniform"))
     q0, v0, a0 = np.linspace(-1, 1, 6), np.linspace(0.5, -0.5, 6), np.linspace(2.0, -3.0, 6)
 
     class Parabola:
@@ -47,6 +49,160 @@ def test_unconstrained_move_is_the_joint_lqr_for_a_constant_acceleration_referen
     gain = _lqr_by_iteration(300.0, q_vel, r)
     expected = -(gain[0] * (y[:6] - q_r) + gain[1] * (y[6:] - v_r))
     np.testing.assert_allclose(move, expected, rtol=1e-6, atol=1e-6 * np.abs(expected).max())
+
+
+def test_authority_weights_closed_form_and_the_light_joints_tend_to_deadbeat(paper_arm):
+    """R_a,j = max(r (m_j / max m)^2, floor), m_j = M_jj(0) / tau_max,j; the joint of least
+    authority keeps r, and a joint at the floor has both closed-loop poles near 0."""
+    limit = np.array([150.0, 150, 150, 28, 28, 28])
+    controller = InverseDynamicsMPC(paper_arm, IDMPCConfig(torque_limit=limit.tolist(), r_acceleration=2e-5))
+    inertia = np.array([paper_arm.mass_matrix(np.zeros(6))[j, j] for j in range(6)])
+    m = inertia / limit
+    expected = np.maximum(2e-5 * (m / m.max()) ** 2, 1e-9)
+    np.testing.assert_allclose(controller.r_acceleration, expected, rtol=1e-12)
+    np.testing.assert_allclose(authority_weights(inertia, limit, np.full(6, 2e-5), 1e-9), expected, rtol=1e-12)
+    assert controller.r_acceleration[np.argmax(m)] == pytest.approx(2e-5)
+    a = np.array([[1.0, T], [0.0, 1.0]])
+    b = np.array([0.5 * T**2, T])
+    for j in np.flatnonzero(expected == 1e-9):
+        poles = np.abs(np.linalg.eigvals(a - np.outer(b, controller.K[j])))
+        assert poles.max() < 0.1, (j, poles)
+    uniform = InverseDynamicsMPC(paper_arm, IDMPCConfig(r_scaling="uniform", r_acceleration=2e-5))
+    np.testing.assert_array_equal(uniform.r_acceleration, np.full(6, 2e-5))
+
+
+def _joint_least_squares(e0, c, q_pos, q_vel, r, p_terminal, period=T):
+    """One joint's horizon cost as ``||W u - b||^2`` in its N moves (stacked weighted residuals)."""
+    horizon = c.shape[0]
+    a = np.array([[1.0, period], [0.0, 1.0]])
+    b = np.array([0.5 * period**2, period])
+    rows, rhs = [], []
+    root_p = np.linalg.cholesky(p_terminal).T
+    free, effect = e0.copy(), np.zeros((2, horizon))
+    for k in range(horizon + 1):
+        weight = root_p if k == horizon else np.diag(np.sqrt([q_pos, q_vel]))
+        rows.append(weight @ effect)
+        rhs.append(-weight @ free)
+        if k < horizon:
+            u_row = np.zeros((1, horizon))
+            u_row[0, k] = np.sqrt(r)
+            rows.append(u_row)
+            rhs.append(np.zeros(1))
+            effect = a @ effect
+            effect[:, k] += b
+            free = a @ free + c[k]
+    return np.vstack(rows), np.concatenate(rhs)
+
+
+def _least_distance_qp(w_mat, rhs, g_mat, h_vec):
+    """``min ||W u - b||^2 s.t. G u <= h`` by Lawson and Hanson's LSI -> LDP -> NNLS reduction."""
+    q_mat, r_mat = np.linalg.qr(w_mat)
+    r_inv = np.linalg.inv(r_mat)
+    shift = q_mat.T @ rhs  # u = R^-1 (z + shift), min ||z||
+    e_mat = -g_mat @ r_inv
+    f_vec = -h_vec + g_mat @ r_inv @ shift  # E z >= f
+    big = np.vstack([e_mat.T, f_vec[None, :]])
+    target = np.zeros(big.shape[0])
+    target[-1] = 1.0
+    x, _ = scipy.optimize.nnls(big, target, maxiter=10_000)
+    residual = big @ x - target
+    z = -residual[:-1] / residual[-1]
+    return r_inv @ (z + shift)
+
+
+def test_qp_first_move_matches_an_independent_solver_and_holds_the_limits(paper_arm):
+    """The horizon QP of ``limits = "qp"`` (DAQP on the condensed Hessian) against the same problem
+    built from per-joint least squares and solved by an LSI -> NNLS reduction."""
+    horizon, n = 4, 6
+    limit = np.array([60.0, 60, 40, 5, 5, 5])
+    config = IDMPCConfig(horizon=horizon, limits="qp", sqp_iterations=0, torque_limit=limit.tolist())
+    controller = InverseDynamicsMPC(paper_arm, config)
+    rng = np.random.default_rng(7)
+    q, v = rng.normal(size=n), rng.normal(size=n)
+    planned = controller.planned_acceleration(0.3, np.concatenate([q, v]), paper_reference())
+    mass, bias = paper_arm.mass_matrix(q), paper_arm.nonlinear_effects(q, v)
+    assert np.any(np.abs(mass @ planned + bias) > limit)  # the unconstrained move violates a limit
+    tau, accel, saturated = controller.torque_map(q, v, planned, np.zeros(n))
+    assert saturated.any() and np.all(np.abs(tau) <= limit * (1 + 1e-9))
+    np.testing.assert_allclose(tau, mass @ accel + bias, rtol=1e-6, atol=1e-6)
+    e0, c, a_r, _, _ = controller._last_problem
+    w_mat = np.zeros((0, horizon * n))
+    rhs = np.zeros(0)
+    for j in range(n):  # step-major moves: U[k n + j]
+        w_j, b_j = _joint_least_squares(e0[j], c[:, j], 300.0, 0.01, controller.r_acceleration[j], controller.P[j])
+        block = np.zeros((w_j.shape[0], horizon * n))
+        block[:, np.arange(horizon) * n + j] = w_j
+        w_mat, rhs = np.vstack([w_mat, block]), np.concatenate([rhs, b_j])
+    g_mat = np.kron(np.eye(horizon), mass)
+    base = (a_r @ mass.T).ravel() + np.tile(bias, horizon)
+    limits = np.tile(limit, horizon)
+    moves = _least_distance_qp(w_mat, rhs, np.vstack([g_mat, -g_mat]), np.concatenate([limits - base, limits + base]))
+    expected = a_r[0] + moves[:n]
+    np.testing.assert_allclose(accel, expected, rtol=1e-5, atol=1e-5 * np.abs(expected).max())
+
+
+def test_predicted_plan_is_the_error_double_integrator():
+    rng = np.random.default_rng(3)
+    horizon, n = 6, 4
+    e0, c = rng.normal(size=(n, 2)), rng.normal(scale=1e-3, size=(horizon, n, 2))
+    moves, a_r = rng.normal(size=(horizon, n)), rng.normal(size=(horizon, n))
+    q_r, v_r = rng.normal(size=(horizon + 1, n)), rng.normal(size=(horizon + 1, n))
+    q, v, a = predicted_plan(e0, c, moves, q_r, v_r, a_r, T)
+    e = e0.copy()
+    for k in range(horizon):
+        np.testing.assert_allclose(q[k], q_r[k] + e[:, 0], rtol=1e-13, atol=1e-13)
+        np.testing.assert_allclose(v[k], v_r[k] + e[:, 1], rtol=1e-13, atol=1e-13)
+        np.testing.assert_allclose(a[k], a_r[k] + moves[k], rtol=1e-13, atol=1e-13)
+        a_mat, b_vec = np.array([[1.0, T], [0.0, 1.0]]), np.array([0.5 * T**2, T])
+        e = e @ a_mat.T + np.outer(moves[k], b_vec) + c[k]
+
+
+def test_sqp_rows_are_the_inverse_dynamics_linearised_along_the_plan(paper_arm):
+    """rows @ dU against central differences of tau_k(U) = RNEA(q_k(U), v_k(U), a_k(U)) - w_hat."""
+    horizon, n = 4, 6
+    limit = np.full(n, 100.0)
+    controller = InverseDynamicsMPC(paper_arm, IDMPCConfig(horizon=horizon, torque_limit=limit.tolist()))
+    rng = np.random.default_rng(11)
+    e0, c = rng.normal(size=(n, 2)), rng.normal(scale=1e-3, size=(horizon, n, 2))
+    moves, a_r = rng.normal(scale=20.0, size=(horizon, n)), rng.normal(size=(horizon, n))
+    q_r, v_r = rng.normal(size=(horizon + 1, n)), rng.normal(size=(horizon + 1, n))
+    w_hat = rng.normal(size=n)
+
+    def torques(u):
+        q, v, a = predicted_plan(e0, c, u, q_r, v_r, a_r, T)
+        return np.concatenate([paper_arm.inverse_dynamics(q[k], v[k], a[k]) - w_hat for k in range(horizon)])
+
+    rows, upper, lower = controller.qp.linearised_rows(moves, e0, c, q_r, v_r, a_r, w_hat)
+    rows = rows.copy()
+    np.testing.assert_allclose(upper, np.tile(limit, horizon) - torques(moves) + rows @ moves.ravel(), rtol=1e-10)
+    np.testing.assert_allclose(lower, -np.tile(limit, horizon) - torques(moves) + rows @ moves.ravel(), rtol=1e-10)
+    step = 1e-3
+    numeric = np.empty_like(rows)
+    for m in range(horizon * n):
+        du = np.zeros(horizon * n)
+        du[m] = step
+        numeric[:, m] = (torques(moves + du.reshape(horizon, n)) - torques(moves - du.reshape(horizon, n))) / (2 * step)
+    np.testing.assert_allclose(rows, numeric, rtol=1e-5, atol=1e-7 * np.abs(numeric).max())
+
+
+def test_sqp_first_torque_row_is_exact_and_the_limits_hold(paper_arm):
+    """After the SQP step the k = 0 row is still the exact dry inverse dynamics: the torque the
+    controller applies is M a + h - w_hat of the acceleration it reports, within the limits."""
+    limit = np.array([60.0, 60, 40, 5, 5, 5])
+    controller = InverseDynamicsMPC(paper_arm, IDMPCConfig(torque_limit=limit.tolist(), sqp_iterations=2))
+    rng = np.random.default_rng(5)
+    reference = paper_reference()
+    solved = 0
+    for trial in range(5):
+        q, v = rng.normal(size=6), rng.normal(size=6)
+        w_hat = rng.normal(scale=3.0, size=6)
+        planned = controller.planned_acceleration(0.1 * trial, np.concatenate([q, v]), reference)
+        tau, accel, saturated = controller.torque_map(q, v, planned, w_hat)
+        solved += saturated.any() and controller.qp.last_iterations == 2
+        exact = paper_arm.inverse_dynamics(q, v, accel) - w_hat
+        assert np.all(np.abs(exact) <= limit * (1 + 1e-6))
+        np.testing.assert_allclose(tau, exact, rtol=1e-6, atol=1e-6 * limit.max())
+    assert solved >= 3  # the SQP steps were taken, not only the frozen QP
 
 
 def _brute_force_first_move(e0, c, q_pos, q_vel, r, p_terminal, period=T):

@@ -1,35 +1,49 @@
 """Inverse-dynamics MPC (hydroarm's own controller): an MPC in acceleration space, computed torque
 underneath, an optional GP disturbance estimate fed forward, and the torque limits held.
 
-Outer loop, per joint i, on the exact zero-order-hold double integrator (no linearisation
+Units: SI (rad, rad/s, rad/s^2, N m, s); n joints, control period T, horizon N steps.
+
+Outer loop, per joint j, on the exact zero-order-hold double integrator (no linearisation
 error; nothing to go unstable on a light wrist)::
 
-    x_{k+1} = A x_k + B a_k,   x = [q_i, v_i],   A = [[1, T], [0, 1]],   B = [T^2/2, T]
+    x_{k+1} = A x_k + B a_k,   x = [q_j, v_j],   A = [[1, T], [0, 1]],   B = [T^2/2, T]
 
-minimising ``sum_{k<N} (x_k - x_r,k)' Q (x_k - x_r,k) + R_a (a_k - a_r,k)^2 + e_N' P e_N`` with
-``Q = diag(q_position, q_velocity)``, ``R_a = r_acceleration`` (acceleration units) and P the
-joint's discrete algebraic Riccati solution (the LQR's). In the error e = x - x_r and move
-u = a - a_r the model is ``e_{k+1} = A e_k + B u_k + c_k`` with the reference's one-step defect
-``c_k = x_r,k+1 - A x_r,k - B a_r,k`` (zero for a reference of constant acceleration). With the
-DARE terminal weight, the unconstrained optimum is the LQR law plus a preview of the defects::
+minimising ``sum_{k<N} (x_k - x_r,k)' Q (x_k - x_r,k) + R_a,j (a_k - a_r,k)^2 + e_N' P_j e_N``
+with ``Q = diag(q_position, q_velocity)``, ``R_a,j`` the joint's acceleration weight
+(s^4/rad^2) and P_j (2, 2) the joint's discrete algebraic Riccati solution (the LQR's).
+
+Acceleration weights (``r_scaling``). ``"authority"`` (default): every joint pays the same for
+the same fraction of its torque. With ``m_j = M_jj(0) / tau_max,j`` (s^2/rad, the inverse of
+the acceleration the joint's limit gives at q = 0)::
+
+    R_a,j = max(r_acceleration * (m_j / max_i m_i)^2, r_floor)
+
+The joint of least authority (typically the base) keeps ``r_acceleration``; a light wrist gets
+a weight near ``r_floor``, where its LQR tends to the two-step deadbeat law of the sampled
+double integrator (both closed-loop poles near 0). ``"uniform"``: ``R_a,j = r_acceleration``.
+
+In the error e = x - x_r and move u = a - a_r the model is ``e_{k+1} = A e_k + B u_k + c_k``
+with the reference's one-step defect ``c_k = x_r,k+1 - A x_r,k - B a_r,k`` (zero for a
+reference of constant acceleration). With the DARE terminal weight, the unconstrained optimum
+is the LQR law plus a preview of the defects::
 
     u_0 = -K e_0 - G (P c_0 + s_1),   s_N = 0,   s_k = (A - B K)' (P c_k + s_{k+1}),
     K = (R_a + B' P B)^-1 B' P A,    G = (R_a + B' P B)^-1 B'
 
-Inner loop: computed torque ``tau = M(q) a_0 + h(q, v) - w_hat`` (one CRBA, one
-nonlinear-effects call), with w_hat the disturbance estimate (sign: ``M q'' + h = tau + w``)
-and zero without a GP.
+Inner loop: computed torque ``tau = M(q) a_0 + h(q, v) - w_hat`` (n,) (one CRBA, one
+nonlinear-effects call), with w_hat (n,) the disturbance estimate (sign: ``M q'' + h = tau +
+w``) and zero without a GP.
 
-Torque limits (``limits``): ``"allocation"`` (default) keeps the planned acceleration on every
-joint whose torque fits; the joints whose torque does not take their clipped torque, and the
-accelerations they then get follow from the dynamics: with S the saturated and F the free
-joints, ``a_S = M_SS^-1 (tau_S - h_S + w_S - M_SF a_F)`` and ``tau_F = M_FS a_S + M_FF a_F + h_F -
-w_F``; a free joint pushed over its limit joins S, until none is (at most n rounds).
-``"qp"`` solves, only when the unconstrained first move violates a limit, the whole horizon's
-problem of every joint as one QP (DAQP) with the torque rows
-``-u_max + w_hat - h <= M (a_r,k + u_k) <= u_max + w_hat - h`` at every step k, M and h taken
-at the current state (exact at k = 0), so the plan brakes before it must.
-``"clip"`` clips each torque alone (the plain computed-torque saturation, for comparison).
+Torque limits (``limits``), :mod:`hydroarm.control.idmpc_limits`; nothing changes while the
+unconstrained torque fits. ``"qp"`` (default): the horizon's problem of all joints as one QP
+(DAQP) in the N n moves, with the torque rows ``|tau_k| <= tau_max`` at every step: first
+with M, h frozen at the current state (exact at k = 0), then ``sqp_iterations`` SQP steps
+with the inverse dynamics linearised along the plan, so the plan brakes before it must and
+knows how its own motion changes M(q) (a saturated base joint gets the inertia the others'
+motion leaves it); should DAQP fail, that step uses the allocation. ``"allocation"``: the
+joints whose torque fits keep their planned acceleration, the others take their clipped
+torque and the acceleration the dynamics then gives. ``"clip"``: each torque clipped alone
+(plain computed-torque saturation, for comparison).
 
 The GP (:class:`~hydroarm.control.gp.SlidingWindowGP`) learns the one-step residual of the
 dry model (:meth:`~hydroarm.model.nominal.NominalModel.residual`) from the state, as in
@@ -41,7 +55,6 @@ from __future__ import annotations
 import time
 from typing import Annotated, Literal
 
-import daqp
 import numba
 import numpy as np
 import pinocchio as pin
@@ -50,6 +63,7 @@ import scipy.linalg
 
 from hydroarm.config import FrozenModel, per_joint
 from hydroarm.control.gp import GPConfig, SlidingWindowGP
+from hydroarm.control.idmpc_limits import HorizonQP, allocate  # noqa: F401 (allocate: public here too)
 from hydroarm.control.interface import ControlOutput, Reference, require_period
 from hydroarm.model.arm import Arm
 from hydroarm.model.nominal import NominalModel
@@ -63,7 +77,7 @@ NonNegativeList = Annotated[list[NonNegativeFloat], pydantic.Field(min_length=1,
 class IDMPCConfig(FrozenModel):
     """Settings of :class:`InverseDynamicsMPC`; per-joint fields take one value or a list of n."""
 
-    horizon: int = pydantic.Field(10, ge=1, le=500, description="prediction horizon N (steps)")
+    horizon: int = pydantic.Field(5, ge=1, le=500, description="prediction horizon N (steps)")
     q_position: PositiveFloat | PositiveList = pydantic.Field(
         300.0, description="Q weight on the joint position error (1/rad^2)"
     )
@@ -73,19 +87,22 @@ class IDMPCConfig(FrozenModel):
     r_acceleration: PositiveFloat | PositiveList = pydantic.Field(
         1e-5, description="R_a weight on the acceleration move a - a_r (s^4/rad^2)"
     )
+    r_scaling: Literal["uniform", "authority"] = pydantic.Field(
+        "authority", description="per-joint R_a: r_acceleration, or scaled by the torque authority (docstring)"
+    )
+    r_floor: PositiveFloat = pydantic.Field(
+        1e-9, description="lower bound of the authority-scaled R_a (s^4/rad^2), in (0, 1e8]"
+    )
     limits: Literal["allocation", "qp", "clip"] = pydantic.Field(
-        "allocation", description="how a torque beyond its limit is handled (module docstring)"
+        "qp", description="how a torque beyond its limit is handled (module docstring)"
+    )
+    sqp_iterations: int = pydantic.Field(
+        1, ge=0, le=10, description="limits = 'qp': relinearisations of the torque rows along the plan (0-10)"
     )
     torque_limit: PositiveFloat | PositiveList | None = pydantic.Field(
         None, description="|tau_i| <= limit (N m); None = the arm's"
     )
     min_samples: int = pydantic.Field(2, ge=1, le=10_000, description="GP window samples before feeding forward")
-    r_scaling: Literal["uniform", "authority"] = pydantic.Field("uniform", description="per-joint R_a scaling")
-    r_exponent: PositiveFloat = pydantic.Field(2.0, description="exponent")
-    r_floor: PositiveFloat = pydantic.Field(1e-9, description="smallest per-joint R_a")
-    torque_point: Literal["start", "midpoint", "midq", "midheavy", "midv"] = pydantic.Field("start", description="state M, h are taken at")
-    zoh: Literal["none", "velocity", "position"] = pydantic.Field("none", description="ZOH correction")
-    gp_trust: Literal["always", "unsaturated", "free"] = pydantic.Field("always", description="when w_hat is used")
 
 
 def joint_lqr(period: float, q_position: float, q_velocity: float, r_acceleration: float):
@@ -100,6 +117,13 @@ def joint_lqr(period: float, q_position: float, q_velocity: float, r_acceleratio
     scale = 1.0 / (r_acceleration + float(b_mat[:, 0] @ p_mat @ b_mat[:, 0]))
     gain = scale * (b_mat[:, 0] @ p_mat @ a_mat)
     return p_mat, gain, scale * b_mat[:, 0]
+
+
+def authority_weights(inertia: np.ndarray, torque_limit: np.ndarray, r_acceleration: np.ndarray, r_floor: float):
+    """The authority-scaled ``R_a`` (n,) (module docstring) from the diagonal ``inertia`` M_jj (n,)
+    kg m^2, the ``torque_limit`` (n,) N m and the unscaled ``r_acceleration`` (n,) s^4/rad^2."""
+    inverse_authority = np.asarray(inertia, dtype=float) / np.asarray(torque_limit, dtype=float)  # s^2/rad
+    return np.maximum(r_acceleration * (inverse_authority / inverse_authority.max()) ** 2, r_floor)
 
 
 @numba.njit(cache=True)
@@ -131,73 +155,6 @@ def unconstrained_move(e0, c, p_mats, gains, gs, period):  # pragma: no cover - 
     return out
 
 
-def condensed_problem(period, horizon, q_pos, q_vel, r_acc, p_mats):
-    """The horizon's problem of all n joints in the stacked moves U (N n,), step-major
-    (``U[k n + j]`` = joint j's move at step k): ``min 1/2 U' H U + U' (F_e e0 + F_c c)``.
-
-    Returns ``H`` (N n, N n), ``F_e`` (N n, n, 2) and ``F_c`` (N n, N, n, 2): the gradient's
-    maps from the errors e0 (n, 2) and the defects c (N, n, 2)."""
-    n = q_pos.shape[0]
-    a_mat = np.array([[1.0, period], [0.0, 1.0]])
-    b_vec = np.array([0.5 * period * period, period])
-    size = horizon * n
-    hessian = np.zeros((size, size))
-    grad_e0 = np.zeros((size, n, 2))
-    grad_c = np.zeros((size, horizon, n, 2))
-    for j in range(n):
-        # e_k = S_e[k] e0 + S_u[k] u + S_c[k] c (k = 0..N), one joint
-        s_e = np.zeros((horizon + 1, 2, 2))
-        s_u = np.zeros((horizon + 1, 2, horizon))
-        s_c = np.zeros((horizon + 1, 2, 2 * horizon))
-        s_e[0] = np.eye(2)
-        for k in range(horizon):
-            s_e[k + 1] = a_mat @ s_e[k]
-            s_u[k + 1] = a_mat @ s_u[k]
-            s_u[k + 1][:, k] += b_vec
-            s_c[k + 1] = a_mat @ s_c[k]
-            s_c[k + 1][:, 2 * k : 2 * k + 2] += np.eye(2)
-        weights = [np.diag([q_pos[j], q_vel[j]])] * horizon + [p_mats[j]]
-        h_j = r_acc[j] * np.eye(horizon)
-        fe_j = np.zeros((horizon, 2))
-        fc_j = np.zeros((horizon, 2 * horizon))
-        for k in range(horizon + 1):
-            h_j += s_u[k].T @ weights[k] @ s_u[k]
-            fe_j += s_u[k].T @ weights[k] @ s_e[k]
-            fc_j += s_u[k].T @ weights[k] @ s_c[k]
-        rows = np.arange(horizon) * n + j
-        hessian[np.ix_(rows, rows)] = h_j
-        grad_e0[rows, j, :] = fe_j
-        grad_c[rows, :, j, :] = fc_j.reshape(horizon, horizon, 2)
-    return hessian, grad_e0, grad_c
-
-
-def allocate(mass: np.ndarray, bias: np.ndarray, acceleration: np.ndarray, limit: np.ndarray):
-    """Torques within ``limit`` that keep the planned ``acceleration`` on every joint they can.
-
-    ``bias`` = h - w_hat (n,): the torque is ``M a + bias``. Returns ``(tau (n,), a (n,),
-    saturated (n,) bool)``: the saturated joints hold their clipped torque, the others their
-    planned acceleration (module docstring)."""
-    tau = mass @ acceleration + bias
-    saturated = np.abs(tau) > limit
-    if not saturated.any():
-        return tau, acceleration, saturated
-    a = acceleration.copy()
-    n = acceleration.shape[0]
-    for _ in range(n):
-        s, f = saturated, ~saturated
-        target = np.clip(tau, -limit, limit)
-        rhs = target[s] - bias[s] - mass[np.ix_(s, f)] @ acceleration[f]
-        a[s] = np.linalg.solve(mass[np.ix_(s, s)], rhs)
-        a[f] = acceleration[f]
-        tau = mass @ a + bias
-        tau[s] = target[s]
-        over = f & (np.abs(tau) > limit * (1.0 + 1e-12))
-        if not over.any():
-            break
-        saturated = saturated | over
-    return np.clip(tau, -limit, limit), a, saturated
-
-
 class InverseDynamicsMPC:
     """The inverse-dynamics MPC (module docstring); with ``gp_config`` it learns the disturbance
     (``name`` ``"GP-IDMPC"``), without it ``"IDMPC"``.
@@ -227,20 +184,36 @@ class InverseDynamicsMPC:
         limit = arm.torque_limit if cfg.torque_limit is None else cfg.torque_limit
         self.torque_limit = per_joint(limit, n, "torque_limit")
         if cfg.r_scaling == "authority":
-            inverse_authority = np.diag(arm.mass_matrix(np.zeros(n))) / self.torque_limit  # s^2/rad
-            r_acc = np.maximum(r_acc * (inverse_authority / inverse_authority.max()) ** cfg.r_exponent, cfg.r_floor)
-        self.r_acc = r_acc
+            r_acc = authority_weights(np.diag(arm.mass_matrix(np.zeros(n))), self.torque_limit, r_acc, cfg.r_floor)
+        self.r_acceleration = r_acc
         self.P = np.empty((n, 2, 2))
         self.K = np.empty((n, 2))
         self._g = np.empty((n, 2))
         for j in range(n):
             self.P[j], self.K[j], self._g[j] = joint_lqr(self.control_period, q_pos[j], q_vel[j], r_acc[j])
         self._offsets = np.arange(cfg.horizon + 1) * self.control_period
+        self.qp = None
         if cfg.limits == "qp":
-            self._hessian, self._grad_e0, self._grad_c = condensed_problem(
-                self.control_period, cfg.horizon, q_pos, q_vel, r_acc, self.P
+            self.qp = HorizonQP(
+                arm,
+                self.control_period,
+                cfg.horizon,
+                q_pos,
+                q_vel,
+                r_acc,
+                self.P,
+                self.torque_limit,
+                cfg.sqp_iterations,
             )
         self.gp = SlidingWindowGP(2 * n, n, gp_config) if gp_config is not None else None
+        # load the compiled code now, not in the first control steps (a throwaway GP: same config)
+        unconstrained_move(np.zeros((n, 2)), np.zeros((1, n, 2)), self.P, self.K, self._g, self.control_period)
+        if gp_config is not None:
+            warm = SlidingWindowGP(2 * n, n, gp_config)
+            for k in range(2):
+                warm.add(np.full(2 * n, 0.1 * k), np.full(n, 0.1 * k))
+            warm.update_hyperparameters()
+            warm.predict(np.zeros(2 * n))
         self.reset()
 
     def reset(self) -> None:
@@ -256,47 +229,23 @@ class InverseDynamicsMPC:
         n, period = self.n, self.control_period
         q_r, v_r, a_r = reference.sample(t + self._offsets)  # (N + 1, n) each
         e0 = np.stack([y[:n] - q_r[0], y[n:] - v_r[0]], axis=1)
-        import os
-        if os.environ.get("HACK") and abs(e0[0, 0]) > float(os.environ.get("HACKE", "0.5")):
-            e0 = e0.copy()
-            e0[1, 0] -= float(os.environ["HACK"])
-            e0[2, 0] -= float(os.environ.get("HACK3", "0"))
         c = np.empty((self.config.horizon, n, 2))
         c[:, :, 0] = q_r[1:] - q_r[:-1] - period * v_r[:-1] - 0.5 * period * period * a_r[:-1]
         c[:, :, 1] = v_r[1:] - v_r[:-1] - period * a_r[:-1]
-        self._last_problem = (e0, c, a_r[:-1])
+        self._last_problem = (e0, c, a_r[:-1], q_r, v_r)
         return a_r[0] + unconstrained_move(e0, c, self.P, self.K, self._g, period)
 
-    def constrained_acceleration(self, mass: np.ndarray, bias: np.ndarray) -> np.ndarray | None:
+    def constrained_acceleration(self, mass: np.ndarray, bias: np.ndarray, w_hat: np.ndarray) -> np.ndarray | None:
         """The first acceleration (n,) of the horizon's QP with the torque rows (``limits =
-        "qp"``) for the problem of the last :meth:`planned_acceleration`; None if DAQP fails."""
-        e0, c, a_r = self._last_problem
-        n, horizon = self.n, self.config.horizon
-        gradient = np.einsum("mjd,jd->m", self._grad_e0, e0) + np.einsum("mkjd,kjd->m", self._grad_c, c)
-        rows = np.kron(np.eye(horizon), mass)
-        base = (a_r @ mass.T).ravel() + np.tile(bias, horizon)  # M a_r,k + bias, step-major
-        limit = np.tile(self.torque_limit, horizon)
-        upper, lower = limit - base, -limit - base
-        sense = np.zeros(horizon * n, dtype=np.int32)
-        moves, _, flag, _ = daqp.solve(self._hessian, gradient, rows, upper, lower, sense)
-        if int(flag) != 1:
-            return None
-        return a_r[0] + np.asarray(moves[:n])
+        "qp"``, :class:`~hydroarm.control.idmpc_limits.HorizonQP`) for the problem of the last
+        :meth:`planned_acceleration`; ``bias`` = h - w_hat (n,); None if DAQP fails."""
+        e0, c, a_r, q_r, v_r = self._last_problem
+        return self.qp.solve(e0, c, q_r, v_r, a_r, mass, bias, w_hat)
 
     def torque_map(self, q: np.ndarray, v: np.ndarray, acceleration: np.ndarray, w_hat: np.ndarray):
         """``(tau, a, saturated)``: the torques (n,) realising ``acceleration`` on the dry model
         minus the estimate ``w_hat`` (n,), within the limits (``config.limits``)."""
         model, data = self.arm.model, self.nominal.data
-        if self.config.torque_point != "start":
-            half = 0.5 * self.control_period
-            dq, dv = half * v + 0.5 * half * half * acceleration, half * acceleration
-            if self.config.torque_point == "midheavy":
-                heavy = self.r_acc >= 1e-6
-                dq, dv = np.where(heavy, dq, 0.0), np.where(heavy, dv, 0.0)
-            if self.config.torque_point != "midv":
-                q = q + dq
-            if self.config.torque_point != "midq":
-                v = v + dv
         mass = pin.crba(model, data, q)
         mass = np.triu(mass) + np.triu(mass, 1).T
         bias = pin.nonLinearEffects(model, data, q, v) - w_hat
@@ -308,7 +257,7 @@ class InverseDynamicsMPC:
             tau = mass @ acceleration + bias
             if np.all(np.abs(tau) <= self.torque_limit):
                 return tau, acceleration, np.zeros(self.n, dtype=bool)
-            constrained = self.constrained_acceleration(mass, bias)
+            constrained = self.constrained_acceleration(mass, bias, w_hat)
             if constrained is not None:
                 tau = mass @ constrained + bias
                 clipped = np.clip(tau, -self.torque_limit, self.torque_limit)
@@ -335,19 +284,6 @@ class InverseDynamicsMPC:
         acceleration = self.planned_acceleration(t, y, reference)
         t_plan = time.perf_counter()
         tau, realised, saturated = self.torque_map(y[:n], y[n:], acceleration, mean)
-        if self.config.zoh != "none":
-            period = self.control_period
-            pred = self.nominal.predict(y, tau + mean, period)
-            if self.config.zoh == "velocity":
-                effective = (pred[n:] - y[n:]) / period
-            else:
-                effective = 2.0 * (pred[:n] - y[:n] - period * y[n:]) / (period * period)
-            corrected = acceleration + (realised - effective)
-            tau, _, saturated = self.torque_map(y[:n], y[n:], corrected, mean)
-            realised = acceleration + (realised - acceleration) * saturated  # plan on the free joints
-        if saturated.any() and self.gp is not None and self.config.gp_trust != "always":
-            w = np.zeros(n) if self.config.gp_trust == "unsaturated" else np.where(saturated, mean, 0.0)
-            tau, realised, saturated = self.torque_map(y[:n], y[n:], acceleration, w)
         self.saturated_steps += bool(saturated.any())
         end = time.perf_counter()
         events, self._pending_events = tuple(self._pending_events), []

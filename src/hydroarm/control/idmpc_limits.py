@@ -1,0 +1,225 @@
+"""Torque limits of the inverse-dynamics MPC (:mod:`hydroarm.control.idmpc`).
+
+Two ways to keep ``|tau_i| <= tau_max,i`` (N m) when the unconstrained first move does not:
+
+:func:`allocate` (``limits = "allocation"``): the joints whose torque fits keep their planned
+acceleration; the others take their clipped torque and the accelerations the dynamics then
+give (S saturated, F free)::
+
+    a_S = M_SS^-1 (tau_S - bias_S - M_SF a_F),    tau_F = M_FS a_S + M_FF a_F + bias_F
+
+with ``bias = h - w_hat``; a free joint pushed over its limit joins S (at most n rounds).
+
+:class:`HorizonQP` (``limits = "qp"``): the horizon's problem of all n joints as one QP in the
+stacked moves U (N n,), step-major (``U[k n + j]`` = joint j's move ``a - a_r`` at step k)::
+
+    min 1/2 U' H U + U' (F_e vec(e0) + F_c vec(c))
+    s.t. -tau_max <= tau_k(U) <= tau_max,   k = 0..N-1
+
+H, F_e, F_c from :func:`condensed_problem` (the per-joint costs of the module idmpc, summed).
+First solve (frozen rows): ``tau_k = M(q) (a_r,k + u_k) + h(q, v) - w_hat`` with M, h at the
+current state for every k, exact at k = 0. Then ``sqp_iterations`` Gauss-Newton (SQP) steps:
+along the predicted plan of the last solution U^ (states ``q_k, v_k``, accelerations ``a_k``
+of each joint's double integrator), the rows are the inverse dynamics linearised there::
+
+    tau_k(U) ~ ID(q_k, v_k, a_k) - w_hat + M(q_k) du_k
+               + sum_{i<k} [dID/dq (k - i - 1/2) T^2 + dID/dv T] du_i,    du = U - U^
+
+(Pinocchio's RNEA derivatives; ``dq_k/du_i = (k - i - 1/2) T^2``, ``dv_k/du_i = T`` for i < k),
+so the plan knows how its own motion changes M(q) and the Coriolis terms: while a base joint
+is saturated, the plan folds the other joints the way that lowers the base joint's inertia.
+Each solve is warm-started with the previous one's multipliers (DAQP ``dual_start``). The first
+acceleration of the last successful solve is returned; None if the first solve fails.
+"""
+
+from __future__ import annotations
+
+import daqp
+import numba
+import numpy as np
+import pinocchio as pin
+
+
+def allocate(mass: np.ndarray, bias: np.ndarray, acceleration: np.ndarray, limit: np.ndarray):
+    """Torques within ``limit`` that keep the planned ``acceleration`` on every joint they can.
+
+    ``bias`` = h - w_hat (n,): the torque is ``M a + bias``. Returns ``(tau (n,), a (n,),
+    saturated (n,) bool)``: the saturated joints hold their clipped torque, the others their
+    planned acceleration (module docstring)."""
+    tau = mass @ acceleration + bias
+    saturated = np.abs(tau) > limit
+    if not saturated.any():
+        return tau, acceleration, saturated
+    a = acceleration.copy()
+    n = acceleration.shape[0]
+    for _ in range(n):
+        s, f = saturated, ~saturated
+        target = np.clip(tau, -limit, limit)
+        rhs = target[s] - bias[s] - mass[np.ix_(s, f)] @ acceleration[f]
+        a[s] = np.linalg.solve(mass[np.ix_(s, s)], rhs)
+        a[f] = acceleration[f]
+        tau = mass @ a + bias
+        tau[s] = target[s]
+        over = f & (np.abs(tau) > limit * (1.0 + 1e-12))
+        if not over.any():
+            break
+        saturated = saturated | over
+    return np.clip(tau, -limit, limit), a, saturated
+
+
+def condensed_problem(period, horizon, q_pos, q_vel, r_acc, p_mats):
+    """The horizon's problem of all n joints in the stacked moves U (N n,), step-major:
+    ``min 1/2 U' H U + U' (F_e e0 + F_c c)``.
+
+    Returns ``H`` (N n, N n), ``F_e`` (N n, n, 2) and ``F_c`` (N n, N, n, 2): the gradient's
+    maps from the errors e0 (n, 2) and the defects c (N, n, 2)."""
+    n = q_pos.shape[0]
+    a_mat = np.array([[1.0, period], [0.0, 1.0]])
+    b_vec = np.array([0.5 * period * period, period])
+    size = horizon * n
+    hessian = np.zeros((size, size))
+    grad_e0 = np.zeros((size, n, 2))
+    grad_c = np.zeros((size, horizon, n, 2))
+    for j in range(n):
+        # e_k = S_e[k] e0 + S_u[k] u + S_c[k] c (k = 0..N), one joint
+        s_e = np.zeros((horizon + 1, 2, 2))
+        s_u = np.zeros((horizon + 1, 2, horizon))
+        s_c = np.zeros((horizon + 1, 2, 2 * horizon))
+        s_e[0] = np.eye(2)
+        for k in range(horizon):
+            s_e[k + 1] = a_mat @ s_e[k]
+            s_u[k + 1] = a_mat @ s_u[k]
+            s_u[k + 1][:, k] += b_vec
+            s_c[k + 1] = a_mat @ s_c[k]
+            s_c[k + 1][:, 2 * k : 2 * k + 2] += np.eye(2)
+        weights = [np.diag([q_pos[j], q_vel[j]])] * horizon + [p_mats[j]]
+        h_j = r_acc[j] * np.eye(horizon)
+        fe_j = np.zeros((horizon, 2))
+        fc_j = np.zeros((horizon, 2 * horizon))
+        for k in range(horizon + 1):
+            h_j += s_u[k].T @ weights[k] @ s_u[k]
+            fe_j += s_u[k].T @ weights[k] @ s_e[k]
+            fc_j += s_u[k].T @ weights[k] @ s_c[k]
+        rows = np.arange(horizon) * n + j
+        hessian[np.ix_(rows, rows)] = h_j
+        grad_e0[rows, j, :] = fe_j
+        grad_c[rows, :, j, :] = fc_j.reshape(horizon, horizon, 2)
+    return hessian, grad_e0, grad_c
+
+
+@numba.njit(cache=True)
+def predicted_plan(e0, c, moves, q_r, v_r, a_r, period):  # pragma: no cover - compiled
+    """The plan's states and accelerations ``(q, v, a)``, each (N, n), at steps k = 0..N-1 for
+    the moves (N, n), the errors e0 (n, 2), the defects c (N, n, 2) and the reference
+    ``q_r, v_r`` (>= N, n), ``a_r`` (N, n) (module idmpc: e+ = A e + B u + c)."""
+    horizon, n = moves.shape
+    q = np.empty((horizon, n))
+    v = np.empty((horizon, n))
+    a = np.empty((horizon, n))
+    half = 0.5 * period * period
+    for j in range(n):
+        e_q, e_v = e0[j, 0], e0[j, 1]
+        for k in range(horizon):
+            q[k, j] = q_r[k, j] + e_q
+            v[k, j] = v_r[k, j] + e_v
+            a[k, j] = a_r[k, j] + moves[k, j]
+            e_q, e_v = e_q + period * e_v + half * moves[k, j] + c[k, j, 0], e_v + period * moves[k, j] + c[k, j, 1]
+    return q, v, a
+
+
+@numba.njit(cache=True)
+def fill_linearised_rows(d_q, d_v, mass, period, rows):  # pragma: no cover - compiled
+    """The linearised torque rows (N n, N n) from the inverse dynamics' derivatives d_q, d_v and
+    the mass matrices (N, n, n) along the plan: block (k, k) = M_k, block (k, i < k) =
+    ``d_q[k] (k - i - 1/2) T^2 + d_v[k] T``, blocks above the diagonal 0."""
+    horizon, n = mass.shape[0], mass.shape[1]
+    rows[:, :] = 0.0
+    for k in range(horizon):
+        for r in range(n):
+            for col in range(n):
+                rows[k * n + r, k * n + col] = mass[k, r, col]
+            for i in range(k):
+                lag = (k - i - 0.5) * period * period
+                for col in range(n):
+                    rows[k * n + r, i * n + col] = d_q[k, r, col] * lag + d_v[k, r, col] * period
+
+
+class HorizonQP:
+    """The constrained horizon problem of ``limits = "qp"`` (module docstring).
+
+    ``hessian`` (N n, N n), ``grad_e0`` (N n, 2 n), ``grad_c`` (N n, 2 N n) as flat maps;
+    ``torque_limit`` (n,) N m; ``sqp_iterations`` relinearisations after the frozen solve.
+    """
+
+    def __init__(self, arm, period, horizon, q_pos, q_vel, r_acc, p_mats, torque_limit, sqp_iterations):
+        self.arm = arm
+        self.n = n = arm.n_joints
+        self.period = float(period)
+        self.horizon = horizon
+        self.sqp_iterations = sqp_iterations
+        hessian, grad_e0, grad_c = condensed_problem(period, horizon, q_pos, q_vel, r_acc, p_mats)
+        self.hessian = hessian
+        self.grad_e0 = grad_e0.reshape(horizon * n, 2 * n)
+        self.grad_c = grad_c.reshape(horizon * n, 2 * horizon * n)
+        self.limit = np.tile(np.asarray(torque_limit, dtype=float), horizon)
+        self.data = arm.create_data()
+        self._sense = np.zeros(horizon * n, dtype=np.int32)
+        self._rows = np.zeros((horizon * n, horizon * n))
+        self._d_q = np.empty((horizon, n, n))
+        self._d_v = np.empty((horizon, n, n))
+        self._mass = np.empty((horizon, n, n))
+        self.last_iterations = 0  # SQP steps the last solve took (0: the frozen rows' solution)
+        # load the compiled kernels now, not in the first saturated step
+        zeros = np.zeros((horizon, n))
+        predicted_plan(np.zeros((n, 2)), np.zeros((horizon, n, 2)), zeros, zeros, zeros, zeros, self.period)
+        fill_linearised_rows(self._d_q, self._d_v, self._mass, self.period, self._rows)
+
+    def gradient(self, e0: np.ndarray, c: np.ndarray) -> np.ndarray:
+        """``F_e vec(e0) + F_c vec(c)`` (N n,) for the errors e0 (n, 2) and defects c (N, n, 2)."""
+        return self.grad_e0 @ e0.ravel() + self.grad_c @ c.ravel()
+
+    def frozen_rows(self, mass: np.ndarray, bias: np.ndarray, a_r: np.ndarray):
+        """``(rows, upper, lower)`` with M, bias = h - w_hat of the current state at every step."""
+        horizon = self.horizon
+        rows = np.kron(np.eye(horizon), mass)
+        base = (a_r @ mass.T).ravel() + np.tile(bias, horizon)  # M a_r,k + bias, step-major
+        return rows, self.limit - base, -self.limit - base
+
+    def linearised_rows(self, moves, e0, c, q_r, v_r, a_r, w_hat):
+        """``(rows, upper, lower)`` of the inverse dynamics linearised along the plan of ``moves``
+        (N, n) (module docstring); ``rows`` is a buffer reused by the next call."""
+        model, data, period = self.arm.model, self.data, self.period
+        q, v, a = predicted_plan(e0, c, moves, q_r, v_r, a_r, period)
+        base = np.empty(self.horizon * self.n)
+        n = self.n
+        for k in range(self.horizon):
+            d_q, d_v, mass = pin.computeRNEADerivatives(model, data, q[k], v[k], a[k])
+            self._d_q[k], self._d_v[k], self._mass[k] = d_q, d_v, mass
+            base[k * n : (k + 1) * n] = data.tau
+        base -= np.tile(w_hat, self.horizon)
+        fill_linearised_rows(self._d_q, self._d_v, self._mass, period, self._rows)
+        shift = self._rows @ moves.ravel() - base
+        return self._rows, self.limit + shift, -self.limit + shift
+
+    def solve(self, e0, c, q_r, v_r, a_r, mass, bias, w_hat) -> np.ndarray | None:
+        """The first acceleration (n,) rad/s^2 of the constrained horizon problem, or None.
+
+        ``e0`` (n, 2), ``c`` (N, n, 2), ``q_r, v_r`` (>= N, n), ``a_r`` (N, n): the outer
+        problem; ``mass`` (n, n), ``bias`` = h - w_hat (n,) at the current state; ``w_hat`` (n,)."""
+        gradient = self.gradient(e0, c)
+        rows, upper, lower = self.frozen_rows(mass, bias, a_r)
+        moves, _, flag, info = daqp.solve(self.hessian, gradient, rows, upper, lower, self._sense)
+        if int(flag) != 1:
+            return None
+        self.last_iterations = 0
+        for _ in range(self.sqp_iterations):
+            plan = np.asarray(moves).reshape(self.horizon, self.n)
+            rows, upper, lower = self.linearised_rows(plan, e0, c, q_r, v_r, a_r, w_hat)
+            new, _, flag, new_info = daqp.solve(
+                self.hessian, gradient, rows, upper, lower, self._sense, dual_start=info["lam"]
+            )
+            if int(flag) != 1:
+                break
+            moves, info = new, new_info
+            self.last_iterations += 1
+        return a_r[0] + np.asarray(moves[: self.n])
