@@ -1,6 +1,7 @@
 """Gymnasium environments of hydroarm (``pip install hydroarm[gym]``).
 
-Importing this package registers ``hydroarm/UnderwaterArm-v0`` with Gymnasium by a
+Importing this package registers ``hydroarm/UnderwaterArm-v0`` (and ``hydroarm/UVMS-v0``,
+:mod:`hydroarm.envs.uvms`: a vehicle holding station under its working arm) with Gymnasium by a
 string entry point (the environment's module is imported only when an environment is
 made). ``import hydroarm`` does not import it, nor Gymnasium. Gymnasium 1.x has no
 plugin discovery (it reads no package entry points), so name the module in the id to
@@ -27,8 +28,10 @@ from typing import Any
 
 ENV_ID = "hydroarm/UnderwaterArm-v0"
 ENTRY_POINT = "hydroarm.envs.underwater_arm:UnderwaterArmEnv"
+UVMS_ENV_ID = "hydroarm/UVMS-v0"
+UVMS_ENTRY_POINT = "hydroarm.envs.uvms:UVMSEnv"
 
-__all__ = ["ENV_ID", "ControllerPolicy", "UnderwaterArmEnv", "register"]
+__all__ = ["ENV_ID", "UVMS_ENV_ID", "ControllerPolicy", "UnderwaterArmEnv", "register"]
 
 
 def register() -> None:
@@ -40,6 +43,8 @@ def register() -> None:
         raise ImportError("hydroarm.envs needs Gymnasium: pip install 'hydroarm[gym]'") from error
     if ENV_ID not in gymnasium.registry:
         gymnasium.register(id=ENV_ID, entry_point=ENTRY_POINT)
+    if UVMS_ENV_ID not in gymnasium.registry:
+        gymnasium.register(id=UVMS_ENV_ID, entry_point=UVMS_ENTRY_POINT)
 
 
 def __getattr__(name: str) -> Any:

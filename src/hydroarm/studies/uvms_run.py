@@ -1,0 +1,156 @@
+"""One closed-loop run of the vehicle-manipulator system: station keeping while the arm works.
+
+:class:`UVMSRunConfig` (validated settings) -> :func:`run_uvms` -> :class:`UVMSRun` (arrays and
+metrics). The arm runs a reach-and-return cycle (:class:`ReachReturn`) while the vehicle holds
+its start pose in a uniform current; the plant is :class:`~hydroarm.model.uvms_fast.FastUVMSPlant`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+import pinocchio as pin
+import pydantic
+
+from hydroarm.config import FrozenModel
+from hydroarm.control.gp import GPConfig
+from hydroarm.control.registry import controller_spec
+from hydroarm.control.uvms_control import UVMSController
+from hydroarm.control.vehicle_control import VehicleControlConfig
+from hydroarm.model.uvms import UVMS, build_uvms
+from hydroarm.model.uvms_fast import FastUVMSConfig, FastUVMSPlant
+from hydroarm.model.water import CurrentConfig, Water
+from hydroarm.studies.experiment import ExperimentConfig
+
+Angles = list[float]
+
+
+class ReachReturn:
+    """Joint reference: from ``home`` to ``reach`` and back every ``period`` s (cosine blends,
+    continuous acceleration at the ends of each leg), after ``start`` s at home."""
+
+    def __init__(self, home, reach, period: float = 6.0, start: float = 1.0):
+        self.home, self.reach = np.asarray(home, float), np.asarray(reach, float)
+        self.period, self.start = period, start
+
+    def sample(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        tau = max(0.0, t - self.start) % self.period
+        w = 2.0 * math.pi / self.period
+        s = 0.5 * (1.0 - math.cos(w * tau))
+        ds, dds = 0.5 * w * math.sin(w * tau), 0.5 * w * w * math.cos(w * tau)
+        if t < self.start:
+            ds = dds = 0.0
+        delta = self.reach - self.home
+        return self.home + s * delta, ds * delta, dds * delta
+
+
+class UVMSRunConfig(FrozenModel):
+    """Settings of one UVMS run."""
+
+    vehicle: str = pydantic.Field("bluerov2_heavy", description="built-in vehicle or vehicle file")
+    arm: str = pydantic.Field("mount", description="the arm: 'mount' (the vehicle file's), a built-in or a file")
+    current: float = pydantic.Field(0.2, ge=0.0, le=3.0, description="current speed along world x (m/s)")
+    duration: float = pydantic.Field(20.0, gt=0.0, le=3600.0, description="simulated time (s)")
+    control_period: float = pydantic.Field(0.01, ge=1e-3, le=0.1, description="s")
+    vehicle_controller: str = pydantic.Field("pid", pattern="^(pid|mpc)$", description="pid or mpc")
+    aware: bool = pydantic.Field(False, description="GP feed-forward of the arm's force on the vehicle")
+    arm_controller: str = pydantic.Field("SMC", description="registry name of the arm controller")
+    home: Angles = pydantic.Field([3.0, 1.0, 1.0, 3.0], description="arm home angles (rad)")
+    reach: Angles = pydantic.Field([3.6, 2.6, 2.4, 3.0], description="arm reach angles (rad)")
+    task_period: float = pydantic.Field(6.0, gt=0.5, le=600.0, description="reach-and-return cycle (s)")
+    gp_window: int = pydantic.Field(60, ge=5, le=500, description="GP window (samples)")
+    plant: FastUVMSConfig = pydantic.Field(FastUVMSConfig(), description="plant path settings")
+
+
+@dataclass
+class UVMSRun:
+    """Time series (``t`` (K,), ``x`` (K+1, n_state), ``u`` (K, n_u), ``d_hat`` (K, 6), ``saturated``
+    (K,), ``ee_error`` (K+1,) m) and ``metrics``."""
+
+    config: UVMSRunConfig
+    t: np.ndarray
+    x: np.ndarray
+    u: np.ndarray
+    d_hat: np.ndarray
+    saturated: np.ndarray
+    ee_error: np.ndarray
+    metrics: dict = field(default_factory=dict)
+
+
+def arm_sections(name: str) -> dict:
+    """The default config sections the arm controller ``name`` reads (``ExperimentConfig``'s)."""
+    defaults = ExperimentConfig()
+    return {key: getattr(defaults, key) for key in (*controller_spec(name).sections, "estimator")}
+
+
+def end_effector(uvms: UVMS, data: pin.Data, q: np.ndarray) -> np.ndarray:
+    """World position of the arm's last joint frame (m)."""
+    pin.forwardKinematics(uvms.model, data, q)
+    return data.oMi[uvms.model.njoints - 1].translation.copy()
+
+
+def run_uvms(config: UVMSRunConfig, progress=None) -> UVMSRun:
+    """Simulate ``config``; ``progress(k, total)`` per control step (optional)."""
+    uvms = build_uvms(config.vehicle, config.arm)
+    water = Water(current=CurrentConfig(model="uniform", mean=[config.current, 0.0, 0.0]))
+    plant = FastUVMSPlant(uvms, water, config.plant)
+    reference = ReachReturn(config.home, config.reach, config.task_period)
+    controller = UVMSController(
+        uvms,
+        arm_controller=config.arm_controller,
+        vehicle=VehicleControlConfig(kind=config.vehicle_controller),
+        gp=GPConfig(window=config.gp_window),
+        aware=config.aware,
+        control_period=config.control_period,
+        arm_sections=arm_sections(config.arm_controller),
+    )
+    x = plant.initial_state(uvms.neutral(q_arm=config.home))
+    target = x[:7].copy()
+    steps = int(round(config.duration / config.control_period))
+    nq = uvms.nq
+    xs, us = np.empty((steps + 1, x.shape[0])), np.empty((steps, plant.n_arm + plant.n_thr))
+    d_hat, saturated = np.zeros((steps, 6)), np.zeros(steps, dtype=bool)
+    ee_error = np.zeros(steps + 1)
+    data = uvms.create_data()
+    xs[0] = x
+    for k in range(steps):
+        t = k * config.control_period
+        out = controller.compute(t, x, reference, target)
+        x_next, _ = plant.step(t, x, out.u, config.control_period)
+        if not np.all(np.isfinite(x_next)):
+            raise FloatingPointError(f"the plant state blew up at t = {t:.2f} s")
+        controller.observe(t, x, out.u, x_next)
+        xs[k + 1], us[k], d_hat[k], saturated[k] = x_next, out.u, out.d_hat, out.saturated
+        x = x_next
+        q_ref = np.concatenate([target, reference.sample(t + config.control_period)[0]])
+        ee_error[k + 1] = np.linalg.norm(end_effector(uvms, data, x[:nq]) - end_effector(uvms, data, q_ref))
+        if progress is not None:
+            progress(k + 1, steps)
+    times = np.arange(steps) * config.control_period
+    run = UVMSRun(config, times, xs, us, d_hat, saturated, ee_error)
+    run.metrics = uvms_metrics(run, target)
+    return run
+
+
+def uvms_metrics(run: UVMSRun, target: np.ndarray) -> dict:
+    """Drift RMS and max (m), attitude RMS (deg), saturation time (s), end-effector error (m)."""
+    x = run.x
+    drift = np.linalg.norm(x[:, :3] - target[:3], axis=1)
+    attitude = np.empty(x.shape[0])
+    rot_ref = pin.Quaternion(target[6], *target[3:6]).toRotationMatrix()
+    for k in range(x.shape[0]):
+        rot = pin.Quaternion(x[k, 6], *x[k, 3:6]).toRotationMatrix()
+        attitude[k] = np.linalg.norm(pin.log3(rot_ref.T @ rot))
+    axes = x[:, :3] - target[:3]
+    return {
+        "drift_rms_m": float(np.sqrt(np.mean(drift**2))),
+        "drift_max_m": float(np.max(drift)),
+        "drift_rms_per_axis_m": np.sqrt(np.mean(axes**2, axis=0)).tolist(),
+        "attitude_rms_deg": float(np.degrees(np.sqrt(np.mean(attitude**2)))),
+        "attitude_max_deg": float(np.degrees(np.max(attitude))),
+        "saturation_time_s": float(np.sum(run.saturated) * run.config.control_period),
+        "ee_error_rms_m": float(np.sqrt(np.mean(run.ee_error**2))),
+        "ee_error_max_m": float(np.max(run.ee_error)),
+    }

@@ -1,0 +1,112 @@
+"""Station keeping of the UVMS: allocation, the controllers, the GP feed-forward, the study,
+the env and the CLI's vehicle commands."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from hydroarm.control.vehicle_control import ThrusterAllocation, pose_error
+from hydroarm.model.vehicle import load_vehicle
+from hydroarm.studies.uvms_run import UVMSRunConfig, run_uvms
+
+
+@pytest.fixture(scope="module")
+def vehicle():
+    return load_vehicle("bluerov2_heavy")
+
+
+def test_allocation_is_exact_within_limits_and_saturates_otherwise(vehicle):
+    allocation = ThrusterAllocation(vehicle)
+    wrench = np.array([10.0, -5.0, 8.0, 0.5, -0.3, 0.2])
+    thrust, saturated = allocation.allocate(wrench)
+    assert not saturated and np.allclose(vehicle.allocation @ thrust, wrench, atol=1e-9)
+    big = np.array([400.0, 0.0, 0.0, 0.0, 0.0, 0.0])
+    thrust, saturated = allocation.allocate(big)
+    assert saturated
+    assert np.all(thrust <= vehicle.thrust_max + 1e-9) and np.all(thrust >= vehicle.thrust_min - 1e-9)
+    assert (vehicle.allocation @ thrust)[0] > 0.9 * allocation.wrench_limit[0]  # as far as the thrusters reach
+
+
+def test_pose_error_is_body_frame():
+    q = np.array([1.0, 2.0, 3.0, 0.0, 0.0, np.sin(np.pi / 4), np.cos(np.pi / 4)])  # yaw 90 deg
+    target = np.array([2.0, 2.0, 3.0, 0.0, 0.0, 0.0, 1.0])
+    error = pose_error(q, target)
+    assert np.allclose(error[:3], [0.0, -1.0, 0.0]) and np.allclose(error[3:], [0.0, 0.0, -np.pi / 2])
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("kind", ["pid", "mpc"])
+def test_gp_feed_forward_beats_the_blind_controller(kind):
+    blind = run_uvms(UVMSRunConfig(duration=6.0, vehicle_controller=kind)).metrics
+    aware = run_uvms(UVMSRunConfig(duration=6.0, vehicle_controller=kind, aware=True)).metrics
+    assert blind["drift_max_m"] < 0.1 and aware["drift_rms_m"] < 0.5 * blind["drift_rms_m"]
+
+
+def test_short_run_holds_station():
+    run = run_uvms(UVMSRunConfig(duration=1.5))
+    assert np.all(np.isfinite(run.x)) and run.metrics["drift_max_m"] < 0.05
+    assert set(run.metrics) >= {"drift_rms_m", "attitude_rms_deg", "saturation_time_s", "ee_error_rms_m"}
+
+
+@pytest.mark.slow
+def test_quick_study_writes_its_outputs(tmp_path, monkeypatch):
+    from hydroarm.studies import uvms
+
+    monkeypatch.setattr(uvms, "study_tasks", lambda duration: uvms.__dict__["_tasks"](2.0))
+    metrics = uvms.run_uvms_study(tmp_path, quick=True, workers=0)
+    assert (tmp_path / "report.md").is_file() and (tmp_path / "fig_x.png").is_file()
+    on_disk = json.loads((tmp_path / "metrics.json").read_text())
+    assert set(on_disk["effects"]) == set(uvms.EFFECTS) and on_disk["effect_ranking_by_drift"]
+    assert metrics["gp_gain_percent"]["pid"]["drift_rms_m"] == on_disk["gp_gain_percent"]["pid"]["drift_rms_m"]
+
+
+def test_env_passes_check_env_and_is_seeded():
+    gymnasium = pytest.importorskip("gymnasium")
+    from gymnasium.utils.env_checker import check_env
+
+    import hydroarm.envs  # noqa: F401  (registers the ids)
+
+    env = gymnasium.make("hydroarm/UVMS-v0", duration=0.2).unwrapped
+    check_env(env, skip_render_check=True)
+
+    def episode(seed):
+        obs, _ = env.reset(seed=seed)
+        out = [obs]
+        for k in range(10):
+            obs, *_ = env.step(np.full(8, 0.1 * np.sin(k)))
+            out.append(obs)
+        return np.array(out)
+
+    assert np.array_equal(episode(5), episode(5)) and not np.array_equal(episode(5), episode(6))
+
+
+def _cli(*args):
+    return subprocess.run([sys.executable, "-m", "hydroarm.cli", *args], capture_output=True, text=True, timeout=120)
+
+
+@pytest.mark.subprocess
+def test_cli_lists_vehicles_and_rejects_bad_vehicle_files(tmp_path):
+    listed = _cli("vehicles", "--json")
+    assert listed.returncode == 0 and json.loads(listed.stdout)[0]["name"] == "bluerov2-heavy"
+    from hydroarm.model.vehicle import builtin_vehicle_path
+
+    text = builtin_vehicle_path("bluerov2_heavy").read_text()
+    cases = {
+        "mass": text.replace("mass = 13.5 ", "mass = -1.0 "),
+        "allocation": text.replace("[hull]", "allocation = [[1, 2, 3], [1, 2, 3]]\n\n[hull]"),
+        "mount.position": text.replace("position = [0.2, 0.0, -0.12]", "position = [0.2, 0.0, -0.5]"),
+        "thrusters.4.axis": text.replace("axis = [0.0, 0.0, 1.0]", "axis = [0.0, 0.0, 0.0]", 1),
+    }
+    for field, content in cases.items():
+        path = tmp_path / f"bad_{field}.toml"
+        path.write_text(content)
+        result = _cli("run-uvms", "--vehicle", str(path), "--duration", "0.1")
+        assert result.returncode == 2, (field, result.stderr)
+        assert field in result.stderr and "Traceback" not in result.stderr
+    ok = _cli("run-uvms", "--vehicle", "bluerov2-heavy", "--arm", "alpha5", "--duration", "0.2")
+    assert ok.returncode == 0 and "drift_rms_m" in ok.stdout
