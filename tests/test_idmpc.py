@@ -55,7 +55,9 @@ def test_authority_weights_closed_form_and_the_light_joints_tend_to_deadbeat(pap
     """R_a,j = max(r (m_j / max m)^2, floor), m_j = M_jj(0) / tau_max,j; the joint of least
     authority keeps r, and a joint at the floor has both closed-loop poles near 0."""
     limit = np.array([150.0, 150, 150, 28, 28, 28])
-    controller = InverseDynamicsMPC(paper_arm, IDMPCConfig(torque_limit=limit.tolist(), r_acceleration=2e-5))
+    controller = InverseDynamicsMPC(
+        paper_arm, IDMPCConfig(torque_limit=limit.tolist(), r_acceleration=2e-5, r_floor=1e-9)
+    )
     inertia = np.array([paper_arm.mass_matrix(np.zeros(6))[j, j] for j in range(6)])
     m = inertia / limit
     expected = np.maximum(2e-5 * (m / m.max()) ** 2, 1e-9)

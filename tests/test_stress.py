@@ -152,7 +152,7 @@ def check_robustness_adds_up(summary: dict, controllers: list[str], rows_each: i
 def test_the_stress_file_is_the_documented_study():
     config = load_sweep(STRESS)
     plan = plan_sweep(config, STRESS.parent, str(STRESS))
-    assert len(plan.rows) == 600 and len(plan.tasks) == 600 and config.base.duration == 10.0
+    assert len(plan.rows) == 800 and len(plan.tasks) == 800 and config.base.duration == 10.0
     starts = {row.config.initial_state for row in plan.rows}
     assert len(starts) == 200 and all(s.position_spread == 0.5 and s.velocity_spread == 1.0 for s in starts)
     for key, (low, high) in {
@@ -170,15 +170,15 @@ def test_the_stress_file_is_the_documented_study():
 def test_stress_sweep_in_miniature_then_resume(tmp_path):
     config = validate_sweep(tiny_stress(), "stress-tiny")
     summary = run_sweep(config, tmp_path, executor=SerialExecutor())
-    assert summary["failed"] == [] and summary["ran"] == 9
-    check_robustness_adds_up(summary, ["SMC", "MPC", "GP-MPC"], 3)
+    assert summary["failed"] == [] and summary["ran"] == 12
+    check_robustness_adds_up(summary, ["SMC", "MPC", "GP-MPC", "GP-IDMPC"], 3)
     assert summary["robustness"]["bound"] == {"max_error": 0.5, "after": 0.2}
     text = (tmp_path / "summary.md").read_text()
     assert "## Robustness: runs within the tracking bound" in text and "| GP-MPC | 3 |" in text
     assert (tmp_path / "robustness.png").is_file() and summary["plots"]["robustness"] == "robustness.png"
     assert json.loads((tmp_path / "summary.json").read_text())["robustness"]["bound"]["after"] == 0.2
     table = rows_of(tmp_path / "results.csv")
-    assert len(table) == 9 and {"within_bound", "steady_max_error", "stopped", "faults_total"} <= set(table[0])
+    assert len(table) == 12 and {"within_bound", "steady_max_error", "stopped", "faults_total"} <= set(table[0])
     assert len({r["initial_state.seed"] for r in table}) == 3
     record = json.loads(next((tmp_path / "runs").glob("*.json")).read_text())
     assert isinstance(record["faults"], dict) and record["envelope"]["max_abs_error"]
@@ -186,7 +186,7 @@ def test_stress_sweep_in_miniature_then_resume(tmp_path):
     # Resuming recomputes nothing; a new bound recomputes nothing either, only the verdicts.
     before = (tmp_path / "results.csv").read_text()
     again = run_sweep(config, tmp_path, executor=SerialExecutor())
-    assert again["ran"] == 0 and again["reused"] == 9 and (tmp_path / "results.csv").read_text() == before
+    assert again["ran"] == 0 and again["reused"] == 12 and (tmp_path / "results.csv").read_text() == before
     looser = validate_sweep(tiny_stress(robustness={"max_error": 100.0, "after": 0.2}), "stress-tiny")
     third = run_sweep(looser, tmp_path, executor=SerialExecutor())
     assert third["ran"] == 0
@@ -207,8 +207,8 @@ def test_stress_corners_run_without_an_exception_escaping(tmp_path):
     data = tiny_stress(mode="grid", parameters=corner)
     data.pop("samples")
     summary = run_sweep(validate_sweep(data, "stress-corner"), tmp_path, executor=SerialExecutor())
-    assert summary["failed"] == [] and summary["ran"] == 6
-    check_robustness_adds_up(summary, ["SMC", "MPC", "GP-MPC"], 2)
+    assert summary["failed"] == [] and summary["ran"] == 8
+    check_robustness_adds_up(summary, ["SMC", "MPC", "GP-MPC", "GP-IDMPC"], 2)
     table = rows_of(tmp_path / "results.csv")
     for row in table:  # a run that stopped says why, and the count of its faults agrees
         if row["stopped"]:

@@ -19,8 +19,10 @@ the acceleration the joint's limit gives at q = 0)::
     R_a,j = max(r_acceleration * (m_j / max_i m_i)^2, r_floor)
 
 The joint of least authority (typically the base) keeps ``r_acceleration``; a light wrist gets
-a weight near ``r_floor``, where its LQR tends to the two-step deadbeat law of the sampled
-double integrator (both closed-loop poles near 0). ``"uniform"``: ``R_a,j = r_acceleration``.
+a weight near ``r_floor``. As the weight goes to 0 the joint's LQR tends to the two-step
+deadbeat law of the sampled double integrator (both closed-loop poles at 0), which has no
+margin for a plant lighter than the model: ``r_floor`` keeps the lightest joints short of it.
+``"uniform"``: ``R_a,j = r_acceleration``.
 
 In the error e = x - x_r and move u = a - a_r the model is ``e_{k+1} = A e_k + B u_k + c_k``
 with the reference's one-step defect ``c_k = x_r,k+1 - A x_r,k - B a_r,k`` (zero for a
@@ -91,7 +93,7 @@ class IDMPCConfig(FrozenModel):
         "authority", description="per-joint R_a: r_acceleration, or scaled by the torque authority (docstring)"
     )
     r_floor: PositiveFloat = pydantic.Field(
-        1e-9, description="lower bound of the authority-scaled R_a (s^4/rad^2), in (0, 1e8]"
+        1e-6, description="lower bound of the authority-scaled R_a (s^4/rad^2), in (0, 1e8]"
     )
     limits: Literal["allocation", "qp", "clip"] = pydantic.Field(
         "qp", description="how a torque beyond its limit is handled (module docstring)"
