@@ -85,6 +85,36 @@ def test_metrics_json_has_the_required_shape(quick_run):
             assert len(ep) == 6 and all(isinstance(x, float) and x >= 0.0 for x in ep)
 
 
+def test_the_report_on_another_arm_compares_the_controllers_on_that_arm_only(tmp_path):
+    """No paper rows cut to its joints, no paper gain, no prose about the paper's arm: text
+    computed from the arm's own numbers (issue 16)."""
+    out = tmp_path / "alpha5"
+    hydroarm_cli("reproduce", "--arm", "alpha5", "--set", "duration=1.5", "--seeds", "1", "--no-ablation",
+                 "--out", str(out))  # fmt: skip
+    report = (out / "report.md").read_text()
+    for number in (1, 2):
+        table = (out / f"table{number}.md").read_text()
+        assert "(paper)" not in table and "on the arm `alpha5`" in table
+        assert table.splitlines()[2].count("joint") == 4
+    for paper_only in ("(paper)", "paper 34.05", "500 N m", "Joint 1 dominates", "Where and why we differ",
+                       "paper Tables A1-A2", "M_11 / T * 0.045 ~ 15 N m"):  # fmt: skip
+        assert paper_only not in report, paper_only
+    assert "# The study of Liu et al. 2023 on the arm `alpha5`" in report
+    assert "torque limit 9 N m" in report and "## Notes on the arm `alpha5`" in report
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert "paper_mean_of_joints" not in metrics["clean"]["gain_gp_mpc_over_mpc_percent"]
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["settings"]["paper_arm"] is False and summary["settings"]["arm"]["joints"] == 4
+
+
+def test_the_paper_arm_report_keeps_the_paper_beside_ours(quick_run):
+    summary = json.loads((quick_run / "summary.json").read_text())
+    assert summary["settings"]["paper_arm"] is True
+    assert summary["clean"]["gain_gp_mpc_over_mpc_percent"]["paper_mean_of_joints"] == 34.05
+    report = (quick_run / "report.md").read_text()
+    assert report.startswith("# Reproduction of Liu et al. 2023") and "GP-MPC gain over MPC, % (paper)" in report
+
+
 def test_gp_mpc_beats_mpc_in_both_tables(quick_run):
     """On the mean E_p, even on the 3 s quick task. (MPC vs SMC: see report.md; with the
     paper's MPC weights a fairly tuned SMC beats the MPC, as SPEC's trial found.)"""
@@ -165,7 +195,7 @@ def test_every_controller_runs_on_the_alpha5_without_code_changes(tmp_path):
 
 
 def test_cli_animate(quick_run, tmp_path):
-    run_file = quick_run / "runs" / "clean__GP-MPC__seed0.npz"
+    run_file = quick_run / "runs" / "clean__gp-mpc__seed0.npz"
     out = tmp_path / "arm.gif"
     hydroarm_cli("animate", str(run_file), "--out", str(out), "--duration", "0.5")
     assert out.read_bytes()[:6] in (b"GIF89a", b"GIF87a")

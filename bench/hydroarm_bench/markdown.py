@@ -96,9 +96,9 @@ def render_markdown(report: dict) -> str:
         "gp_mpc_p99_ms": ("GP-MPC step p99 (ms)", "<="),
         "speedup_vs_do_mpc": ("MPC speed-up vs do-mpc/IPOPT", ">="),
         "speedup_vs_cvxpy": ("MPC speed-up vs cvxpy (its faster solver of OSQP and Clarabel)", ">="),
-        "mpc_torque_agreement_nm": ("first torque vs peers, max |diff| (N m)", "<="),
+        "mpc_torque_agreement_nm": ("first torque vs peers, max abs diff (N m)", "<="),
         "gp_speedup_vs_sklearn": ("GP update speed-up vs scikit-learn fit", ">="),
-        "gp_mean_agreement": ("GP predictive mean vs sklearn at our theta, max |diff|", "<="),
+        "gp_mean_agreement": ("GP predictive mean vs sklearn at our theta, max abs diff", "<="),
         "paper_scenario_wall_s": ("paper scenario, 10 s simulated, GP-MPC (wall s)", "<="),
     }
     for key, (label, sense) in labels.items():

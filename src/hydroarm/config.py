@@ -17,6 +17,7 @@ valid float (``rho = 1000``).
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import math
 import tomllib
 import types
@@ -160,20 +161,79 @@ def _inner_class(annotation: Any) -> Any:
     return None
 
 
-def _known_keys(model: Any, where: tuple[Any, ...]) -> list[str] | None:
-    """The keys allowed in the mapping at ``where`` (a cleaned location) of ``model``."""
+def _classes_along(model: Any, where: tuple[Any, ...]) -> list[Any]:
+    """The model/dataclass type of the mapping at ``where[:k]`` for k = 0..len(where)
+    (None where it is not known) of ``model``."""
     cls, in_dict = model, False
+    out = [cls]
     for part in where:
         if isinstance(part, int) or in_dict:
             in_dict = False
-            continue  # a list item or a dict value: ``cls`` is already the item's type
+            out.append(cls)  # a list item or a dict value: ``cls`` is already the item's type
+            continue
         if part not in (_fields_of(cls) or []):
-            return None
+            return out + [None] * (len(where) + 1 - len(out))
         hints = typing.get_type_hints(cls) if dataclasses.is_dataclass(cls) else None
         annotation = hints[part] if hints is not None else cls.model_fields[part].annotation
         in_dict = any(typing.get_origin(m) is dict for m in _members(annotation))
         cls = _inner_class(annotation)
-    return _fields_of(cls)
+        out.append(cls)
+    return out
+
+
+def _known_keys(model: Any, where: tuple[Any, ...]) -> list[str] | None:
+    """The keys allowed in the mapping at ``where`` (a cleaned location) of ``model``."""
+    return _fields_of(_classes_along(model, where)[-1])
+
+
+def dotted_keys(model: Any, prefix: str = "") -> list[str]:
+    """Every dotted key of a config model: its sections (``water.current``) and their fields
+    (``water.current.scale``), in field order."""
+    keys = []
+    for name in _fields_of(model) or []:
+        keys.append(prefix + name)
+        annotation = model.model_fields[name].annotation if issubclass(model, pydantic.BaseModel) else None
+        members = [m for m in _members(annotation) if _fields_of(m) is not None]
+        if len(members) == 1 and issubclass(members[0], pydantic.BaseModel):
+            keys += dotted_keys(members[0], f"{prefix}{name}.")
+    return keys
+
+
+def close_keys(key: str, known: list[str], count: int = 3) -> list[str]:
+    """The known keys nearest to a mistyped ``key`` (difflib), those with the same last part first."""
+    leaf = key.rsplit(".", 1)[-1]
+    same_leaf = [k for k in known if k.rsplit(".", 1)[-1] == leaf and k != key]
+    ratios = {k: difflib.SequenceMatcher(None, key, k).ratio() for k in known}
+    near = sorted((k for k in known if ratios[k] >= 0.6), key=lambda k: -ratios[k])
+    best = ratios[near[0]] if near else 0.0
+    near = [k for k in near if ratios[k] >= best - 0.1]  # only the nearest few, not every fair match
+    return list(dict.fromkeys(same_leaf + near))[:count]
+
+
+def unknown_key_message(key: str, known: list[str], hint: str | None, prefix: str = "") -> str:
+    """``unknown setting 'mpc.rr'; did you mean 'mpc.r'? (hint)`` (``prefix``: the path of the
+    mapping ``known`` is relative to, e.g. ``base.`` in a sweep file)."""
+    word = "setting" if hint else "key"
+    text = f"unknown {word} '{prefix}{key}'"
+    matches = close_keys(key, known)
+    if matches:
+        text += "; did you mean " + " or ".join(f"'{prefix}{m}'" for m in matches) + "?"
+    return text + (f" ({hint})" if hint else "")
+
+
+def _unknown_key_text(model: Any, where: tuple[Any, ...]) -> str:
+    """An unknown key's message: the nearest known keys, and where to find them all (a model
+    with a ``settings_hint``, e.g. the experiment settings, names its dotted keys and its hint;
+    other models list the keys allowed at that level)."""
+    classes = _classes_along(model, where[:-1]) if model is not None else [None]
+    for k, cls in enumerate(classes):
+        hint = getattr(cls, "settings_hint", None)
+        if isinstance(hint, str) and all(isinstance(part, str) for part in where[k:]):
+            prefix = "".join(f"{part}." for part in where[:k])
+            return unknown_key_message(_location(where[k:]), dotted_keys(cls), hint, prefix)
+    known = _fields_of(classes[-1])
+    text = unknown_key_message(str(where[-1]), known or [], None, _location(where[:-1]) + "." if where[:-1] else "")
+    return text + (f" (allowed: {', '.join(known)})" if known else "")
 
 
 def format_validation_error(error: pydantic.ValidationError, source: str, data: Any = None, model: Any = None) -> str:
@@ -210,9 +270,7 @@ def format_validation_error(error: pydantic.ValidationError, source: str, data: 
     lines: dict[tuple, list] = {}
     for where, kind, value, message in kept:
         if kind in ("extra_forbidden", "unexpected_keyword_argument"):
-            known = _known_keys(model, where[:-1]) if model is not None else None
-            text = f"unknown key '{_location(where)}'" + (f" (allowed: {', '.join(known)})" if known else "")
-            lines.setdefault((where, _UNKNOWN), [where, value, [text], 0])
+            lines.setdefault((where, _UNKNOWN), [where, value, [_unknown_key_text(model, where)], 0])
             continue
         group = (where[:-1], message) if where and isinstance(where[-1], int) else (where, None)
         if group in lines and group[1] is not None:

@@ -1,4 +1,4 @@
-"""The ``hydroarm`` command line: reproduce the paper, run one experiment, list arms, export URDF.
+"""The ``hydroarm`` command line: reproduce the paper, run one experiment, list arms and settings, export URDF.
 
 Exit codes: 0 success, 1 a run failed, 2 bad input (a clear message naming the
 field, no traceback), 130 interrupted by Ctrl-C / SIGINT, 143 terminated by
@@ -8,7 +8,7 @@ resumes from them).
 
 from __future__ import annotations
 
-from hydroarm.cli import runs, studies  # noqa: F401  (they register their commands on the app)
+from hydroarm.cli import runs, settings, studies, vehicles  # noqa: F401  (they register their commands on the app)
 from hydroarm.cli._common import _experiment_config, app
 
 __all__ = ["_experiment_config", "app", "main"]

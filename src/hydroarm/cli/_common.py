@@ -5,16 +5,48 @@ from __future__ import annotations
 import contextlib
 import json
 import signal
+import typing
 from pathlib import Path
 from typing import Annotated, Any
 
 import typer
 from rich.console import Console
 from rich.markup import escape
+from typer.core import TyperGroup
 
 from hydroarm.config import ConfigError, load_model
 
+if typing.TYPE_CHECKING:
+    import click
+
+
+def _flags_without_type(command: click.Command, ctx: click.Context) -> None:
+    """No ``<bool>`` after plain flags (``--json``, ``--quick``, ``--help``) in ``command``'s help
+    and its subcommands': a flag takes no value, so its metavar is empty."""
+    help_option = command.get_help_option(ctx)
+    for param in [*command.params, *([help_option] if help_option is not None else [])]:
+        if getattr(param, "is_flag", False) and param.metavar is None:
+            param.metavar = ""
+    for sub in getattr(command, "commands", {}).values():
+        _flags_without_type(sub, ctx)
+
+
+class _Group(TyperGroup):
+    """The app's group: every command it hands out (sub-apps' too) shows flags without a type."""
+
+    def get_params(self, ctx: click.Context) -> list[click.Parameter]:
+        _flags_without_type(self, ctx)
+        return super().get_params(ctx)
+
+    def get_command(self, ctx: click.Context, cmd_name: str) -> click.Command | None:
+        command = super().get_command(ctx, cmd_name)
+        if command is not None:
+            _flags_without_type(command, ctx)
+        return command
+
+
 app = typer.Typer(
+    cls=_Group,
     add_completion=False,
     no_args_is_help=True,
     help="Simulate and control underwater robot arms (Liu et al. 2023 reproduced and beaten).",
@@ -76,6 +108,30 @@ def _experiment_config(config_file: Path | None, overrides: list[str]):
         pairs[key.strip()] = _parse_value(value.strip())
     return with_overrides(config, pairs) if pairs else config
 
+
+def _version(value: bool) -> None:
+    if value:
+        import hydroarm
+
+        print(f"hydroarm {hydroarm.__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def _main(
+    version: Annotated[
+        bool, typer.Option("--version", help="Print hydroarm's version and exit.", callback=_version, is_eager=True)
+    ] = False,
+) -> None:
+    """Simulate and control underwater robot arms (Liu et al. 2023 reproduced and beaten)."""
+
+
+OverwriteOption = Annotated[
+    bool,
+    typer.Option(
+        "--overwrite", help="--out holds results of other settings: remove them first (else the command refuses)."
+    ),
+]
 
 ConfigOption = Annotated[
     Path | None, typer.Option("--config", help="TOML/YAML experiment settings (see docs/tutorial.md).")

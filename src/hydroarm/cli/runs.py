@@ -14,6 +14,7 @@ from rich.table import Table
 
 from hydroarm.cli._common import (
     ConfigOption,
+    OverwriteOption,
     SetOption,
     _check_out,
     _experiment_config,
@@ -41,14 +42,17 @@ def run(
     config_file: ConfigOption = None,
     overrides: SetOption = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print the metrics as JSON.")] = False,
+    overwrite: OverwriteOption = False,
 ) -> None:
     """Run one experiment and write its trajectory, metrics and figures.
 
+    A folder that holds the results of other settings is refused unless --overwrite.
     Example: hydroarm run --controller gp-mpc --arm paper --noise 0.001 --seed 3 --out DIR
     """
     from hydroarm.model.loading import load_arm
     from hydroarm.studies import figures
     from hydroarm.studies.experiment import canonical_name, check_settings_for_arm, run_experiment, with_overrides
+    from hydroarm.studies.outputs import claim_output, dumps
     from hydroarm.studies.runner import tracking_metrics
 
     try:
@@ -62,9 +66,11 @@ def run(
         config = with_overrides(config, {key: value for key, value in options.items() if value is not None})
         arm_model = load_arm(config.arm)
         check_settings_for_arm(config, arm_model)
+        what = {"experiment": config.model_dump(mode="json"), "controller": name, "seed": seed}
+        made_by = f"hydroarm run --controller {name.lower()} --seed {seed} --arm {config.arm}"
+        claim_output(out, "run", what, description=made_by, overwrite=overwrite)
     except ConfigError as error:
         _fail(str(error))
-    out.mkdir(parents=True, exist_ok=True)
     with Progress(
         TextColumn(name), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(), console=console
     ) as progress:
@@ -72,14 +78,14 @@ def run(
         traj = run_experiment(config, name, seed, progress=lambda k, total: progress.update(task, completed=k))
     traj.save(out / "trajectory.npz")
     metrics = tracking_metrics(traj)
-    (out / "metrics.json").write_text(json.dumps(metrics, indent=1))
+    (out / "metrics.json").write_text(dumps(metrics, indent=1))
     figures.plot_tracking(traj, out / "position.png", f"{name}: position tracking", "position")
     figures.plot_tracking(traj, out / "velocity.png", f"{name}: velocity tracking", "velocity")
     figures.plot_torque(traj, out / "torque.png", f"{name}: joint torques", arm_model.torque_limit)
     if name == "GP-MPC":
         figures.plot_disturbance(traj, out / "disturbance.png", "true vs GP-estimated disturbance")
     if as_json:
-        print(json.dumps(metrics))
+        print(dumps(metrics))
     else:
         console.print(f"E_p per joint (rad^2): {[round(x, 5) for x in metrics['Ep']]}; files in {out}")
     if traj.diverged:
@@ -109,8 +115,11 @@ def animate(
         _fail(f"RUN_FILE '{run_file}': no such file")
     try:
         traj = Trajectory.load(run_file)
-    except Exception as error:  # noqa: BLE001 - any unreadable file is bad input
-        _fail(f"RUN_FILE '{run_file}': not a hydroarm trajectory ({error})")
+    except Exception:  # noqa: BLE001 - any unreadable file is bad input; NumPy's own words do not help here
+        _fail(
+            f"RUN_FILE '{run_file}': not a hydroarm trajectory (a .npz that `hydroarm run` writes as "
+            "trajectory.npz, or `hydroarm reproduce` into runs/)"
+        )
     try:
         arm_model = load_arm(arm) if arm else None
         render(traj, out, arm=arm_model, fps=fps, start=start, duration=duration)
@@ -122,12 +131,12 @@ def animate(
 @app.command()
 def arms(as_json: Annotated[bool, typer.Option("--json")] = False) -> None:
     """List the built-in arms."""
-    from hydroarm.model.loading import BUILTIN_ARMS, load_arm
+    from hydroarm.model.loading import BUILTIN_ARMS, arm_description, load_arm
 
     rows = []
     for name in BUILTIN_ARMS:
         arm = load_arm(name)
-        description = getattr(arm.spec, "description", "") if arm.spec is not None else "URDF arm"
+        description = arm_description(name)
         rows.append(
             {
                 "name": name,

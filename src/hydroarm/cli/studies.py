@@ -13,6 +13,7 @@ from rich.table import Table
 
 from hydroarm.cli._common import (
     ConfigOption,
+    OverwriteOption,
     SetOption,
     Terminated,
     _check_out,
@@ -44,14 +45,19 @@ def reproduce(
     config_file: ConfigOption = None,
     overrides: SetOption = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print metrics.json's tables to stdout.")] = False,
+    overwrite: OverwriteOption = False,
 ) -> None:
     """Reproduce the paper's Tables 1-2 and Figures 4-15 into OUT.
 
-    Examples: hydroarm reproduce --out results;  hydroarm reproduce --arm alpha5 --out alpha5
+    The same command resumes from the finished runs in OUT; a folder holding results of other
+    settings is refused unless --overwrite. OUT/summary.json holds every number (metrics.json only
+    the tables'). Examples: hydroarm reproduce --out results;  hydroarm reproduce --arm alpha5 --out alpha5
     """
     from hydroarm.control.registry import PAPER_CONTROLLERS
     from hydroarm.model.loading import load_arm
     from hydroarm.studies.experiment import check_settings_for_arm, with_overrides
+    from hydroarm.studies.outputs import dumps
+    from hydroarm.studies.reproduce import claim_folder, plan_study
     from hydroarm.studies.reproduce import reproduce as run
 
     _check_out(out)
@@ -60,6 +66,7 @@ def reproduce(
         if arm is not None:
             config = with_overrides(config, {"arm": arm})
         check_settings_for_arm(config, load_arm(config.arm))
+        claim_folder(out, plan_study(quick, seeds, ablation, config), overwrite, dry_run=True)
     except ConfigError as error:
         _fail(str(error))
     with Progress(
@@ -88,25 +95,32 @@ def reproduce(
                     config=config,
                     on_progress=on_run,
                     on_step=on_step,
+                    overwrite=overwrite,
                 )
         except KeyboardInterrupt as error:
             _interrupted(error, out)
         except ConfigError as error:
             _fail(str(error))
     if as_json:
-        print(json.dumps({case: metrics[case] for case in ("clean", "noisy")}, indent=1))
+        print(dumps({case: metrics[case] for case in ("clean", "noisy")}, indent=1))
         return
     table = Table(title=f"E_p mean over joints (rad^2) — full tables in {out}/table1.md, table2.md")
     table.add_column("controller")
     table.add_column("clean")
     table.add_column("noisy")
+    cell = lambda x, spec: "-" if x is None else format(x, spec)  # noqa: E731 - null: not defined
     for name in PAPER_CONTROLLERS:
-        table.add_row(name, f"{metrics['clean'][name]['Ep_mean']:.4g}", f"{metrics['noisy'][name]['Ep_mean']:.4g}")
+        table.add_row(
+            name, cell(metrics["clean"][name]["Ep_mean"], ".4g"), cell(metrics["noisy"][name]["Ep_mean"], ".4g")
+        )
     for case in ("clean", "noisy"):
         gain = metrics[case]["gain_gp_mpc_over_mpc_percent"]
-        table.add_row(f"gain {case} (%)", f"{gain['mean_of_joints']:.1f} (paper {gain['paper_mean_of_joints']})", "")
+        paper = f" (paper {gain['paper_mean_of_joints']})" if "paper_mean_of_joints" in gain else ""
+        table.add_row(f"gain {case} (%)", cell(gain["mean_of_joints"], ".1f") + paper, "")
     Console().print(table)
-    console.print(f"report: {out / 'report.md'}  ({metrics['wall_time_s']['total']:.1f} s)")
+    console.print(
+        f"report: {out / 'report.md'}, every number: {out / 'summary.json'}  ({metrics['wall_time_s']['total']:.1f} s)"
+    )
 
 
 @app.command()
@@ -136,16 +150,19 @@ def sweep(
         bool, typer.Option("--trajectories", help="Also keep every trajectory (runs/<id>.npz).")
     ] = False,
     as_json: Annotated[bool, typer.Option("--json", help="Print the summary as JSON.")] = False,
+    overwrite: OverwriteOption = False,
 ) -> None:
     """Run a grid or random sweep over controllers, seeds, arms, water, noise, mismatch and settings.
 
     One row per run in OUT/results.csv (written as runs finish); OUT/summary.md and box plots at the end.
-    Re-running the same command skips finished runs.
+    Re-running the same command skips finished runs (so does an extended sweep: more seeds or values);
+    a folder holding results of another sweep is refused unless --overwrite.
 
     Examples: hydroarm sweep examples/sweep.toml --out sweep1;  hydroarm sweep examples/sweep.toml --out sweep1 --ray
     """
     from hydroarm.studies.experiment import check_settings_for_arm
-    from hydroarm.studies.sweep import load_sweep, plan_sweep, run_sweep
+    from hydroarm.studies.outputs import dumps
+    from hydroarm.studies.sweep import claim_sweep_folder, load_sweep, plan_sweep, run_sweep
 
     if not sweep_file.is_file():
         _fail(f"SWEEP_FILE '{sweep_file}': no such file")
@@ -164,6 +181,7 @@ def sweep(
             from hydroarm.studies.executor import import_ray
 
             import_ray()
+        claim_sweep_folder(out, plan, str(sweep_file), overwrite, dry_run=True)
     except ConfigError as error:
         _fail(str(error))
     with Progress(
@@ -183,13 +201,14 @@ def sweep(
                     ray_address=ray_address or ("local" if ray else None),
                     on_progress=hook,
                     save_trajectories=True if trajectories else None,
+                    overwrite=overwrite,
                 )
         except ConfigError as error:
             _fail(str(error))
         except KeyboardInterrupt as error:
             _interrupted(error, out)
     if as_json:
-        print(json.dumps(summary))
+        print(dumps(summary))
     else:
         table = Table(title=f"{summary['metric_label']} — {out}/summary.md, {out}/results.csv")
         for column in ("controller", "finished", "median", "p90", "diverged"):

@@ -46,14 +46,22 @@ Features = Literal["state", "state+nominal", "state+torque"]
 class GPMPCConfig(FrozenModel):
     """How the GP is wired into the MPC (the GP's own settings are a :class:`GPConfig`)."""
 
-    features: Features = "state"
+    features: Features = pydantic.Field(
+        "state", description="GP inputs: the measured state, plus the nominal prediction or the previous torque"
+    )
     feedforward: Literal["acceleration", "torque"] = pydantic.Field(
         "torque",
         description="where the estimate enters the MPC: the model's affine term (paper) or the input reference",
     )
-    torque_scale: float = pydantic.Field(100.0, ge=1e-3, le=1e6, description="N m per feature unit for torque inputs")
-    min_samples: int = pydantic.Field(2, ge=1, le=10_000, description="window samples before feeding forward")
-    variance_aware: bool = False
+    torque_scale: float = pydantic.Field(
+        100.0, ge=1e-3, le=1e6, description="torque per GP input unit for the torque inputs (N m)"
+    )
+    min_samples: int = pydantic.Field(
+        2, ge=1, le=10_000, description="GP window samples before the estimate is fed forward (-)"
+    )
+    variance_aware: bool = pydantic.Field(
+        False, description="scale each joint's feed-forward by w^2 / (w^2 + var): trust unsure estimates less"
+    )
 
 
 def feature_size(features: Features, n: int) -> int:

@@ -37,14 +37,18 @@ class SMCConfig(FrozenModel):
     """Sliding-mode gains (scalars or one per joint, each in (0, 1e6]; ``linear_gain`` from 0,
     ``boundary_layer`` from 1e-6)."""
 
-    surface_slope: GainOrList = pydantic.Field(40.0, description="lambda (1/s)")
-    switching_gain: GainOrList = pydantic.Field(50.0, description="k (rad/s^2)")
+    surface_slope: GainOrList = pydantic.Field(
+        40.0, description="lambda, the sliding surface's slope s = de + lambda e (1/s)"
+    )
+    switching_gain: GainOrList = pydantic.Field(50.0, description="k, the switching gain (rad/s^2)")
     boundary_layer: (
         Annotated[float, pydantic.Field(ge=1e-6, le=1e6)] | list[Annotated[float, pydantic.Field(ge=1e-6, le=1e6)]]
-    ) = pydantic.Field(2.0, description="phi (rad/s)")
-    linear_gain: NonNegativeGain | list[NonNegativeGain] = pydantic.Field(30.0, description="k_s (1/s), >= 0")
+    ) = pydantic.Field(2.0, description="phi, the boundary layer's width on s (rad/s)")
+    linear_gain: NonNegativeGain | list[NonNegativeGain] = pydantic.Field(
+        30.0, description="k_s, the linear gain on s (1/s)"
+    )
     torque_limit: Annotated[float, pydantic.Field(gt=0.0)] | list[Annotated[float, pydantic.Field(gt=0.0)]] | None = (
-        pydantic.Field(None, description="N m; None: the arm's")
+        pydantic.Field(None, description="|tau_i| <= limit (N m); none = the arm's")
     )
 
 

@@ -47,15 +47,26 @@ class CurrentConfig(FrozenModel):
     ``mean + amplitude * sin(2 pi frequency_hz t + phase)`` (m/s), in the drag.
     """
 
-    model: Literal["paper", "uniform", "none"] = "paper"
-    scale: float = pydantic.Field(1.0, ge=0.0, le=1000.0, description="multiplies the paper current")
-    reference_period: float = pydantic.Field(
-        0.01, gt=0.0, le=1.0, description="T_ref (s): the paper's simulation cycle"
+    model: Literal["paper", "uniform", "none"] = pydantic.Field(
+        "paper", description="the current: the paper's eq. (22) kicks, a uniform world-frame flow, or none"
     )
-    mean: Velocity3 = pydantic.Field([0.0, 0.0, 0.0], description="uniform current, m/s, each within +-20")
-    amplitude: Velocity3 = pydantic.Field([0.0, 0.0, 0.0], description="uniform current, m/s, each within +-20")
-    frequency_hz: float = pydantic.Field(0.0, ge=0.0, le=100.0)
-    phase: float = 0.0
+    scale: float = pydantic.Field(1.0, ge=0.0, le=1000.0, description="factor on the paper current (-)")
+    reference_period: float = pydantic.Field(
+        0.01,
+        gt=0.0,
+        le=1.0,
+        description="T_ref, the paper's simulation cycle that turns its kicks into accelerations (s)",
+    )
+    mean: Velocity3 = pydantic.Field(
+        [0.0, 0.0, 0.0], description="uniform current: mean world-frame water velocity x, y, z (m/s)"
+    )
+    amplitude: Velocity3 = pydantic.Field(
+        [0.0, 0.0, 0.0], description="uniform current: amplitude of the sinusoid on the velocity x, y, z (m/s)"
+    )
+    frequency_hz: float = pydantic.Field(
+        0.0, ge=0.0, le=100.0, description="uniform current: frequency of the sinusoid (Hz)"
+    )
+    phase: float = pydantic.Field(0.0, description="uniform current: phase of the sinusoid (rad)")
 
 
 class CurrentField:

@@ -7,7 +7,7 @@ from pathlib import Path
 
 from hydroarm.config import ConfigError, load_model
 from hydroarm.model.arm import Arm, ArmSpec, build_arm
-from hydroarm.model.urdf_import import load_urdf_arm
+from hydroarm.model.urdf_import import hydro_file_for, load_hydro_spec, load_urdf_arm
 
 BUILTIN_ARMS = ("paper", "ur5", "alpha5")
 BUILTIN_URDF_ARMS = ("alpha5",)
@@ -54,3 +54,21 @@ def load_arm(source: str | Path = "paper") -> Arm:
             return load_urdf_arm(builtin_arm_path(source))
         return load_urdf_arm(source)
     return build_arm(load_arm_spec(source))
+
+
+def arm_description(source: str | Path) -> str:
+    """The one-line ``description`` of an arm: from its DH arm file, or from its hydrodynamics
+    file (URDF arms: the built-in's, the file given, or the one beside a ``.urdf``); "" if it
+    has none or cannot be read."""
+    try:
+        if not is_urdf_source(source):
+            return load_arm_spec(source).description
+        if isinstance(source, str) and source in BUILTIN_URDF_ARMS:
+            hydro: Path | None = builtin_arm_path(source)
+        elif str(source).lower().endswith(".urdf"):
+            hydro = hydro_file_for(source)
+        else:
+            hydro = Path(source)
+        return load_hydro_spec(hydro).description if hydro is not None else ""
+    except ConfigError:
+        return ""

@@ -48,10 +48,12 @@ class PlantConfig(FrozenModel):
     Table 2).
     """
 
-    inner_step: float = pydantic.Field(1e-3, ge=1e-5, le=0.1, description="RK4 step (s)")
-    friction: float = pydantic.Field(0.0, ge=0.0, le=1e4, description="joint viscous friction (N m s/rad)")
+    inner_step: float = pydantic.Field(
+        1e-3, ge=1e-5, le=0.1, description="longest RK4 step; the control period is split into equal steps (s)"
+    )
+    friction: float = pydantic.Field(0.0, ge=0.0, le=1e4, description="joint viscous friction, 0 = off (N m s/rad)")
     noise_variance: float = pydantic.Field(
-        0.0, ge=0.0, le=10.0, description="measurement noise variance on q and v (rad^2, (rad/s)^2)"
+        0.0, ge=0.0, le=10.0, description="variance of the Gaussian measurement noise on q and v (rad^2, (rad/s)^2)"
     )
 
 

@@ -64,15 +64,19 @@ class Water(FrozenModel):
     ``drag``/``added_mass``/``buoyancy`` switch each effect.
     """
 
-    rho: float = pydantic.Field(1000.0, gt=0.0, le=2000.0)
-    cd: float = pydantic.Field(1.0, ge=0.0, le=10.0)
-    cm: float = pydantic.Field(2.0, ge=0.0, le=10.0)
-    quadrature_points: int = pydantic.Field(8, ge=1, le=256)
-    gravity: float = pydantic.Field(9.81, ge=0.0, le=100.0)
-    drag: bool = True
-    added_mass: bool = True
-    buoyancy: bool = True
-    current: CurrentConfig = CurrentConfig()
+    rho: float = pydantic.Field(1000.0, gt=0.0, le=2000.0, description="water density (kg/m^3)")
+    cd: float = pydantic.Field(
+        1.0, ge=0.0, le=10.0, description="Morison drag coefficient C_d of every cylinder (-), the paper's C_r"
+    )
+    cm: float = pydantic.Field(2.0, ge=0.0, le=10.0, description="Morison added-mass coefficient C_m (-)")
+    quadrature_points: int = pydantic.Field(
+        8, ge=1, le=256, description="Gauss-Legendre points per cylinder in the strip integrals (-)"
+    )
+    gravity: float = pydantic.Field(9.81, ge=0.0, le=100.0, description="gravity for the buoyancy (m/s^2)")
+    drag: bool = pydantic.Field(True, description="switch: the Morison drag on the arm (on/off)")
+    added_mass: bool = pydantic.Field(True, description="switch: the added mass of the water (on/off)")
+    buoyancy: bool = pydantic.Field(True, description="switch: the buoyancy of the wetted cylinders (on/off)")
+    current: CurrentConfig = pydantic.Field(CurrentConfig(), description="the ocean current (section)")
 
     def off(self) -> Water:
         """The same settings with every water effect and the current switched off."""

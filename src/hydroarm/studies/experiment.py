@@ -14,12 +14,20 @@ import hashlib
 import json
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 import pydantic
 
-from hydroarm.config import ConfigError, FrozenModel, check_joint_counts, shown, validate
+from hydroarm.config import (
+    ConfigError,
+    FrozenModel,
+    check_joint_counts,
+    dotted_keys,
+    shown,
+    unknown_key_message,
+    validate,
+)
 from hydroarm.control import registry
 from hydroarm.control.estimator import EstimatorConfig
 from hydroarm.control.gp import GPConfig
@@ -50,6 +58,9 @@ __all__ = [
     "with_overrides",
 ]
 
+SETTINGS_HINT = "`hydroarm settings` lists the allowed settings"
+"""Where an unknown setting's message sends the reader (every key, default, unit and range)."""
+
 MAX_CONTROL_STEPS = 1_000_000
 """Most control steps of one run (duration / control_period): every step's row is stored."""
 
@@ -74,9 +85,13 @@ class InitialState(FrozenModel):
     the measurement-noise seed of the run.
     """
 
-    position_spread: float = pydantic.Field(0.0, ge=0.0, le=10.0, description="rad")
-    velocity_spread: float = pydantic.Field(0.0, ge=0.0, le=100.0, description="rad/s")
-    seed: int = pydantic.Field(0, ge=0, le=2**63 - 1)
+    position_spread: float = pydantic.Field(
+        0.0, ge=0.0, le=10.0, description="half-width of the uniform draw around each start position (rad)"
+    )
+    velocity_spread: float = pydantic.Field(
+        0.0, ge=0.0, le=100.0, description="half-width of the uniform draw around each start velocity (rad/s)"
+    )
+    seed: int = pydantic.Field(0, ge=0, le=2**63 - 1, description="seed of the start draw, not of the noise (-)")
 
     def apply(self, x0: np.ndarray) -> np.ndarray:
         """The start state (2n,) from the task's start ``x0`` (2n,) = [q0, v0]."""
@@ -94,21 +109,34 @@ class ExperimentConfig(FrozenModel):
     """Everything that defines one closed-loop run (SPEC defaults).
 
     ``initial_state``: a seeded random start around the task's start (default:
-    the task's start exactly, see :class:`InitialState`).
+    the task's start exactly, see :class:`InitialState`). Every key, its default, unit and
+    allowed range: ``hydroarm settings`` (docs/settings.md).
     """
 
-    arm: str = "paper"
-    duration: float = pydantic.Field(10.0, gt=0.0, le=3600.0, description="s")
-    control_period: float = pydantic.Field(0.01, ge=1e-4, le=1.0, description="T (s), for every controller")
-    water: Water = Water()
-    plant: PlantConfig = PlantConfig()
-    smc: SMCConfig = SMCConfig()
-    mpc: MPCConfig = MPCConfig()
-    gp: GPConfig = GPConfig()
-    gpmpc: GPMPCConfig = GPMPCConfig()
-    idmpc: IDMPCConfig = IDMPCConfig()
-    estimator: EstimatorConfig = EstimatorConfig()
-    initial_state: InitialState = InitialState()
+    settings_hint: ClassVar[str] = SETTINGS_HINT
+
+    arm: str = pydantic.Field(
+        "paper", description="a built-in arm (`hydroarm arms`) or an arm file: DH .toml, .urdf, .hydro.toml"
+    )
+    duration: float = pydantic.Field(10.0, gt=0.0, le=3600.0, description="length of a run (s)")
+    control_period: float = pydantic.Field(
+        0.01, ge=1e-4, le=1.0, description="T, the control period of every controller (s)"
+    )
+    water: Water = pydantic.Field(Water(), description="the water of the true plant (section)")
+    plant: PlantConfig = pydantic.Field(PlantConfig(), description="the true plant's integration and sensing (section)")
+    smc: SMCConfig = pydantic.Field(SMCConfig(), description="the sliding-mode controller (section)")
+    mpc: MPCConfig = pydantic.Field(MPCConfig(), description="the paper's linear MPC, also inside GP-MPC (section)")
+    gp: GPConfig = pydantic.Field(GPConfig(), description="the sliding-window GP of GP-MPC and GP-IDMPC (section)")
+    gpmpc: GPMPCConfig = pydantic.Field(GPMPCConfig(), description="how the GP is wired into GP-MPC (section)")
+    idmpc: IDMPCConfig = pydantic.Field(
+        IDMPCConfig(), description="the inverse-dynamics MPC, IDMPC and GP-IDMPC (section)"
+    )
+    estimator: EstimatorConfig = pydantic.Field(
+        EstimatorConfig(), description="the state estimator any controller can run behind (section)"
+    )
+    initial_state: InitialState = pydantic.Field(
+        InitialState(), description="a seeded random start around the task's start (section)"
+    )
 
     @pydantic.model_validator(mode="after")
     def _bounded_step_count(self) -> ExperimentConfig:
@@ -134,10 +162,10 @@ def with_overrides(config: ExperimentConfig, overrides: dict[str, Any]) -> Exper
         parts = key.split(".")
         for part in parts[:-1]:
             if not isinstance(target, dict) or part not in target:
-                raise ConfigError(f"unknown setting '{key}'")
+                raise ConfigError(unknown_key_message(key, dotted_keys(ExperimentConfig), SETTINGS_HINT))
             target = target[part]
         if not isinstance(target, dict) or parts[-1] not in target:
-            raise ConfigError(f"unknown setting '{key}'")
+            raise ConfigError(unknown_key_message(key, dotted_keys(ExperimentConfig), SETTINGS_HINT))
         target[parts[-1]] = value
     return validate(ExperimentConfig, data, "settings")
 

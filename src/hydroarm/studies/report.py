@@ -6,15 +6,19 @@ never claims what the numbers do not show).
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
 
 from hydroarm.control.registry import PAPER_CONTROLLERS
+from hydroarm.studies import report_arm
 from hydroarm.studies.figures import ANIMATION, FIGURES
 
 
 def _ordering_sentence(block: dict, case: str) -> str:
+    """The measured ordering and gains of one table; the paper's gain beside ours only when
+    the table has it (runs on the paper's arm)."""
     ep = {name: np.asarray(block[name]["Ep"]) for name in PAPER_CONTROLLERS}
     means = {name: float(ep[name].mean()) for name in PAPER_CONTROLLERS}
     order = " < ".join(sorted(PAPER_CONTROLLERS, key=lambda n: means[n]))
@@ -28,8 +32,12 @@ def _ordering_sentence(block: dict, case: str) -> str:
         f"({', '.join(f'{n} {means[n]:.4g}' for n in PAPER_CONTROLLERS)} rad^2). "
         f"GP-MPC beats MPC on joints {gp_beats_mpc or 'none'}; MPC beats SMC on joints {mpc_beats_smc or 'none'}. "
         f"GP-MPC's gain over MPC: {gain['mean_of_joints']:.1f} % as the paper averages it "
-        f"(mean of the per-joint gains; paper {gain['paper_mean_of_joints']} %), "
-        f"{gain['of_mean_Ep']:.1f} % on the mean E_p, "
+        + (
+            f"(mean of the per-joint gains; paper {gain['paper_mean_of_joints']} %), "
+            if "paper_mean_of_joints" in gain
+            else "(mean of the per-joint gains), "
+        )
+        + f"{gain['of_mean_Ep']:.1f} % on the mean E_p, "
         f"{np.mean(gain['steady_per_joint']):.1f} % after the start-up (t > 2 s). "
         f"Perfect disturbance knowledge (the same MPC on the arm without water) would gain "
         f"{bound['gain_mean_of_joints']:.1f} % (per joint: {per_joint})."
@@ -58,38 +66,68 @@ def _best_sentence(block: dict, case: str) -> str:
     )
 
 
+def _value(value) -> str:
+    """A setting as the report shows it: ``:g`` for a number, a list as ``[a, b, ...]``."""
+    if isinstance(value, list):
+        return "[" + ", ".join(_value(v) for v in value) + "]"
+    return f"{value:g}" if isinstance(value, (int, float)) and not isinstance(value, bool) else str(value)
+
+
+def _paper_header(metrics: dict) -> tuple[list[str], list[str]]:
+    """Title, introduction and the arm/task/SMC settings lines of a reproduction on the paper's arm."""
+    experiment = metrics["settings"]["experiment"]
+    smc = experiment["smc"]
+    return [
+        "# Reproduction of Liu et al. 2023 (J. Mar. Sci. Eng. 11, 1641)",
+        "",
+        "Adaptive MPC with a sliding-window Gaussian process on a 6-DOF underwater arm, compared with",
+        "plain MPC and sliding-mode control, without (Table 1) and with (Table 2) measurement noise.",
+    ], [
+        f"- Arm `{experiment['arm']}` (paper Tables A1-A2), true plant = ",
+        f"- Task: eq. (21), first six terms, {experiment['duration']:g} s from rest at q = 0; control period "
+        f"{experiment['control_period'] * 1e3:g} ms; torque limit from the arm file.",
+        f"- SMC: lambda = {smc['surface_slope']}, k = {smc['switching_gain']}, "
+        f"phi = {smc['boundary_layer']}, k_s = {smc['linear_gain']} (best of a grid, tuned on the dry arm).",
+    ]
+
+
 def render_report(metrics: dict, out: Path) -> str:
+    """report.md. On the paper's arm (``settings.paper_arm``): the reproduction, the paper's
+    numbers beside ours and report_notes.md; on any other arm: the same study on that arm,
+    with no paper numbers and notes computed from its own (:mod:`hydroarm.studies.report_arm`)."""
     settings = metrics["settings"]
     experiment = settings["experiment"]
     clean, noisy = metrics["clean"], metrics["noisy"]
     water, mpc, machine = experiment["water"], experiment["mpc"], metrics["machine"]
     gp_settings, gpmpc = experiment["gp"], experiment["gpmpc"]
+    paper = settings.get("paper_arm", True)
+    n = len(clean["MPC"]["Ep"])
+    title, (arm_line, task_line, smc_line) = _paper_header(metrics) if paper else report_arm.header(metrics)
     lines = [
-        "# Reproduction of Liu et al. 2023 (J. Mar. Sci. Eng. 11, 1641)",
-        "",
-        "Adaptive MPC with a sliding-window Gaussian process on a 6-DOF underwater arm, compared with",
-        "plain MPC and sliding-mode control, without (Table 1) and with (Table 2) measurement noise.",
+        *title,
         "",
         f"Wall time: {metrics['wall_time_s']['total']:.1f} s for all runs, tables and figures "
         f"({settings['workers']} worker processes; {machine['cpus']} CPUs; Python {machine['python']}).",
         "",
+        "Results files: `summary.json` holds every number (the rows, the ablations, the settings, the",
+        "arm, wall times): read this one. `metrics.json` holds only Tables 1-2's numbers (summary.json's",
+        "`clean` and `noisy`). Both are strict JSON: a number that is not defined (e.g. E_p after 2 s of a",
+        "shorter run) is `null`.",
+        "",
         "## Settings",
         "",
-        f"- Arm `{experiment['arm']}` (paper Tables A1-A2), true plant = Pinocchio rigid body + Morison water "
+        arm_line + "Pinocchio rigid body + Morison water "
         f"(rho = {water['rho']:g}, C_d = {water['cd']:g}, C_m = {water['cm']:g}, "
         f"{water['quadrature_points']} Gauss points per cylinder) + buoyancy + the paper's current "
         f"(model `{water['current']['model']}`), RK4 with {experiment['plant']['inner_step'] * 1e3:g} ms steps.",
-        f"- Task: eq. (21), first six terms, {experiment['duration']:g} s from rest at q = 0; control period "
-        f"{experiment['control_period'] * 1e3:g} ms; torque limit from the arm file.",
-        f"- MPC: N = {mpc['horizon']}, Q = diag({mpc['q_position']:g} x 6, "
-        f"{mpc['q_velocity']:g} x 6), R = {mpc['r']:g} I, terminal cost from the DARE, "
+        task_line,
+        f"- MPC: N = {mpc['horizon']}, Q = diag({_value(mpc['q_position'])} x {n}, "
+        f"{_value(mpc['q_velocity'])} x {n}), R = {_value(mpc['r'])} I, terminal cost from the DARE, "
         f"terminal set `{mpc['terminal_set']}`, solver {mpc['solver']}, "
         f"prediction model `{mpc.get('discretisation', 'euler')}` (docs/deviations.md).",
         f"- GP: window {gp_settings['window']}, {gp_settings['hyper_steps']} hyperparameter step(s) per control step, "
         f"features `{gpmpc['features']}`, estimate fed forward as `{gpmpc['feedforward']}`.",
-        f"- SMC: lambda = {experiment['smc']['surface_slope']}, k = {experiment['smc']['switching_gain']}, "
-        f"phi = {experiment['smc']['boundary_layer']}, k_s = {experiment['smc']['linear_gain']} "
-        "(best of a grid, tuned on the dry arm).",
+        smc_line,
         f"- Noise: variance {settings['noise_variance']} on measured q and q' (Table 2), "
         f"{settings['noisy_seeds']} seeds; Table 2 shows the mean over seeds and its spread.",
         "",
@@ -108,28 +146,36 @@ def render_report(metrics: dict, out: Path) -> str:
         "",
         (out / "table1.md").read_text() if (out / "table1.md").exists() else "",
         (out / "table2.md").read_text() if (out / "table2.md").exists() else "",
-        "### Disturbance estimate (paper: converges within 1 s, then within 0.1 N m)",
+        "### Disturbance estimate (paper: converges within 1 s, then within 0.1 N m)"
+        if paper
+        else "### Disturbance estimate of the GP-MPC",
         "",
-        "| case | quantity | " + " | ".join(f"joint {j + 1}" for j in range(len(clean["MPC"]["Ep"]))) + " |",
-        "|---|---|" + "---|" * len(clean["MPC"]["Ep"]),
+        "| case | quantity | " + " | ".join(f"joint {j + 1}" for j in range(n)) + " |",
+        "|---|---|" + "---|" * n,
     ]
     for case, block in (("no noise", clean), ("noise", noisy)):
         gp = block["GP-MPC"]
         lines.append(
             f"| {case} | RMS estimate error after 1 s (N m) | "
-            + " | ".join(f"{x:.3g}" for x in gp["disturbance_estimate_rms_after_1s"])
+            + " | ".join(f"{x:.3g}" for x in gp.get("disturbance_estimate_rms_after_1s", [math.nan] * n))
             + " |"
         )
         lines.append(
             f"| {case} | RMS of the disturbance after 1 s (N m) | "
-            + " | ".join(f"{x:.3g}" for x in gp["disturbance_rms_after_1s"])
+            + " | ".join(f"{x:.3g}" for x in gp.get("disturbance_rms_after_1s", [math.nan] * n))
             + " |"
         )
+    lines += [""]
+    lines += (
+        [
+            "Noise floor: a velocity noise of standard deviation 0.0316 rad/s on two consecutive samples puts",
+            "about M_11 / T * 0.045 ~ 15 N m of noise on each one-step torque residual of joint 1, which no",
+            "estimator working from one-step residuals can fall below per sample.",
+        ]
+        if paper
+        else report_arm.noise_floor(metrics)
+    )
     lines += [
-        "",
-        "Noise floor: a velocity noise of standard deviation 0.0316 rad/s on two consecutive samples puts",
-        "about M_11 / T * 0.045 ~ 15 N m of noise on each one-step torque residual of joint 1, which no",
-        "estimator working from one-step residuals can fall below per sample.",
         "",
         "### Step time",
         "",
@@ -147,14 +193,17 @@ def render_report(metrics: dict, out: Path) -> str:
         if block[name].get("faults")
     ]
     lines += (faults or ["None: no measurement held, no GP or QP fallback, no clipped torque, no stopped run."]) + [""]
-    if (out / "ablation.md").exists():
+    if metrics.get("ablation") and (out / "ablation.md").exists():
         lines += ["## Ablation", "", (out / "ablation.md").read_text()]
-    if (out / "ablation_idmpc.md").exists():
+    if metrics.get("ablation_idmpc") and (out / "ablation_idmpc.md").exists():
         lines += [(out / "ablation_idmpc.md").read_text()]
     lines += ["## Figures", ""]
     lines += [f"![GP-MPC on the task: the arm (colour) and the reference (grey)]({ANIMATION})", ""]
     for name, title in FIGURES.items():
         lines.append(f"![{title}]({name})")
         lines.append("")
-    lines += [Path(__file__).with_name("report_notes.md").read_text()]
+    if paper:
+        lines += [Path(__file__).with_name("report_notes.md").read_text()]
+    else:
+        lines += report_arm.notes(metrics)
     return "\n".join(lines) + "\n"

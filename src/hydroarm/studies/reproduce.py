@@ -5,21 +5,25 @@ along the paper task, without noise (Table 1) and with measurement noise of
 variance 0.001 over several seeds (Table 2), plus an ablation of the GP-MPC's
 settings, and writes into ``out_dir``:
 
+* ``hydroarm-run.json``: the folder's manifest (:func:`claim_folder`);
 * ``runs/*.npz``: every trajectory (re-plot without re-running);
-* ``metrics.json``: ``{"clean": {"SMC": {"Ep": [...]}, ...}, "noisy": {...}}`` (E_p per
-  joint, rad^2, and more per controller), ``summary.json``: that plus the
-  ablation, the settings, wall times and the machine;
+* ``summary.json``: every number (the results file to read): ``{"clean": {"SMC": {"Ep":
+  [...]}, ...}, "noisy": {...}}`` (E_p per joint, rad^2, and more per row), the ablations,
+  the settings, the arm, wall times and the machine; ``metrics.json``: its ``clean`` and
+  ``noisy`` only (Tables 1-2's numbers). Both strict JSON (``null`` for an undefined number);
 * ``table1.md``/``.csv``, ``table2.md``/``.csv``, ``ablation.md``/``.csv``;
 * ``fig04_...png`` to ``fig15_...png``: the paper's figures;
 * ``gpmpc_arm.gif``: the arm moving under GP-MPC, the reference ghosted;
-* ``report.md``: settings, tables, figures, and where and why we differ.
+* ``report.md``: settings, tables, figures, and where and why we differ (on another arm than
+  the paper's: the controllers compared on that arm alone, :mod:`hydroarm.studies.report_arm`).
 
 Beside the paper's rows (SMC, MPC, GP-MPC on the raw measurement, exactly as the paper's
 study), the tables carry hydroarm's own best controller (:data:`BEST`, behind its Kalman
 filter) and the paper's controllers behind the same filter (``SMC+KF``, ...), so that every
 comparison with it uses the same estimator; ``ablation_idmpc.md`` varies its choices.
 
-Each run is written atomically as soon as it finishes (``runs/<case>__<controller>__seed<n>.npz``,
+Each run is written atomically as soon as it finishes (``runs/<case>__<controller>__seed<n>.npz``
+as a :func:`~hydroarm.studies.outputs.slug`, e.g. ``clean__gp-mpc__seed0.npz``,
 through the studies' one executor and resume cache, :mod:`hydroarm.studies.executor`); a
 later call with the same settings loads the finished runs (their settings digest,
 controller and seed must match, and a file that cannot be read is recomputed) and runs
@@ -28,7 +32,6 @@ only the rest, so an interrupted reproduction loses nothing.
 
 from __future__ import annotations
 
-import json
 import os
 import platform
 import time
@@ -38,7 +41,8 @@ from pathlib import Path
 import numpy as np
 
 from hydroarm.control.registry import PAPER_CONTROLLERS
-from hydroarm.model.loading import load_arm
+from hydroarm.model.arm import Arm
+from hydroarm.model.loading import arm_description, load_arm
 from hydroarm.studies import figures
 from hydroarm.studies.animate import animate
 from hydroarm.studies.executor import (
@@ -51,11 +55,13 @@ from hydroarm.studies.executor import (
     make_executor,
     run_tasks,
 )
-from hydroarm.studies.experiment import ExperimentConfig, run_experiment, with_overrides
+from hydroarm.studies.experiment import ExperimentConfig, run_experiment, start_for_arm, with_overrides
 from hydroarm.studies.figures import ANIMATION, FIGURES
+from hydroarm.studies.outputs import claim_output, dumps, slug, strict
 from hydroarm.studies.report import render_report
 from hydroarm.studies.reproduce_tables import BEST, EXTRA_ROWS, NOISE_VARIANCE, summarise, write_tables
 from hydroarm.studies.runner import Trajectory
+from hydroarm.studies.sweep.plan import arm_digest
 
 
 @dataclass(frozen=True)
@@ -71,7 +77,9 @@ class RunSpec:
 
     @property
     def key(self) -> str:
-        return f"{self.case}__{self.controller}__seed{self.seed}".replace("/", "-").replace("+", "p")
+        """``<case>__<controller>__seed<n>`` as a safe, readable file name (:func:`slug`):
+        ``ablation-control-period-t-s-0.02__mpc__seed0``, ``clean__gp-idmpc-kf__seed0``."""
+        return slug(f"{self.case}__{self.controller}__seed{self.seed}")
 
     @property
     def id(self) -> str:
@@ -125,10 +133,18 @@ def idmpc_ablation_cases() -> list[tuple[str, str, str, dict]]:
     ]
     for kind in ("none", "kalman"):
         cases.append(("state estimator", kind, "GP-IDMPC", {"estimator.kind": kind}))
-    for limits in ("allocation", "qp", "clip"):
+    for limits in ("qp", "allocation"):  # ("clip" diverges on the paper task)
         cases.append(("torque limits", limits, "GP-IDMPC", {"idmpc.limits": limits}))
-    for r in (1e-4, 1e-5, 1e-6):
-        cases.append(("R_a", f"{r:g}", "GP-IDMPC", {"idmpc.r_acceleration": r}))
+    for iterations in (0, 1, 2):
+        cases.append(
+            ("SQP steps on the torque rows", str(iterations), "GP-IDMPC", {"idmpc.sqp_iterations": iterations})
+        )
+    for scaling in ("authority", "uniform"):
+        cases.append(("acceleration weights", scaling, "GP-IDMPC", {"idmpc.r_scaling": scaling}))
+    for floor in (1e-9, 1e-6):
+        cases.append(("weight floor r_floor", f"{floor:g}", "GP-IDMPC", {"idmpc.r_floor": floor}))
+    for horizon in (5, 10):
+        cases.append(("horizon N", str(horizon), "GP-IDMPC", {"idmpc.horizon": horizon}))
     return cases
 
 
@@ -154,6 +170,9 @@ def plan_runs(base: ExperimentConfig, noisy_seeds: int, ablation: bool) -> list[
             config = with_overrides(base, overrides)
             row = f"{name}+KF" if config.estimator.kind != "none" else name
             runs.append(RunSpec(f"ablation-idmpc/{group}={label}", row, 0, config, name))
+    keys = [spec.key for spec in runs]
+    if len(set(keys)) != len(keys):  # two runs would share a file
+        raise ValueError(f"two runs of the study have one file name: {sorted(k for k in keys if keys.count(k) > 1)}")
     return runs
 
 
@@ -235,6 +254,75 @@ def write_figures(runs: list[RunSpec], results: dict[str, Trajectory], out: Path
         )
 
 
+@dataclass(frozen=True)
+class Study:
+    """What one call of :func:`reproduce` runs: the base settings (``--quick`` applied), the
+    noisy seeds, whether the ablation runs, and every run."""
+
+    base: ExperimentConfig
+    noisy_seeds: int
+    ablation: bool
+    quick: bool
+    runs: list[RunSpec]
+
+    def settings(self) -> dict:
+        """The settings that determine the results (the output folder's manifest)."""
+        return {
+            "experiment": self.base.model_dump(mode="json"),
+            "noisy_seeds": self.noisy_seeds,
+            "ablation": self.ablation,
+            "quick": self.quick,
+        }
+
+    def description(self) -> str:
+        what = "--quick" if self.quick else f"{self.base.duration:g} s"
+        ablation = "ablation" if self.ablation else "no ablation"
+        return f"hydroarm reproduce --arm {self.base.arm} ({what}, {self.noisy_seeds} noisy seeds, {ablation})"
+
+
+def plan_study(
+    quick: bool = False,
+    noisy_seeds: int | None = None,
+    ablation: bool | None = None,
+    config: ExperimentConfig | None = None,
+) -> Study:
+    """The study :func:`reproduce` runs for these arguments (see there)."""
+    base = config if config is not None else ExperimentConfig()
+    if quick:
+        base = with_overrides(base, {"duration": 3.0})
+    seeds = noisy_seeds if noisy_seeds is not None else (2 if quick else 5)
+    do_ablation = ablation if ablation is not None else not quick
+    return Study(base, seeds, do_ablation, quick, plan_runs(base, seeds, do_ablation))
+
+
+def claim_folder(out: Path, study: Study, overwrite: bool = False, dry_run: bool = False) -> None:
+    """Check ``out`` may take this study's results (:func:`~hydroarm.studies.outputs.claim_output`:
+    the same study resumes, more seeds or the ablation extend it; a folder of other settings
+    raises :class:`~hydroarm.studies.outputs.OutputConflict` unless ``overwrite``)."""
+    runs = {spec.key: spec.config.digest() for spec in study.runs}
+    claim_output(out, "reproduce", study.settings(), runs, study.description(), overwrite, dry_run)
+
+
+def is_paper_arm(arm: Arm) -> bool:
+    """True if ``arm`` is the paper's arm (by content, not by name): only then are the
+    paper's numbers printed beside ours."""
+    return arm_digest(arm) == arm_digest(load_arm("paper"))
+
+
+def arm_summary(arm: Arm, config: ExperimentConfig) -> dict:
+    """What the report says about the arm: name, joints, torque limits (N m), its
+    description, and the joint-space inertia M(q0) diagonal at the task's start (kg m^2)."""
+    _, x0 = start_for_arm(arm, config)
+    spec = getattr(arm, "spec", None)
+    return {
+        "name": config.arm,
+        "joints": arm.n_joints,
+        "torque_limit": arm.torque_limit.tolist(),
+        "description": getattr(spec, "description", "") or arm_description(config.arm),
+        "inertia_diagonal_at_start": np.diag(arm.mass_matrix(x0[: arm.n_joints])).tolist(),
+    }
+
+
 def reproduce(
     out: Path,
     quick: bool = False,
@@ -244,25 +332,27 @@ def reproduce(
     config: ExperimentConfig | None = None,
     on_progress: ProgressHook | None = None,
     on_step: ProgressHook | None = None,
+    overwrite: bool = False,
 ) -> dict:
-    """Run the whole study into ``out`` (see the module docstring); returns metrics.json's content.
+    """Run the whole study into ``out`` (see the module docstring); returns summary.json's content.
 
     ``quick``: a 3 s task, 2 noisy seeds and no ablation (for CI); defaults:
     10 s, 5 noisy seeds, ablation on. ``on_progress(done, total, label)``: the runs
     (finished or reused); ``on_step(k, total, label)``: the control steps of a run.
+    A folder holding results of other settings is refused
+    (:class:`~hydroarm.studies.outputs.OutputConflict`) unless ``overwrite`` (see
+    :func:`claim_folder`).
     """
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    base = config if config is not None else ExperimentConfig()
-    if quick:
-        base = with_overrides(base, {"duration": 3.0})
-    seeds = noisy_seeds if noisy_seeds is not None else (2 if quick else 5)
-    do_ablation = ablation if ablation is not None else not quick
-    runs = plan_runs(base, seeds, do_ablation)
+    study = plan_study(quick, noisy_seeds, ablation, config)
+    claim_folder(out, study, overwrite)
+    base, seeds, do_ablation, runs = study.base, study.noisy_seeds, study.ablation, study.runs
+    arm = load_arm(base.arm)
+    paper = is_paper_arm(arm)
     start = time.perf_counter()
     results = execute(runs, out / "runs", workers, on_progress, on_step)
     run_wall = time.perf_counter() - start
-    metrics = summarise(runs, results)
+    metrics = summarise(runs, results, paper_arm=paper)
     metrics["settings"] = {
         "experiment": base.model_dump(mode="json"),
         "noise_variance": NOISE_VARIANCE,
@@ -270,17 +360,34 @@ def reproduce(
         "quick": quick,
         "ablation": do_ablation,
         "workers": workers,
+        "paper_arm": paper,
+        "arm": arm_summary(arm, base),
     }
     write_tables(metrics, out)
-    write_figures(runs, results, out, load_arm(base.arm).torque_limit)
+    write_figures(runs, results, out, arm.torque_limit)
     clean_gp = next(results[s.key] for s in runs if s.case == "clean" and s.controller == "GP-MPC")
     animate(clean_gp, out / ANIMATION, duration=min(5.0, base.duration), fps=10)
     metrics["wall_time_s"] = {"runs": run_wall, "total": time.perf_counter() - start}
     metrics["machine"] = {"python": platform.python_version(), "cpus": os.cpu_count(), "platform": platform.platform()}
-    (out / "metrics.json").write_text(json.dumps({case: metrics[case] for case in ("clean", "noisy")}, indent=1))
-    (out / "summary.json").write_text(json.dumps(metrics, indent=1))
+    metrics["files"] = RESULT_FILES
+    atomic_write(out / "metrics.json", dumps(tables_numbers(metrics), indent=1))
+    atomic_write(out / "summary.json", dumps(metrics, indent=1))
     write_report(metrics, out)
-    return metrics
+    return strict(metrics)
+
+
+RESULT_FILES = {
+    "summary.json": "everything: the numbers of every row (clean, noisy), the ablations, the settings, "
+    "the arm, wall times and the machine. Read this one.",
+    "metrics.json": "the numbers of Tables 1-2 only: summary.json's `clean` and `noisy` (kept for scripts "
+    "that read it; nothing in it is missing from summary.json)",
+}
+"""Which results file holds what (written into summary.json and report.md)."""
+
+
+def tables_numbers(metrics: dict) -> dict:
+    """metrics.json: the ``clean`` and ``noisy`` blocks of summary.json (Tables 1-2's numbers)."""
+    return {case: metrics[case] for case in ("clean", "noisy")}
 
 
 def write_report(metrics: dict, out: Path) -> None:

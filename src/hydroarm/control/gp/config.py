@@ -42,19 +42,23 @@ class GPConfig(FrozenModel):
     ``output_scale`` (1 or n_outputs) are checked when the GP is built, as only then is d known.
     """
 
-    window: int = pydantic.Field(10, ge=2, le=1000, description="N_train, samples kept in the window (paper 10)")
-    hyper_steps: int = pydantic.Field(
-        1, ge=0, le=100, description="gradient-ascent steps on the LML per update (0: fixed hyperparameters)"
+    window: int = pydantic.Field(
+        10, ge=2, le=1000, description="N_train, the samples kept in the window, paper 10 (samples)"
     )
-    learning_rate: float = pydantic.Field(0.1, gt=0.0, description="log-space step per unit of dL/dlog(theta)")
-    max_log_step: float = pydantic.Field(1.0, gt=0.0, description="cap on |change| of a log-hyperparameter per step")
+    hyper_steps: int = pydantic.Field(
+        1, ge=0, le=100, description="gradient-ascent steps on the LML per update, 0: fixed hyperparameters (steps)"
+    )
+    learning_rate: float = pydantic.Field(0.1, gt=0.0, description="log-space step per unit of dL/dlog(theta) (-)")
+    max_log_step: float = pydantic.Field(
+        1.0, gt=0.0, description="cap on the change of a log-hyperparameter per step (natural-log units)"
+    )
     max_step_halvings: int = pydantic.Field(
-        1, ge=0, le=20, description="halvings of a step that would lower the LML before it is rejected"
+        1, ge=0, le=20, description="halvings of a step that would lower the LML before it is rejected (-)"
     )
     grad_tol: float = pydantic.Field(
         0.0,
         ge=0.0,
-        description="the paper's epsilon: an output stops when max |dL/dlog theta| <= grad_tol (0: always step)",
+        description="the paper's epsilon: an output stops when max |dL/dlog theta| <= grad_tol, 0: always step (-)",
     )
     log_sf2_bounds: LogBounds = pydantic.Field(
         (math.log(1e-4), math.log(1e8)), description="(low, high) natural-log box bounds of sf2 (target units^2)"
@@ -67,26 +71,30 @@ class GPConfig(FrozenModel):
         description="(low, high) natural-log box bounds of every lengthscale (input units)",
     )
     theta0: Theta | None = pydantic.Field(
-        None, description="initial [sf2, sn2, l_1..l_d] of every output, within the bounds; None: all ones (paper)"
+        None,
+        description=(
+            "initial [sf2, sn2, l_1..l_d] of every output, within the bounds; null: all ones, the paper's "
+            "(target units^2, input units)"
+        ),
     )
     normalize_y: bool = pydantic.Field(
-        False, description="standardise each output's window targets by their mean and population std"
+        False, description="standardise each output's window targets by their mean and population std (on/off)"
     )
     input_scale: Scales | None = pydantic.Field(
-        None, description="per-input divisors applied before the kernel (input units); None: 1"
+        None, description="per-input divisors applied before the kernel; null: 1 (input units)"
     )
     output_scale: Scales | None = pydantic.Field(
-        None, description="divisor of the targets, one or one per output (target units); None: 1"
+        None, description="divisor of the targets, one or one per output; null: 1 (target units)"
     )
     jitter: float = pydantic.Field(1e-10, ge=0.0, description="added to the training diagonal (target units^2)")
     max_jitter_retries: int = pydantic.Field(
-        4, ge=0, le=20, description="retries with growing extra diagonal after a failed Cholesky"
+        4, ge=0, le=20, description="retries with a growing extra diagonal after a failed Cholesky (-)"
     )
     incremental_min_window: int = pydantic.Field(
-        30, ge=2, description="samples from which the window's factor is updated in O(N^2) at fixed theta"
+        30, ge=2, description="window size from which its factor is updated in O(N^2) at fixed theta (samples)"
     )
     refactor_every: int = pydantic.Field(
-        100, ge=1, description="consecutive O(N^2) updates before a full refactorisation"
+        100, ge=1, description="consecutive O(N^2) updates before a full refactorisation (updates)"
     )
 
     @pydantic.model_validator(mode="after")

@@ -82,8 +82,8 @@ def predict(X, y, X_star, theta, *, include_noise: bool = True, jitter: float = 
         variance is clipped at 0 (round-off), as sklearn does.
 
     Raises:
-        ValueError on bad shapes / values; numpy.linalg.LinAlgError if
-        K + (sn2 + jitter) I is not positive definite.
+        ValueError: on bad shapes / values.
+        numpy.linalg.LinAlgError: if K + (sn2 + jitter) I is not positive definite.
     """
     X = _check_matrix("X", X)
     n, d = X.shape
@@ -162,7 +162,7 @@ def predict_multi(X, Y, X_star, thetas, *, include_noise: bool = True, jitter: f
 
     Args:
         X: (n, d); Y: (n, o); X_star: (m, d); thetas: (o, d+2), row o is
-        [sf2, sn2, l_1..l_d] of output o (natural scale).
+            [sf2, sn2, l_1..l_d] of output o (natural scale).
 
     Returns:
         mean (m, o), var (m, o); equal to calling `predict` per column.

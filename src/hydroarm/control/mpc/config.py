@@ -36,32 +36,36 @@ class MPCConfig(FrozenModel):
 
     horizon: int = pydantic.Field(10, ge=1, le=200, description="prediction horizon N (steps)")
     q_position: PositiveFloat | PositiveList = pydantic.Field(
-        300.0, description="Q weight on joint position error (1/rad^2)"
+        300.0, description="Q weight on the joint position error (1/rad^2), within [1e-6, 1e8]"
     )
     q_velocity: NonNegativeFloat | NonNegativeList = pydantic.Field(
-        0.01, description="Q weight on joint velocity error (s^2/rad^2)"
+        0.01, description="Q weight on the joint velocity error (s^2/rad^2), within [0, 1e8]"
     )
     r: PositiveFloat | PositiveList = pydantic.Field(
-        0.1, description="R weight on the torque deviation u - u_r (1/(N m)^2)"
+        0.1, description="R weight on the torque deviation u - u_r (1/(N m)^2), within [1e-6, 1e6]"
     )
     torque_limit: PositiveFloat | PositiveList | None = pydantic.Field(
-        None, description="|u_i| <= limit (N m); None = the arm's"
+        None, description="|u_i| <= limit (N m), at most 1e12; none = the arm's"
     )
-    terminal_set: Literal["off", "soft", "hard"] = "off"
-    terminal_alpha: float = pydantic.Field(1e-3, gt=0.0, description="terminal set level alpha")
+    terminal_set: Literal["off", "soft", "hard"] = pydantic.Field(
+        "off", description="terminal constraint x_N' P x_N <= alpha: off, soft (penalised slack) or hard"
+    )
+    terminal_alpha: float = pydantic.Field(1e-3, gt=0.0, description="terminal set level alpha (-)")
     terminal_slack_penalty: float = pydantic.Field(
-        300.0, gt=0.0, le=1e12, description="linear penalty rho_s on the terminal slack"
+        300.0, gt=0.0, le=1e12, description="linear penalty rho_s on the terminal slack (-)"
     )
-    solver: Literal["daqp", "osqp", "quadprog", "clarabel"] = "daqp"
+    solver: Literal["daqp", "osqp", "quadprog", "clarabel"] = pydantic.Field(
+        "daqp", description="the box-QP solver of the condensed MPC problem"
+    )
     discretisation: Literal["euler", "taylor2"] = pydantic.Field(
         "taylor2",
         description="prediction model: second-order Taylor (ZOH-consistent, default) or explicit Euler (paper)",
     )
     riccati_tolerance: float = pydantic.Field(
-        1e-12, gt=0.0, le=1e-3, description="doubling stops when the relative change of P is below"
+        1e-12, gt=0.0, le=1e-3, description="doubling stops when the relative change of P is below this (-)"
     )
     riccati_max_iterations: int = pydantic.Field(
-        60, ge=1, le=1000, description="cap on doubling iterations (then scipy's DARE)"
+        60, ge=1, le=1000, description="cap on Riccati doubling iterations, then scipy's DARE (-)"
     )
 
     @pydantic.model_validator(mode="after")

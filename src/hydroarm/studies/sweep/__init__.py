@@ -24,10 +24,13 @@ finished yet, on a local process pool (default) or a Ray cluster, and writes
 into its output folder:
 
 * ``sweep.json``: the validated sweep and its plan (one entry per row);
+* ``hydroarm-run.json``: the folder's manifest (:mod:`hydroarm.studies.outputs`): a
+  folder of another sweep is refused, an extended sweep reuses what it shares;
 * ``runs/<id>.json``: one finished run (settings + metrics), written
-  atomically; ``<id>`` is a hash of everything that determines the run (the
-  arm's content, the settings the controller uses, the mismatch, controller,
-  seed), so a re-run skips finished runs and recomputes an unreadable file;
+  atomically; ``<id>`` is the controller and seed, then a hash of everything that
+  determines the run (the arm's content, the settings the controller uses, the
+  mismatch, controller, seed), so a re-run skips finished runs and recomputes an
+  unreadable file;
   ``runs/<id>.npz`` the trajectory when asked for;
 * ``results.csv``: one row per run with every setting and metric, rewritten
   atomically after each finished run (an interrupted sweep leaves a readable
@@ -74,7 +77,7 @@ from hydroarm.studies.sweep.plan import (
     sample_points,
 )
 from hydroarm.studies.sweep.results import ResultsTable, RunFiles, assess, read_run, steady_max_error
-from hydroarm.studies.sweep.run import run_sweep
+from hydroarm.studies.sweep.run import claim_sweep_folder, run_sweep
 from hydroarm.studies.sweep.schema import (
     METRICS,
     Mismatch,
@@ -102,6 +105,7 @@ __all__ = [
     "arm_digest",
     "assess",
     "check_sweep",
+    "claim_sweep_folder",
     "error_envelope",
     "execute_run",
     "load_sweep",

@@ -20,10 +20,11 @@ from typing import Any
 import numpy as np
 import pinocchio as pin
 
-from hydroarm.config import ConfigError, validate
+from hydroarm.config import ConfigError, dotted_keys, unknown_key_message, validate
 from hydroarm.model.arm import Arm
 from hydroarm.model.loading import BUILTIN_ARMS, load_arm
 from hydroarm.studies.experiment import CONTROLLER_SECTIONS, CONTROLLER_SETTINGS, ExperimentConfig, with_overrides
+from hydroarm.studies.outputs import slug
 from hydroarm.studies.sweep.schema import (
     MAX_RUNS,
     MISMATCH_PREFIX,
@@ -108,8 +109,10 @@ def arm_digest(arm: Arm) -> str:
 
 
 def run_id(config: ExperimentConfig, controller: str, seed: int, mismatch: Mismatch, arm_key: str) -> str:
-    """The run's id: a hash of the arm's content, the settings ``controller`` reads, the
-    mismatch, the controller and the seed."""
+    """The run's id (its file name in ``runs/``): the controller and the seed, readable
+    (:func:`~hydroarm.studies.outputs.slug`), then a hash of the arm's content, the settings
+    ``controller`` reads, the mismatch, the controller and the seed:
+    ``gp-mpc__seed0__3f2a9c0d1e4b5a67``."""
     settings = config.model_dump(mode="json")
     settings["arm"] = arm_key
     for section in CONTROLLER_SECTIONS:
@@ -125,7 +128,7 @@ def run_id(config: ExperimentConfig, controller: str, seed: int, mismatch: Misma
         },
         sort_keys=True,
     )
-    return hashlib.sha256(text.encode()).hexdigest()[:16]
+    return f"{slug(controller)}__seed{seed}__{hashlib.sha256(text.encode()).hexdigest()[:16]}"
 
 
 def sample_points(config: SweepConfig) -> list[dict[str, Any]]:
@@ -185,16 +188,21 @@ def plan_sweep(config: SweepConfig, folder: Path | None = None, source: str = "s
             message = str(error).removeprefix("settings: ")
             if message.startswith("unknown setting"):
                 bad = message.split("'")[1] if "'" in message else message
+                mismatch_keys = [MISMATCH_PREFIX + f for f in Mismatch.model_fields]
+                text = unknown_key_message(bad, dotted_keys(ExperimentConfig) + mismatch_keys, None)
                 raise ConfigError(
-                    f"{source}: parameters.{bad}: unknown setting (a dotted key of the experiment settings, "
-                    f"e.g. mpc.r or water.current.scale, or {MISMATCH_PREFIX}mass_scale / {MISMATCH_PREFIX}payload_kg)"
+                    f"{source}: parameters.{bad}: {text.replace('unknown key', 'unknown setting', 1)} "
+                    f"(a dotted key of the experiment settings, which `hydroarm settings` lists, "
+                    f"or {' / '.join(mismatch_keys)})"
                 ) from None
             lines = [line.removeprefix("settings: ") for line in message.splitlines()]
             raise ConfigError("\n".join(f"{source}: parameters ({where}): {line}" for line in lines)) from None
         unknown = set(mismatch_values) - set(Mismatch.model_fields)
         if unknown:
+            bad = sorted(unknown)[0]
+            text = unknown_key_message(bad, list(Mismatch.model_fields), None, MISMATCH_PREFIX)
             raise ConfigError(
-                f"{source}: parameters.{MISMATCH_PREFIX}{sorted(unknown)[0]}: unknown setting "
+                f"{source}: parameters.{MISMATCH_PREFIX}{bad}: {text.replace('unknown key', 'unknown setting', 1)} "
                 f"(mismatch keys: {', '.join(MISMATCH_PREFIX + f for f in Mismatch.model_fields)})"
             )
         mismatch = validate(

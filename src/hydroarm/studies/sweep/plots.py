@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from hydroarm.studies.outputs import slug
 from hydroarm.studies.sweep.plan import value_label
 from hydroarm.studies.sweep.results import assess
 from hydroarm.studies.sweep.schema import METRICS, Robustness, unique
@@ -29,8 +30,9 @@ def _colour(name: str, default: str | None = None) -> str | None:
 
 
 def safe_name(key: str) -> str:
-    """A parameter key as part of a file name (``mpc.r`` -> ``mpc_r``)."""
-    return "".join(c if c.isalnum() or c in "-_" else "_" for c in key)
+    """A parameter key as part of a file name (``mpc.r`` -> ``mpc_r``): the one
+    :func:`~hydroarm.studies.outputs.slug`, dots as underscores."""
+    return slug(key).replace(".", "_")
 
 
 def plot_metric(

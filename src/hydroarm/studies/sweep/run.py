@@ -4,7 +4,6 @@ writes the summary at the end."""
 
 from __future__ import annotations
 
-import json
 import time
 from pathlib import Path
 
@@ -15,6 +14,7 @@ from hydroarm.studies.executor import (
     make_executor,
     run_tasks,
 )
+from hydroarm.studies.outputs import claim_output, dumps
 from hydroarm.studies.sweep.plan import FORMAT, Plan, RunTask, plan_sweep
 from hydroarm.studies.sweep.results import ResultsTable, RunFiles
 from hydroarm.studies.sweep.schema import SweepConfig, load_sweep
@@ -40,6 +40,19 @@ def _plan_json(plan: Plan, source: str) -> dict:
     }
 
 
+def claim_sweep_folder(
+    out: str | Path, plan: Plan, source: str, overwrite: bool = False, dry_run: bool = False
+) -> None:
+    """Check ``out`` may take this sweep's results (:func:`~hydroarm.studies.outputs.claim_output`):
+    the same sweep resumes, an extended one (more seeds, more values) reuses the runs it
+    shares; a folder of another sweep raises :class:`~hydroarm.studies.outputs.OutputConflict`
+    unless ``overwrite``. Whether trajectories are kept does not count."""
+    settings = plan.config.model_dump(mode="json", exclude={"save_trajectories"})
+    runs = dict.fromkeys(plan.tasks, "")  # a run id is a hash of its settings already
+    made_by = f"hydroarm sweep {source} ({len(plan.rows)} rows, sweep '{plan.config.name}')"
+    claim_output(Path(out), "sweep", settings, runs, made_by, overwrite, dry_run)
+
+
 def run_sweep(
     sweep: str | Path | SweepConfig,
     out_dir: str | Path,
@@ -48,6 +61,7 @@ def run_sweep(
     on_progress: ProgressHook | None = None,
     executor: Executor | None = None,
     save_trajectories: bool | None = None,
+    overwrite: bool = False,
 ) -> dict:
     """Run a sweep into ``out_dir`` (see the package docstring); return :func:`summarise`'s
     dict plus ``ran``, ``reused``, ``failed`` and ``wall_s``.
@@ -64,6 +78,8 @@ def run_sweep(
     run that raises is listed in ``failed`` (and ``failed.json``) and retried by
     the next call; the others go on. KeyboardInterrupt stops the sweep; finished
     runs are kept (those running finish first, on local processes).
+    A folder holding the results of another sweep is
+    refused unless ``overwrite`` (:func:`claim_sweep_folder`).
     """
     start = time.perf_counter()
     if isinstance(sweep, SweepConfig):
@@ -74,8 +90,9 @@ def run_sweep(
         config = config.model_copy(update={"save_trajectories": save_trajectories})
     plan = plan_sweep(config, folder, source)
     out = Path(out_dir)
+    claim_sweep_folder(out, plan, source, overwrite)
     cache = RunFiles(out / "runs")
-    atomic_write(out / "sweep.json", json.dumps(_plan_json(plan, source), indent=1))
+    atomic_write(out / "sweep.json", dumps(_plan_json(plan, source), indent=1))
     table = ResultsTable(plan, out / "results.csv")
     finished, todo = cache.lookup(plan.tasks.values())
     for record in finished.values():
@@ -106,7 +123,7 @@ def run_sweep(
         table.write()
         failed_path = out / "failed.json"
         if failed:
-            atomic_write(failed_path, json.dumps(failed, indent=1))
+            atomic_write(failed_path, dumps(failed, indent=1))
         elif failed_path.exists():
             failed_path.unlink()
     summary = summarise(out)

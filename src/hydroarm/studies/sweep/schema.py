@@ -34,8 +34,12 @@ class Mismatch(FrozenModel):
     (URDF arms), in the plant only.
     """
 
-    mass_scale: float = pydantic.Field(1.0, gt=0.0, le=100.0)
-    payload_kg: float = pydantic.Field(0.0, ge=0.0, le=1000.0)
+    mass_scale: float = pydantic.Field(
+        1.0, gt=0.0, le=100.0, description="factor on every link's mass and inertia, in the plant only (-)"
+    )
+    payload_kg: float = pydantic.Field(
+        0.0, ge=0.0, le=1000.0, description="a point mass at the flange, in the plant only (kg)"
+    )
 
     @property
     def is_identity(self) -> bool:

@@ -1,0 +1,48 @@
+"""``hydroarm settings``: every setting with its default, unit and allowed range."""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+import typer
+
+from hydroarm.cli._common import _fail, app
+from hydroarm.config import ConfigError
+
+
+@app.command()
+def settings(
+    controller: Annotated[
+        str | None,
+        typer.Option(
+            "--controller", help="Only the sections this controller reads (smc, mpc, gp-mpc, idmpc, gp-idmpc)."
+        ),
+    ] = None,
+    as_json: Annotated[bool, typer.Option("--json", help="Print the table as JSON (one object per key).")] = False,
+    markdown: Annotated[
+        bool, typer.Option("--markdown", help="Print docs/settings.md (every section, as Markdown).")
+    ] = False,
+) -> None:
+    """List every setting (--set key=value, --config files, sweep files): default, allowed range, unit.
+
+    Generated from the config models, so it is what validation accepts.
+    Examples: hydroarm settings --controller gp-mpc;  hydroarm settings --markdown > docs/settings.md
+    """
+    from hydroarm.control.registry import canonical_name
+    from hydroarm.studies.settings import experiment_settings, settings_json, settings_markdown, settings_text
+
+    if markdown:
+        if controller is not None or as_json:
+            _fail("--markdown prints every section: leave out --controller and --json")
+        print(settings_markdown(), end="")
+        return
+    try:
+        rows = experiment_settings(controller)
+    except ConfigError as error:
+        _fail(f"--{error}")
+    if as_json:
+        print(settings_json(rows))
+        return
+    if controller is not None:
+        print(f"The settings a run of {canonical_name(controller)} reads (hydroarm settings: all of them).\n")
+    print(settings_text(rows), end="")

@@ -1,0 +1,286 @@
+"""Every setting, generated from the config models: ``hydroarm settings`` and docs/settings.md.
+
+:func:`settings_table` walks a config model (by default :class:`ExperimentConfig`) and
+returns one :class:`SettingRow` per dotted key: its default, the kind of value, the allowed
+range (from the pydantic constraints: ``ge``/``gt``/``le``/``lt``, ``Literal`` choices,
+list lengths) and the field's description (with its unit). Nothing here is written by
+hand, so the table cannot drift from what validation accepts.
+"""
+
+from __future__ import annotations
+
+import json
+import types
+import typing
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import annotated_types
+import pydantic
+from pydantic.fields import FieldInfo
+
+from hydroarm.control.registry import controller_spec
+from hydroarm.studies.experiment import ExperimentConfig
+
+GENERAL_SECTIONS: tuple[str, ...] = ("", "water", "water.current", "plant", "initial_state")
+"""The sections every run reads, whatever its controller ("": the top-level keys)."""
+
+SECTION_TITLES: dict[str, str] = {"": "the run"}
+
+
+@dataclass(frozen=True)
+class SettingRow:
+    """One setting: its dotted ``key``, ``default`` (as JSON), the ``kind`` of value, what is
+    ``allowed`` (range, choices, lengths; "" = any value of its kind), its ``description``
+    (with the unit) and its ``section`` (the dotted key of the model it belongs to; "" top level)."""
+
+    key: str
+    default: Any
+    kind: str
+    allowed: str
+    description: str
+    section: str
+
+
+def _number(value: Any) -> str:
+    if isinstance(value, int) and not isinstance(value, bool):
+        return "2^63 - 1" if value == 2**63 - 1 else str(value)
+    return f"{value:g}"
+
+
+def _bounds(metadata: list[Any]) -> str:
+    """``0 < x <= 3600`` from annotated-types constraints (``""`` if none)."""
+    low = high = ""
+    for item in metadata:
+        if isinstance(item, annotated_types.Gt):
+            low = f"{_number(item.gt)} < "
+        elif isinstance(item, annotated_types.Ge):
+            low = f"{_number(item.ge)} <= "
+        elif isinstance(item, annotated_types.Lt):
+            high = f" < {_number(item.lt)}"
+        elif isinstance(item, annotated_types.Le):
+            high = f" <= {_number(item.le)}"
+    return f"{low}x{high}" if low or high else ""
+
+
+def _lengths(metadata: list[Any]) -> tuple[int | None, int | None]:
+    low = high = None
+    for item in metadata:
+        if isinstance(item, annotated_types.MinLen):
+            low = item.min_length
+        elif isinstance(item, annotated_types.MaxLen):
+            high = item.max_length
+    return low, high
+
+
+def _unwrap(annotation: Any, metadata: list[Any]) -> list[tuple[Any, list[Any]]]:
+    """The members of a union, each with its constraints (``Annotated`` unwrapped)."""
+    origin = typing.get_origin(annotation)
+    if origin is typing.Annotated:
+        inner, *extra = typing.get_args(annotation)
+        found = list(metadata)
+        for item in extra:
+            found += item.metadata if isinstance(item, FieldInfo) else [item]
+        return _unwrap(inner, found)
+    if origin in (typing.Union, types.UnionType):
+        return [member for arg in typing.get_args(annotation) for member in _unwrap(arg, metadata)]
+    return [(annotation, metadata)]
+
+
+_NAMES = {bool: "bool", int: "int", float: "float", str: "text"}
+
+
+def _describe(annotation: Any, metadata: list[Any]) -> tuple[str, str]:
+    """(kind, allowed) of a field's annotation and constraints."""
+    kinds, allowed = [], []
+    nullable = False
+    for member, meta in _unwrap(annotation, metadata):
+        origin = typing.get_origin(member)
+        if member is type(None):
+            nullable = True
+        elif origin is typing.Literal:
+            kinds.append("choice")
+            allowed.append("one of " + ", ".join(str(c) for c in typing.get_args(member)))
+        elif member is bool:
+            kinds.append("bool")
+            allowed.append("true or false")
+        elif member in _NAMES:
+            kinds.append(_NAMES[member])
+            allowed.append(_bounds(meta))
+        elif origin in (list, tuple):
+            args = typing.get_args(member)
+            fixed = origin is tuple and Ellipsis not in args
+            item_kind, item_allowed = _describe(args[0], [])
+            low, high = (len(args), len(args)) if fixed else _lengths(meta)
+            if low is not None and low == high:
+                count = f"{low}"
+            elif low is not None or high is not None:
+                count = f"{low or 0} to {high}" if high is not None else f"at least {low}"
+            else:
+                count = "any number of"
+            kinds.append(f"list of {item_kind}")
+            allowed.append(f"{count} values" + (f", each {item_allowed}" if item_allowed else ""))
+        else:
+            kinds.append(getattr(member, "__name__", str(member)))
+            allowed.append("")
+    if len(kinds) == 2 and kinds[0] in ("float", "int") and kinds[1] == f"list of {kinds[0]}":  # per joint
+        count = allowed[1].split(" values")[0]
+        lengths = "" if count == "any number of" else f" (a list: {count} values)"
+        kinds, allowed = [f"{kinds[0]} or one per joint"], [allowed[0] + lengths]
+    kind = " or ".join(dict.fromkeys(kinds))
+    text = "; or ".join(a for a in dict.fromkeys(allowed) if a)
+    if nullable:
+        kind += ", or null"
+        text = f"{text}, or null" if text else "or null"
+    return kind, text
+
+
+def _model_of(annotation: Any) -> type[pydantic.BaseModel] | None:
+    members = [m for m, _ in _unwrap(annotation, []) if isinstance(m, type) and issubclass(m, pydantic.BaseModel)]
+    return members[0] if len(members) == 1 else None
+
+
+def _json(value: Any) -> Any:
+    if isinstance(value, pydantic.BaseModel):
+        return value.model_dump(mode="json")
+    if isinstance(value, tuple):
+        return [_json(v) for v in value]
+    if isinstance(value, Path):
+        return str(value)
+    return value
+
+
+def settings_table(model: type[pydantic.BaseModel] = ExperimentConfig, prefix: str = "") -> list[SettingRow]:
+    """One row per dotted key of ``model`` and its sections (sections themselves are not rows)."""
+    rows: list[SettingRow] = []
+    section = prefix.removesuffix(".")
+    for name, field in model.model_fields.items():
+        inner = _model_of(field.annotation)
+        if inner is not None:
+            rows += settings_table(inner, f"{prefix}{name}.")
+            continue
+        kind, allowed = _describe(field.annotation, list(field.metadata))
+        default = _json(field.get_default(call_default_factory=True)) if not field.is_required() else "(required)"
+        rows.append(SettingRow(prefix + name, default, kind, allowed, field.description or "", section))
+    return rows
+
+
+def section_descriptions(model: type[pydantic.BaseModel] = ExperimentConfig, prefix: str = "") -> dict[str, str]:
+    """Section key -> the description of the field that holds it (``"water"`` -> ...)."""
+    out = dict(SECTION_TITLES) if not prefix else {}
+    for name, field in model.model_fields.items():
+        inner = _model_of(field.annotation)
+        if inner is not None:
+            out[prefix + name] = (field.description or "").removesuffix(" (section)")
+            out.update(section_descriptions(inner, f"{prefix}{name}."))
+    return out
+
+
+def controller_sections(controller: str | None) -> tuple[str, ...] | None:
+    """The sections a run of ``controller`` reads: :data:`GENERAL_SECTIONS`, the registry's
+    sections of the controller, and ``estimator`` (every controller may run behind one);
+    None: every section. Raises ConfigError for an unknown controller."""
+    if controller is None:
+        return None
+    spec = controller_spec(controller)
+    return (*GENERAL_SECTIONS, *spec.sections, "estimator")
+
+
+def experiment_settings(controller: str | None = None) -> list[SettingRow]:
+    """The rows of :class:`ExperimentConfig`; only the sections ``controller`` reads if given."""
+    rows = settings_table(ExperimentConfig)
+    sections = controller_sections(controller)
+    if sections is None:
+        return rows
+    return [row for row in rows if row.section.split(".")[0] in sections]
+
+
+def _shown(value: Any) -> str:
+    """A default as written in a settings file / after ``--set key=`` (JSON; ``null`` for None)."""
+    return value if value == "(required)" else json.dumps(value)
+
+
+def _sections(rows: list[SettingRow]) -> dict[str, list[SettingRow]]:
+    grouped: dict[str, list[SettingRow]] = {}
+    for row in rows:
+        grouped.setdefault(row.section, []).append(row)
+    return grouped
+
+
+def settings_text(rows: list[SettingRow]) -> str:
+    """Plain text, one line per key: ``key = default  [kind; allowed]  description``."""
+    titles = section_descriptions()
+    width = min(48, max(len(f"{row.key} = {_shown(row.default)}") for row in rows))
+    lines = []
+    for section, members in _sections(rows).items():
+        lines.append(f"[{section}]  {titles.get(section, '')}" if section else "top level: the run")
+        for row in members:
+            left = f"{row.key} = {_shown(row.default)}"
+            kind = f"{row.kind}; {row.allowed}" if row.allowed else row.kind
+            lines.append(f"  {left:<{width}}  [{kind}]  {row.description}")
+        lines.append("")
+    return "\n".join(lines)
+
+
+def settings_json(rows: list[SettingRow]) -> str:
+    return json.dumps([asdict(row) for row in rows], indent=1)
+
+
+def _cell(text: str) -> str:
+    return text.replace("|", "\\|")
+
+
+def settings_markdown() -> str:
+    """docs/settings.md: every setting of :class:`ExperimentConfig`, by section, and which
+    controller reads which section (``hydroarm settings --markdown > docs/settings.md``)."""
+    from hydroarm.control.registry import REGISTRY
+
+    titles = section_descriptions()
+    lines = [
+        "# Settings",
+        "",
+        "<!-- Generated by `hydroarm settings --markdown > docs/settings.md`; do not edit by hand",
+        "     (tests/test_settings.py checks it is up to date). -->",
+        "",
+        "Every setting of a run (`hydroarm.studies.experiment.ExperimentConfig`), generated from the",
+        "config models. Set them in a TOML/YAML file (`--config FILE`, sections as tables: `[mpc]`),",
+        "with `--set key=value` (dotted keys: `--set mpc.r=0.001`), in a sweep file's `[base]` and",
+        '`[parameters]`, or in Python with `with_overrides(config, {"mpc.r": 1e-3})`. A value outside',
+        "its range, or an unknown key, stops the command before any work starts (exit code 2).",
+        "`hydroarm settings --controller gp-mpc` shows only what one controller reads; `--json` gives",
+        "this table as data.",
+        "",
+        "Per-joint settings take one value (every joint) or a list of one value per joint. `null`",
+        "(`--set mpc.torque_limit=null`; leave the key out in a file) means the documented default.",
+        "",
+        "| controller | reads the sections |",
+        "|---|---|",
+    ]
+    for name, spec in REGISTRY.items():
+        lines.append(f"| {name} (`{name.lower()}`) | {', '.join(f'`{s}`' for s in (*spec.sections, 'estimator'))} |")
+    lines += ["", "Every run also reads the top-level keys and `water`, `plant` and `initial_state`.", ""]
+    for section, members in _sections(settings_table()).items():
+        lines += [f"## `{section}`: {titles.get(section, '')}" if section else "## Top level: the run", ""]
+        lines += ["| key | default | allowed | description |", "|---|---|---|---|"]
+        for row in members:
+            allowed = f"{row.kind}; {row.allowed}" if row.allowed else row.kind
+            lines.append(
+                f"| `{row.key}` | `{_cell(_shown(row.default))}` | {_cell(allowed)} | {_cell(row.description)} |"
+            )
+        lines.append("")
+    lines += [
+        "## Sweep files only: `mismatch`",
+        "",
+        "A sweep file's `[mismatch]` (or swept `mismatch.*` keys) changes the true plant's rigid body",
+        "only; the controllers keep the arm file.",
+        "",
+        "| key | default | allowed | description |",
+        "|---|---|---|---|",
+    ]
+    from hydroarm.studies.sweep.schema import Mismatch
+
+    for row in settings_table(Mismatch, "mismatch."):
+        allowed = f"{row.kind}; {row.allowed}" if row.allowed else row.kind
+        lines.append(f"| `{row.key}` | `{_cell(_shown(row.default))}` | {_cell(allowed)} | {_cell(row.description)} |")
+    return "\n".join(lines) + "\n"

@@ -1,0 +1,106 @@
+"""Every setting findable (issue 16): a description on every field, `hydroarm settings` and
+docs/settings.md generated from the config models, and an unknown key answered with the
+nearest known ones."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pydantic
+import pytest
+from typer.testing import CliRunner
+
+from hydroarm.cli import app
+from hydroarm.config import ConfigError, _members, dotted_keys
+from hydroarm.studies.experiment import ExperimentConfig, with_overrides
+from hydroarm.studies.settings import experiment_settings, settings_markdown, settings_table
+from hydroarm.studies.sweep import plan_sweep, validate_sweep
+from hydroarm.studies.sweep.schema import Mismatch
+
+ROOT = Path(__file__).resolve().parents[1]
+RUNNER = CliRunner()
+
+
+def _models(model: type[pydantic.BaseModel]) -> list[type[pydantic.BaseModel]]:
+    """``model`` and every config model reachable from its fields."""
+    found = [model]
+    for field in model.model_fields.values():
+        for member in _members(field.annotation):
+            if isinstance(member, type) and issubclass(member, pydantic.BaseModel) and member not in found:
+                found += [m for m in _models(member) if m not in found]
+    return found
+
+
+def test_every_field_of_every_config_model_has_a_description():
+    missing = [
+        f"{model.__module__}.{model.__name__}.{name}"
+        for model in (*_models(ExperimentConfig), Mismatch)
+        for name, field in model.model_fields.items()
+        if not (field.description or "").strip()
+    ]
+    assert missing == []
+
+
+def test_docs_settings_md_is_up_to_date():
+    """docs/settings.md is what `hydroarm settings --markdown` prints (regenerate it with that)."""
+    assert (ROOT / "docs" / "settings.md").read_text() == settings_markdown(), (
+        "docs/settings.md is stale: run `hydroarm settings --markdown > docs/settings.md`"
+    )
+
+
+def test_the_table_has_every_key_its_default_and_its_range():
+    rows = {row.key: row for row in settings_table()}
+    leaves = [
+        k
+        for k in dotted_keys(ExperimentConfig)
+        if not any(o.startswith(k + ".") for o in dotted_keys(ExperimentConfig))
+    ]
+    assert list(rows) == leaves
+    assert rows["mpc.horizon"].default == 10 and rows["mpc.horizon"].allowed == "1 <= x <= 200"
+    assert rows["duration"].allowed == "0 < x <= 3600" and "(s)" in rows["duration"].description
+    assert rows["water.current.model"].allowed == "one of paper, uniform, none"
+    assert rows["water.current.mean"].allowed == "3 values, each -20 <= x <= 20"
+    assert rows["smc.surface_slope"].kind == "float or one per joint"
+    assert rows["mpc.torque_limit"].default is None and rows["mpc.torque_limit"].allowed.endswith("or null")
+    assert rows["gp.log_sf2_bounds"].allowed.startswith("2 values")
+    assert rows["water.drag"].allowed == "true or false"
+
+
+def test_cli_settings_of_one_controller_shows_only_the_sections_it_reads():
+    result = RUNNER.invoke(app, ["settings", "--controller", "gp-mpc", "--json"])
+    assert result.exit_code == 0, result.output
+    sections = {row["section"].split(".")[0] for row in json.loads(result.output)}
+    assert sections == {"", "water", "plant", "initial_state", "mpc", "gp", "gpmpc", "estimator"}
+    every = RUNNER.invoke(app, ["settings", "--json"])
+    assert [row["key"] for row in json.loads(every.output)] == [row.key for row in experiment_settings()]
+    text = RUNNER.invoke(app, ["settings", "--controller", "smc"]).output
+    assert "smc.switching_gain = 50.0" in text and "mpc.r" not in text and "0 < x <= 1e+06" in text
+    wrong = RUNNER.invoke(app, ["settings", "--controller", "pid"])
+    assert wrong.exit_code == 2 and "pid" in wrong.output
+
+
+HINT = "hydroarm settings"
+
+
+def test_an_unknown_setting_names_the_nearest_ones_and_where_to_find_all(tmp_path):
+    with pytest.raises(ConfigError) as error:
+        with_overrides(ExperimentConfig(), {"mpc.rr": 0.001})
+    assert str(error.value).startswith("unknown setting 'mpc.rr'; did you mean 'mpc.r'?") and HINT in str(error.value)
+    result = RUNNER.invoke(app, ["run", "--set", "mpc.rr=0.001", "--out", str(tmp_path / "out")])
+    assert result.exit_code == 2 and "unknown setting 'mpc.rr'; did you mean 'mpc.r'?" in result.output
+    assert HINT in result.output and not (tmp_path / "out").exists()
+
+
+def test_an_unknown_setting_in_a_config_file_or_a_sweep_file(tmp_path):
+    config = tmp_path / "c.toml"
+    config.write_text("[mpc]\nrr = 0.001\n")
+    result = RUNNER.invoke(app, ["run", "--config", str(config), "--out", str(tmp_path / "out")])
+    assert result.exit_code == 2 and "unknown setting 'mpc.rr'; did you mean 'mpc.r'?" in result.output
+    assert HINT in result.output
+    with pytest.raises(ConfigError, match=r"unknown setting 'base\.mpc\.rr'; did you mean 'base\.mpc\.r'\?"):
+        validate_sweep({"controllers": ["MPC"], "base": {"mpc": {"rr": 1}}}, "s.toml")
+    with pytest.raises(ConfigError) as error:
+        plan_sweep(validate_sweep({"controllers": ["MPC"], "parameters": {"mpc.rr": [0.1]}}, "s.toml"), source="s.toml")
+    assert "parameters.mpc.rr: unknown setting 'mpc.rr'; did you mean 'mpc.r'?" in str(error.value)
+    assert HINT in str(error.value)
