@@ -112,3 +112,25 @@ def test_cli_tune_writes_a_settings_file_run_reads(tmp_path):
         str(tmp_path / "r"),
     ]
     assert subprocess.run(run, capture_output=True, text=True, timeout=300).returncode == 0
+
+
+@pytest.mark.parametrize("arm", ["paper", "ur5", "alpha5"])
+def test_builtin_arms_ship_tuned_settings_that_the_cli_applies(arm):
+    from hydroarm.cli import _experiment_config
+    from hydroarm.model.loading import tuned_settings_path
+
+    shipped = load_model(ExperimentConfig, tuned_settings_path(arm))
+    assert shipped.arm == arm
+    config = _experiment_config(None, [], tuned=True, arm=arm)
+    assert (config.smc, config.mpc) == (shipped.smc, shipped.mpc)
+    assert config.smc != ExperimentConfig().smc or config.mpc != ExperimentConfig().mpc  # really tuned
+    overridden = _experiment_config(None, ["smc.surface_slope=7.0"], tuned=True, arm=arm)
+    assert overridden.smc.surface_slope == 7.0  # --set wins over the tuned file
+
+
+def test_tuned_settings_for_an_arm_without_them_is_a_clear_error():
+    from hydroarm.config import ConfigError
+    from hydroarm.model.loading import tuned_settings_path
+
+    with pytest.raises(ConfigError, match="no tuned settings ship for arm 'examples/urdf/iiwa14.urdf'"):
+        tuned_settings_path("examples/urdf/iiwa14.urdf")

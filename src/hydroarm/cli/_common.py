@@ -96,10 +96,28 @@ def _parse_value(text: str) -> Any:
         return text
 
 
-def _experiment_config(config_file: Path | None, overrides: list[str]):
+def _flat(mapping: dict, prefix: str = "") -> dict:
+    out = {}
+    for key, value in mapping.items():
+        if isinstance(value, dict):
+            out.update(_flat(value, f"{prefix}{key}."))
+        else:
+            out[f"{prefix}{key}"] = value
+    return out
+
+
+def _experiment_config(config_file: Path | None, overrides: list[str], tuned: bool = False, arm: str | None = None):
+    """The settings of ``--config`` (or the defaults), then, with ``--tuned``, the gains tuned for
+    the arm (``arm`` or the settings' arm; :func:`hydroarm.model.loading.tuned_settings_path`),
+    then the ``--set`` overrides."""
+    from hydroarm.config import read_mapping
+    from hydroarm.model.loading import tuned_settings_path
     from hydroarm.studies.experiment import ExperimentConfig, with_overrides
 
     config = load_model(ExperimentConfig, config_file) if config_file else ExperimentConfig()
+    if tuned:
+        name = arm if arm is not None else config.arm
+        config = with_overrides(config, _flat(read_mapping(tuned_settings_path(name))))
     pairs = {}
     for item in overrides:
         if "=" not in item:
@@ -135,6 +153,12 @@ OverwriteOption = Annotated[
 
 ConfigOption = Annotated[
     Path | None, typer.Option("--config", help="TOML/YAML experiment settings (see docs/tutorial.md).")
+]
+TunedOption = Annotated[
+    bool,
+    typer.Option(
+        "--tuned", help="Use the SMC and MPC gains tuned on land for the (built-in) arm: arms/tuned/ARM.toml."
+    ),
 ]
 SetOption = Annotated[
     list[str] | None,

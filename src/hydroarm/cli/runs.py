@@ -16,6 +16,7 @@ from hydroarm.cli._common import (
     ConfigOption,
     OverwriteOption,
     SetOption,
+    TunedOption,
     _check_out,
     _experiment_config,
     _fail,
@@ -40,13 +41,18 @@ def run(
     seed: Annotated[int, typer.Option("--seed", min=0, help="Noise seed.")] = 0,
     out: Annotated[Path, typer.Option("--out", help="Output folder.")] = Path("run"),
     config_file: ConfigOption = None,
+    tuned: TunedOption = False,
     overrides: SetOption = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print the metrics as JSON.")] = False,
     overwrite: OverwriteOption = False,
+    view: Annotated[
+        bool, typer.Option("--view", help="Then open the run in the browser viewer (the viewer extra).")
+    ] = False,
 ) -> None:
     """Run one experiment and write its trajectory, metrics and figures.
 
     A folder that holds the results of other settings is refused unless --overwrite.
+    --view serves the saved run in the browser as soon as it is written (hydroarm view).
     Example: hydroarm run --controller gp-mpc --arm paper --noise 0.001 --seed 3 --out DIR
     """
     from hydroarm.model.loading import load_arm
@@ -61,7 +67,7 @@ def run(
         _fail(f"--{error}")
     _check_out(out)
     try:
-        config = _experiment_config(config_file, overrides or [])
+        config = _experiment_config(config_file, overrides or [], tuned, arm)
         options = {"arm": arm, "plant.noise_variance": noise}
         config = with_overrides(config, {key: value for key, value in options.items() if value is not None})
         arm_model = load_arm(config.arm)
@@ -88,6 +94,10 @@ def run(
         print(dumps(metrics))
     else:
         console.print(f"E_p per joint (rad^2): {[round(x, 5) for x in metrics['Ep']]}; files in {out}")
+    if view:
+        from hydroarm.cli.view import serve_run
+
+        serve_run(out / "trajectory.npz")
     if traj.diverged:
         raise typer.Exit(1)
 

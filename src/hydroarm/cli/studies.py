@@ -16,6 +16,7 @@ from hydroarm.cli._common import (
     OverwriteOption,
     SetOption,
     Terminated,
+    TunedOption,
     _check_out,
     _experiment_config,
     _fail,
@@ -43,6 +44,7 @@ def reproduce(
         typer.Option("--arm", help="Another arm (built-in name or file); the task is scaled to its joint limits."),
     ] = None,
     config_file: ConfigOption = None,
+    tuned: TunedOption = False,
     overrides: SetOption = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print metrics.json's tables to stdout.")] = False,
     overwrite: OverwriteOption = False,
@@ -62,7 +64,7 @@ def reproduce(
 
     _check_out(out)
     try:
-        config = _experiment_config(config_file, overrides or [])
+        config = _experiment_config(config_file, overrides or [], tuned, arm)
         if arm is not None:
             config = with_overrides(config, {"arm": arm})
         check_settings_for_arm(config, load_arm(config.arm))

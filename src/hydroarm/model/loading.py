@@ -72,3 +72,15 @@ def arm_description(source: str | Path) -> str:
         return load_hydro_spec(hydro).description if hydro is not None else ""
     except ConfigError:
         return ""
+
+
+def tuned_settings_path(arm: str) -> Path:
+    """The settings file of gains tuned for built-in ``arm`` (``arms/tuned/<arm>.toml``: the SMC's
+    and the MPC's, by ``hydroarm tune`` on the dry arm); :class:`ConfigError` for other arms."""
+    path = Path(str(resources.files("hydroarm") / "arms" / "tuned" / f"{arm}.toml"))
+    if not isinstance(arm, str) or not path.is_file():
+        raise ConfigError(
+            f"--tuned: no tuned settings ship for arm {str(arm)!r} (built-in: {', '.join(BUILTIN_ARMS)}); "
+            "make them with `hydroarm tune --arm ARM --controller smc --out FILE` and pass --config FILE"
+        )
+    return path
