@@ -104,7 +104,7 @@ def test_the_readme_and_tutorial_outputs_are_git_ignored():
     paths = [
         "run/", "run1/", "run2/", "fast-run/", "results/", "results-quick/", "alpha5/", "sweep1/", "sweep2/",
         "myrun/", "myrun_urdf/", "myrun_urdf_smc/", "bench-results/", "fast.toml", "paper.urdf",
-        "myarm_export.urdf", "arm.gif", "run.npz", "tuned.toml",
+        "myarm_export.urdf", "arm.gif", "run.npz", "tuned.toml", "run3/", "run4/", "myarm-tuned.toml",
     ]  # fmt: skip
     result = subprocess.run(["git", "check-ignore", "--no-index", *paths], cwd=ROOT, capture_output=True, text=True)
     ignored = {line.strip() for line in result.stdout.splitlines()}
