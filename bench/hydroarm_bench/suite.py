@@ -17,6 +17,7 @@ from hydroarm_bench.report import assemble, json_default
 from hydroarm_bench.scaling import bench_scaling
 from hydroarm_bench.stats import limit_threads
 from hydroarm_bench.uvms import bench_uvms, render_uvms
+from hydroarm_bench.viewer import bench_viewer, render_viewer
 
 
 def run_benchmarks(out_dir: Path, quick: bool = False) -> dict:
@@ -35,14 +36,18 @@ def run_benchmarks(out_dir: Path, quick: bool = False) -> dict:
         scaling = bench_scaling(events, recorded, quick)
         profile = profile_closed_loop(1.0 if quick else 3.0)
         uvms = bench_uvms(quick)
+        viewer = bench_viewer(quick)
     finally:
         if limiter is not None:
             limiter.unregister()
     report = assemble(quick, blas_threads, how, load_start, breakdown, throughput, mpc_peers, gp_peers, plant, scaling)
     report["profile"] = profile
     report["uvms"] = uvms
+    report["viewer"] = viewer
     report["suite_wall_s"] = time.perf_counter() - started
     report = json.loads(json.dumps(report, default=json_default))  # plain JSON types only
     (out_dir / "bench.json").write_text(json.dumps(report, indent=2) + "\n")
-    (out_dir / "bench.md").write_text(render_markdown(report) + render_uvms(report["uvms"]))
+    (out_dir / "bench.md").write_text(
+        render_markdown(report) + render_uvms(report["uvms"]) + render_viewer(report["viewer"])
+    )
     return report

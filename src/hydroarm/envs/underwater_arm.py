@@ -80,7 +80,7 @@ class UnderwaterArmEnv(gymnasium.Env):
     (per episode).
     """
 
-    metadata = {"render_modes": []}
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 25}
 
     def __init__(
         self,
@@ -88,7 +88,12 @@ class UnderwaterArmEnv(gymnasium.Env):
         config: ExperimentConfig | None = None,
         noise_variance: float | None = None,
         duration: float | None = None,
+        render_mode: str | None = None,
     ):
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(f"render_mode must be None or one of {self.metadata['render_modes']}; got {render_mode!r}")
+        self.render_mode = render_mode
+        self._scene = None
         config = config if config is not None else ExperimentConfig()
         overrides: dict[str, Any] = {}
         if arm is not None:
@@ -165,6 +170,21 @@ class UnderwaterArmEnv(gymnasium.Env):
         self._y = self.plant.measure(x_next, self.np_random)
         truncated = self._k >= self.steps
         return self._observation(), reward, False, truncated, info
+
+    def render(self) -> np.ndarray | None:
+        """``render_mode="rgb_array"``: the arm (true state) and its reference ghosted, as
+        :mod:`hydroarm.studies.animate` draws them, an (H, W, 3) uint8 image (matplotlib Agg)."""
+        if self.render_mode != "rgb_array":
+            return None
+        from hydroarm.studies.animate import _Scene, reach
+
+        if self._scene is None:
+            self._scene = _Scene(self.arm, None, reach(self.arm), (5.0, 4.4), self.arm.name)  # type: ignore[arg-type]
+        q_r, _, _ = self.reference.sample(self.t)
+        self._scene.update(self.t, self._x[: self.n], q_r)
+        canvas = self._scene.fig.canvas
+        canvas.draw()
+        return np.asarray(canvas.buffer_rgba())[..., :3].copy()
 
 
 class ControllerPolicy:

@@ -1,0 +1,74 @@
+"""The ``view`` command: a saved run in the browser (needs the ``viewer`` extra)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from hydroarm.cli._common import _fail, app, console
+from hydroarm.config import ConfigError
+
+INSTALL_HINT = "the viewer needs the viewer extra: pip install 'hydroarm[viewer]'"
+
+
+def serve_run(
+    run_file: Path,
+    arm: str | None = None,
+    port: int = 8080,
+    host: str = "127.0.0.1",
+    browser: bool = True,
+    out: Path | None = None,
+) -> None:
+    """Write ``run_file`` as a shareable .html (``out``), or serve it at http://host:port until Ctrl-C."""
+    try:
+        from hydroarm.studies import view
+    except ImportError:
+        _fail(INSTALL_HINT)
+    from hydroarm.model.loading import load_arm
+    from hydroarm.studies.runner import Trajectory
+
+    if not run_file.is_file():
+        _fail(f"RUN_FILE '{run_file}': no such file")
+    try:
+        traj = Trajectory.load(run_file)
+    except Exception:  # noqa: BLE001 - any unreadable file is bad input
+        _fail(f"RUN_FILE '{run_file}': not a hydroarm trajectory (a .npz from run, reproduce or sweep --trajectories)")
+    try:
+        arm_model = load_arm(arm) if arm else None
+        if out is not None:
+            view.write_html(traj, out, arm=arm_model)
+            console.print(f"wrote {out} (open it in a browser; no server needed)")
+            return
+        viewer = view.TrajectoryViewer(traj, arm=arm_model, host=host, port=port)
+    except (ConfigError, ValueError) as error:
+        _fail(str(error))
+    except OSError as error:
+        _fail(f"cannot serve on {host}:{port}: {error}")
+    console.print(f"viewer at {viewer.url} (Ctrl-C to stop)")
+    if browser:
+        import webbrowser
+
+        webbrowser.open(viewer.url)
+    view.serve_until_interrupted(viewer)
+
+
+@app.command("view")
+def view_command(
+    run_file: Annotated[Path, typer.Argument(help="A trajectory .npz (from run, reproduce or sweep --trajectories).")],
+    port: Annotated[int, typer.Option("--port", min=1, max=65535, help="Port of the local web server.")] = 8080,
+    host: Annotated[str, typer.Option("--host", help="Address to serve on (default: this machine only).")] = (
+        "127.0.0.1"
+    ),
+    no_browser: Annotated[bool, typer.Option("--no-browser", help="Serve only; do not open a browser.")] = False,
+    out: Annotated[
+        Path | None, typer.Option("--out", help="Write a self-contained .html recording instead of serving.")
+    ] = None,
+    arm: Annotated[str | None, typer.Option("--arm", help="Arm of the run (default: from the file).")] = None,
+) -> None:
+    """Show a saved run in the browser: the arm in 3-D, its reference ghosted, a time slider, the time series.
+
+    Example: hydroarm view run/trajectory.npz --port 8080
+    """
+    serve_run(run_file, arm=arm, port=port, host=host, browser=not no_browser, out=out)
