@@ -28,6 +28,7 @@ from hydroarm.config import ConfigError
 
 @app.command()
 def run(
+    ctx: typer.Context,
     controller: Annotated[str, typer.Option("--controller", help="smc, mpc, gp-mpc, idmpc or gp-idmpc.")] = "gp-mpc",
     arm: Annotated[
         str | None, typer.Option("--arm", help="Built-in arm name or arm file (default: the settings' arm, paper).")
@@ -48,13 +49,28 @@ def run(
     view: Annotated[
         bool, typer.Option("--view", help="Then open the run in the browser viewer (the viewer extra).")
     ] = False,
+    vehicle: Annotated[
+        str | None,
+        typer.Option(
+            "--vehicle",
+            help="Mount the arm on this vehicle (bluerov2-heavy or a vehicle file): the run of hydroarm run-uvms.",
+        ),
+    ] = None,
 ) -> None:
     """Run one experiment and write its trajectory, metrics and figures.
 
     A folder that holds the results of other settings is refused unless --overwrite.
     --view serves the saved run in the browser as soon as it is written (hydroarm view).
     Example: hydroarm run --controller gp-mpc --arm paper --noise 0.001 --seed 3 --out DIR
+
+    With --vehicle, the vehicle-manipulator run of hydroarm run-uvms: --controller is the
+    vehicle's (pid or mpc, default pid), --arm defaults to the vehicle file's, --set sets the
+    run's settings (duration, current, aware, ...); writes metrics.json and trajectory.npz.
+    Example: hydroarm run --vehicle bluerov2-heavy --arm alpha5 --set duration=5 --out DIR
     """
+    if vehicle is not None:
+        _run_on_vehicle(ctx, vehicle, controller, arm, out, overrides or [])
+        return
     from hydroarm.model.loading import load_arm
     from hydroarm.studies import figures
     from hydroarm.studies.experiment import canonical_name, check_settings_for_arm, run_experiment, with_overrides
@@ -100,6 +116,41 @@ def run(
         serve_run(out / "trajectory.npz")
     if traj.diverged:
         raise typer.Exit(1)
+
+
+def _run_on_vehicle(
+    ctx: typer.Context, vehicle: str, controller: str, arm: str | None, out: Path, overrides: list[str]
+) -> None:
+    """``run --vehicle``: the options of ``run`` mapped onto ``run-uvms``'s run (one code path,
+    :func:`hydroarm.cli.vehicles.run_vehicle`); options that mean nothing there exit 2."""
+    from hydroarm.cli._common import _parse_value
+    from hydroarm.cli.vehicles import run_vehicle
+
+    def given(param: str) -> bool:  # on the command line (Typer's own click: compare by name)
+        source = ctx.get_parameter_source(param)
+        return source is not None and source.name != "DEFAULT"
+
+    for param in ("noise", "seed", "config_file", "tuned", "view", "overwrite"):
+        if given(param):
+            flag = "--config" if param == "config_file" else f"--{param}"
+            _fail(f"{flag} does not apply with --vehicle (set the vehicle run with --set KEY=VALUE)")
+    settings: dict = {}
+    if given("controller"):
+        if controller.lower() not in ("pid", "mpc"):
+            _fail(f"--controller '{controller}': with --vehicle, the vehicle's controller: pid or mpc")
+        settings["vehicle_controller"] = controller.lower()
+    for item in overrides:
+        if "=" not in item:
+            _fail(f"--set '{item}': expected key=value, e.g. duration=5")
+        key, value = item.split("=", 1)
+        *parents, last = key.strip().split(".")
+        target = settings
+        for part in parents:
+            target = target.setdefault(part, {})
+            if not isinstance(target, dict):
+                _fail(f"--set '{item}': '{part}' is not a section")
+        target[last] = _parse_value(value.strip())
+    run_vehicle(vehicle, arm or "mount", settings, out)
 
 
 @app.command()

@@ -90,12 +90,29 @@ def run_uvms_command(
     aware: Annotated[bool, typer.Option("--aware", help="GP feed-forward of the arm's force.")] = False,
     current: Annotated[float, typer.Option("--current", help="Current along x (m/s).")] = 0.2,
     duration: Annotated[float, typer.Option("--duration", help="Simulated time (s).")] = 10.0,
-    out: Annotated[Path | None, typer.Option("--out", help="Folder for metrics.json (default: print only).")] = None,
+    out: Annotated[
+        Path | None,
+        typer.Option("--out", help="Folder for metrics.json and trajectory.npz (default: print only)."),
+    ] = None,
 ) -> None:
-    """One station-keeping run of a vehicle with its arm working; prints its metrics."""
+    """One station-keeping run of a vehicle with its arm working; prints its metrics.
+
+    With --out, also writes trajectory.npz: hydroarm animate DIR/trajectory.npz draws the
+    vehicle with its arm. The same run as hydroarm run --vehicle.
+    """
+    settings = {"vehicle_controller": controller, "aware": aware, "current": current, "duration": duration}
+    run_vehicle(vehicle, arm, settings, out)
+
+
+def run_vehicle(vehicle: str, arm: str, settings: dict, out: Path | None) -> None:
+    """The one code path of ``run-uvms`` and ``run --vehicle``: validate the vehicle, the arm and
+    ``settings`` (:class:`~hydroarm.studies.uvms_run.UVMSRunConfig` fields, nested for ``plant``;
+    bad input exits 2 with one line), run, print the metrics as JSON and, with ``out``, write
+    ``metrics.json`` and ``trajectory.npz`` there."""
+    from hydroarm.config import validate
     from hydroarm.model.uvms import build_uvms
     from hydroarm.model.vehicle import load_vehicle
-    from hydroarm.studies.uvms_run import UVMSRunConfig, run_uvms
+    from hydroarm.studies.uvms_run import UVMSRunConfig, run_uvms, uvms_trajectory
 
     if out is not None:
         _check_out(out)
@@ -103,8 +120,7 @@ def run_uvms_command(
     try:
         spec = load_vehicle(name)
         build_uvms(spec, arm)
-        config = UVMSRunConfig(vehicle=name, arm=arm, vehicle_controller=controller, aware=aware,
-                               current=current, duration=duration)  # fmt: skip
+        config = validate(UVMSRunConfig, {**settings, "vehicle": name, "arm": arm}, "settings")
     except ConfigError as error:
         _fail(str(error))
     except (ValueError, FileNotFoundError) as error:
@@ -114,4 +130,5 @@ def run_uvms_command(
     if out is not None:
         out.mkdir(parents=True, exist_ok=True)
         (out / "metrics.json").write_text(text + "\n")
+        uvms_trajectory(result).save(out / "trajectory.npz")
     typer.echo(text)

@@ -8,6 +8,12 @@ transparent). A corner shows the time and the tracking error ``|q_r - q|``
 reach, so the camera never moves. Matplotlib 3-D on the Agg backend, frames
 written with Pillow (GIF) or ffmpeg (MP4, when installed): no display needed.
 
+A vehicle-manipulator run (``hydroarm run-uvms``/``run --vehicle``:
+``meta["vehicle"]`` and ``extra["base_pose"]``) is drawn with the vehicle: its
+hull box (the vehicle file's ``[hull]``) at the base pose of each sample, the
+arm mounted under it; the axes are centred on the station-keeping target
+(marked by the cross), so the camera still never moves and the drift shows.
+
     from hydroarm.studies.animate import animate
     animate("run.npz", "arm.gif")                    # arm from the run's meta["arm"]
     animate(traj, "arm.gif", arm="paper", fps=10, duration=4.0)
@@ -35,6 +41,8 @@ from hydroarm.model.loading import load_arm  # noqa: E402
 from hydroarm.studies.runner import Trajectory  # noqa: E402
 
 SIDES = 10  # facets per tube
+HULL_COLOUR = (1.0, 0.78, 0.05, 0.5)  # translucent amber: no link's colour
+HULL_FACES = ((0, 1, 3, 2), (4, 5, 7, 6), (0, 1, 5, 4), (2, 3, 7, 6), (0, 2, 6, 4), (1, 3, 7, 5))
 LINK_COLOURS = ("tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple", "tab:brown", "tab:pink", "tab:olive")
 
 
@@ -52,6 +60,64 @@ def _as_arm(arm: Arm | str | Path | None, traj: Trajectory) -> Arm:
             f"arm '{found.name}' has {found.n_joints} joints, the trajectory {traj.n_joints}: pass the run's arm"
         )
     return found
+
+
+class _Vehicle:
+    """What a vehicle-manipulator run adds to the drawing: the hull's half extents (3,) m, the
+    arm's mount in the body frame, the base poses (K, 7: position, quaternion x y z w) and the
+    station-keeping target's position (3,)."""
+
+    def __init__(self, traj: Trajectory):
+        from hydroarm.model.vehicle import load_vehicle
+
+        vehicle = load_vehicle(traj.meta["vehicle"])
+        self.name = vehicle.name
+        self.half = np.asarray(vehicle.hull, dtype=float) / 2.0
+        self.mount_rotation = np.asarray(vehicle.mount.rotation, dtype=float)
+        self.mount_translation = np.asarray(vehicle.mount.translation, dtype=float)
+        self.poses = np.asarray(traj.extra["base_pose"], dtype=float)
+        if self.poses.shape != (len(traj.t), 7):
+            raise ConfigError(f"base_pose has shape {self.poses.shape}, expected ({len(traj.t)}, 7)")
+        self.target = np.asarray(traj.meta.get("target_pose", self.poses[0]), dtype=float)[:3]
+
+    def arm_frame(self, pose: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Rotation and origin of the arm's base frame in the world at base ``pose``."""
+        rotation = _rotation(pose[3:7])
+        return rotation @ self.mount_rotation, pose[:3] + rotation @ self.mount_translation
+
+    def hull(self, pose: np.ndarray) -> list[np.ndarray]:
+        """The six faces of the hull box at ``pose``."""
+        signs = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], dtype=float)
+        corners = (signs * self.half) @ _rotation(pose[3:7]).T + pose[:3]
+        return [corners[list(face)] for face in HULL_FACES]
+
+    def extent(self, arm: Arm, frames: np.ndarray, configurations: np.ndarray) -> float:
+        """Half width of the view about the target: the farthest drift, plus the farther of
+        the hull's corner and the arm's reach from the body origin."""
+        drift = float(np.max(np.linalg.norm(self.poses[frames, :3] - self.target, axis=1)))
+        body = max(
+            float(np.linalg.norm(self.half)), float(np.linalg.norm(self.mount_translation)) + reach(arm, configurations)
+        )
+        return drift + body
+
+
+def _rotation(quaternion: np.ndarray) -> np.ndarray:
+    """Rotation matrix of the unit quaternion (x, y, z, w) (Pinocchio's order)."""
+    x, y, z, w = np.asarray(quaternion, dtype=float) / np.linalg.norm(quaternion)
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+
+
+def _vehicle_of(traj: Trajectory) -> _Vehicle | None:
+    """The vehicle of a vehicle-manipulator run, None for an arm-only one."""
+    if traj.meta.get("vehicle") is None or "base_pose" not in traj.extra:
+        return None
+    return _Vehicle(traj)
 
 
 def reach(arm: Arm, configurations: np.ndarray | None = None, samples: int = 200, seed: int = 0) -> float:
@@ -94,15 +160,25 @@ def _tube(start: np.ndarray, end: np.ndarray, radius: float, ring: np.ndarray) -
 class _Scene:
     """The figure and the artists of one animation."""
 
-    def __init__(self, arm: Arm, traj: Trajectory, extent: float, size: tuple[float, float], title: str):
+    def __init__(
+        self,
+        arm: Arm,
+        traj: Trajectory,
+        extent: float,
+        size: tuple[float, float],
+        title: str,
+        vehicle: _Vehicle | None = None,
+    ):
         self.arm = arm
+        self.vehicle = vehicle
+        cx, cy, cz = (0.0, 0.0, 0.0) if vehicle is None else vehicle.target
         self.fig = Figure(figsize=size)
         FigureCanvasAgg(self.fig)
         self.ax = self.fig.add_axes((0.0, 0.0, 1.0, 0.93), projection="3d")
         ax = self.ax
-        ax.set_xlim(-extent, extent)
-        ax.set_ylim(-extent, extent)
-        ax.set_zlim(-extent, extent)
+        ax.set_xlim(cx - extent, cx + extent)
+        ax.set_ylim(cy - extent, cy + extent)
+        ax.set_zlim(cz - extent, cz + extent)
         ax.set_box_aspect((1.0, 1.0, 1.0), zoom=1.1)
         ax.view_init(elev=22.0, azim=-55.0)
         ax.set_xlabel("x (m)", fontsize=7, labelpad=-6)
@@ -113,9 +189,9 @@ class _Scene:
             axis.set_major_locator(MaxNLocator(4))
         for axis in (ax.xaxis, ax.yaxis, ax.zaxis):
             axis.set_pane_color((0.95, 0.97, 1.0, 1.0))
-        # base marker: a small cross on the base plane
-        ax.plot([-0.08 * extent, 0.08 * extent], [0, 0], [0, 0], color="black", lw=1.0)
-        ax.plot([0, 0], [-0.08 * extent, 0.08 * extent], [0, 0], color="black", lw=1.0)
+        # base marker (a vehicle's station-keeping target): a small cross on the base plane
+        ax.plot([cx - 0.08 * extent, cx + 0.08 * extent], [cy, cy], [cz, cz], color="black", lw=1.0)
+        ax.plot([cx, cx], [cy - 0.08 * extent, cy + 0.08 * extent], [cz, cz], color="black", lw=1.0)
         self.ring = np.column_stack(
             [np.cos(np.linspace(0.0, 2.0 * math.pi, SIDES + 1)), np.sin(np.linspace(0.0, 2.0 * math.pi, SIDES + 1))]
         )
@@ -135,37 +211,49 @@ class _Scene:
         (self.joints,) = ax.plot([], [], [], "o", color="black", ms=3.0)
         self.fig.text(0.5, 0.97, title, ha="center", va="center", fontsize=9)
         self.clock = self.fig.text(0.02, 0.93, "", fontsize=8, family="monospace", va="top")
+        handles = [
+            Line2D([], [], color="tab:blue", lw=5, label="arm, true q (colour: link)"),
+            Line2D([], [], color=(0.55, 0.55, 0.55, 0.5), lw=5, label="reference q_r"),
+        ]
+        if vehicle is not None:
+            handles.append(Line2D([], [], color=HULL_COLOUR, lw=5, label=f"{vehicle.name} hull"))
         self.fig.legend(
-            handles=[
-                Line2D([], [], color="tab:blue", lw=5, label="arm, true q (colour: link)"),
-                Line2D([], [], color=(0.55, 0.55, 0.55, 0.5), lw=5, label="reference q_r"),
-            ],
+            handles=handles,
             loc="upper right",
             bbox_to_anchor=(0.99, 0.95),
             fontsize=7,
             frameon=False,
         )
 
-    def _polygons(self, q: np.ndarray) -> tuple[list[np.ndarray], list[str], np.ndarray]:
+    def _polygons(self, q: np.ndarray, pose: np.ndarray | None = None) -> tuple[list[np.ndarray], list, np.ndarray]:
+        """The arm's tube facets, their colours and the joint origins; on a vehicle, placed by the
+        base ``pose`` and the mount, with the hull's faces (one collection: depth-sorted together)."""
         ends = self.arm.cylinder_endpoints(q)
+        joints = np.array([p.translation for p in self.arm.joint_placements(q)])
         polygons, colours = [], []
+        if pose is not None:
+            rotation, origin = self.vehicle.arm_frame(pose)
+            ends, joints = ends @ rotation.T + origin, joints @ rotation.T + origin
         for (start, end), radius, colour in zip(ends, self.radii, self.colours, strict=True):
             facets = _tube(start, end, radius, self.ring)
             polygons += facets
             colours += [colour] * len(facets)
-        joints = np.array([p.translation for p in self.arm.joint_placements(q)])
         return polygons, colours, joints
 
-    def update(self, t: float, q: np.ndarray, q_ref: np.ndarray) -> None:
-        polygons, _, ghost_joints = self._polygons(q_ref)
+    def update(self, t: float, q: np.ndarray, q_ref: np.ndarray, pose: np.ndarray | None = None) -> None:
+        polygons, _, ghost_joints = self._polygons(q_ref, pose)
         self.ghost.set_verts(polygons)
-        polygons, colours, joints = self._polygons(q)
+        polygons, colours, joints = self._polygons(q, pose)
+        text = f"t = {t:5.2f} s\n|q_r - q| = {float(np.linalg.norm(q_ref - q)):6.3f} rad"
+        if pose is not None:
+            hull = self.vehicle.hull(pose)
+            polygons, colours = polygons + hull, colours + [HULL_COLOUR] * len(hull)
+            text += f"\ndrift = {float(np.linalg.norm(pose[:3] - self.vehicle.target)):6.3f} m"
         self.solid.set_verts(polygons)
         self.solid.set_facecolor(colours)
         self.joints.set_data_3d(joints[:, 0], joints[:, 1], joints[:, 2])
         self.ghost_joints.set_data_3d(ghost_joints[:, 0], ghost_joints[:, 1], ghost_joints[:, 2])
-        error = float(np.linalg.norm(q_ref - q))
-        self.clock.set_text(f"t = {t:5.2f} s\n|q_r - q| = {error:6.3f} rad")
+        self.clock.set_text(text)
 
 
 def _frames(traj: Trajectory, fps: float, stride: int | None, start: float, duration: float | None) -> np.ndarray:
@@ -182,11 +270,24 @@ def _frames(traj: Trajectory, fps: float, stride: int | None, start: float, dura
     return chosen[::stride]
 
 
-def _title(arm: Arm, traj: Trajectory, title: str | None) -> str:
+def _title(arm: Arm, traj: Trajectory, title: str | None, vehicle: _Vehicle | None = None) -> str:
     if title is not None:
         return title
     controller = traj.meta.get("controller", "")
-    return f"{arm.name}: {controller}".rstrip(": ")
+    name = arm.name if vehicle is None else f"{vehicle.name} + {arm.name}"
+    return f"{name}: {controller}".rstrip(": ")
+
+
+def _scene(traj: Trajectory, arm: Arm, frames: np.ndarray, size, title: str | None) -> tuple[_Scene, _Vehicle | None]:
+    """The scene of ``frames`` (sample indices): axes fixed from the arm's reach (and the vehicle's drift)."""
+    vehicle = _vehicle_of(traj)
+    configurations = np.concatenate([traj.q[frames], traj.q_ref[frames]])
+    extent = reach(arm, configurations) if vehicle is None else vehicle.extent(arm, frames, configurations)
+    return _Scene(arm, traj, extent, size, _title(arm, traj, title, vehicle), vehicle), vehicle
+
+
+def _draw(scene: _Scene, vehicle: _Vehicle | None, traj: Trajectory, k: int) -> None:
+    scene.update(float(traj.t[k]), traj.q[k], traj.q_ref[k], None if vehicle is None else vehicle.poses[k])
 
 
 def animate(
@@ -223,12 +324,11 @@ def animate(
     frames = _frames(traj, fps, stride, start, duration)
     if frames.size == 0:
         raise ConfigError(f"no trajectory samples in [{start}, {start + (duration or 0.0)}) s")
-    extent = reach(the_arm, np.concatenate([traj.q[frames], traj.q_ref[frames]]))
-    scene = _Scene(the_arm, traj, extent, size, _title(the_arm, traj, title))
+    scene, vehicle = _scene(traj, the_arm, frames, size, title)
     tmp = out_path.with_name(out_path.stem + ".tmp" + out_path.suffix)
     with writer.saving(scene.fig, str(tmp), dpi):
         for k in frames:
-            scene.update(float(traj.t[k]), traj.q[k], traj.q_ref[k])
+            _draw(scene, vehicle, traj, int(k))
             writer.grab_frame()
     tmp.replace(out_path)
     return out_path
@@ -247,9 +347,8 @@ def render_frame(
     traj = _as_trajectory(trajectory)
     the_arm = _as_arm(arm, traj)
     k = int(np.argmin(np.abs(traj.t - time)))
-    extent = reach(the_arm, np.stack([traj.q[k], traj.q_ref[k]]))
-    scene = _Scene(the_arm, traj, extent, size, _title(the_arm, traj, title))
-    scene.update(float(traj.t[k]), traj.q[k], traj.q_ref[k])
+    scene, vehicle = _scene(traj, the_arm, np.array([k]), size, title)
+    _draw(scene, vehicle, traj, k)
     out_png = Path(out_png)
     scene.fig.savefig(out_png, dpi=dpi)
     return out_png

@@ -52,7 +52,10 @@ class Trajectory:
     (K,); ``events`` (K,) the fault events of each step, comma-separated
     ("" if none); ``meta``: settings and outcome (JSON-serialisable), with
     ``faults`` (event -> count over the run), ``stopped`` (None,
-    ``"diverged"`` or ``"controller_error"``) and ``error``.
+    ``"diverged"`` or ``"controller_error"``) and ``error``; ``extra``: further
+    per-step arrays of other runners (a vehicle-manipulator run: ``base_pose``
+    (K, 7), see :func:`hydroarm.studies.uvms_run.uvms_trajectory`), saved only
+    when present.
     """
 
     t: np.ndarray
@@ -69,6 +72,7 @@ class Trajectory:
     events: np.ndarray
     timings: dict[str, np.ndarray] = field(default_factory=dict)
     meta: dict = field(default_factory=dict)
+    extra: dict[str, np.ndarray] = field(default_factory=dict)
 
     @property
     def n_joints(self) -> int:
@@ -89,11 +93,13 @@ class Trajectory:
     def save(self, path: str | Path) -> Path:
         """Write a compressed ``.npz`` (atomically: temp file, then rename)."""
         path = Path(path)
-        arrays = {f.name: getattr(self, f.name) for f in fields(self) if f.name not in ("timings", "meta")}
+        arrays = {f.name: getattr(self, f.name) for f in fields(self) if f.name not in ("timings", "meta", "extra")}
         arrays["status"] = np.asarray(self.status, dtype=str)
         arrays["events"] = np.asarray(self.events, dtype=str)
         for key, value in self.timings.items():
             arrays[f"timing__{key}"] = value
+        for key, value in self.extra.items():
+            arrays[f"extra__{key}"] = value
         arrays["meta_json"] = np.asarray(json.dumps(self.meta))
         with atomic_file(path) as handle:
             np.savez_compressed(handle, **arrays)
@@ -105,8 +111,9 @@ class Trajectory:
         with np.load(Path(path), allow_pickle=False) as archive:
             data = {key: archive[key] for key in archive.files}
         timings = {key.removeprefix("timing__"): data.pop(key) for key in list(data) if key.startswith("timing__")}
+        extra = {key.removeprefix("extra__"): data.pop(key) for key in list(data) if key.startswith("extra__")}
         meta = json.loads(str(data.pop("meta_json")))
-        return cls(**data, timings=timings, meta=meta)
+        return cls(**data, timings=timings, meta=meta, extra=extra)
 
 
 def run_closed_loop(

@@ -3,12 +3,17 @@
 :class:`UVMSRunConfig` (validated settings) -> :func:`run_uvms` -> :class:`UVMSRun` (arrays and
 metrics). The arm runs a reach-and-return cycle (:class:`ReachReturn`) while the vehicle holds
 its start pose in a uniform current; the plant is :class:`~hydroarm.model.uvms_fast.FastUVMSPlant`.
+
+:func:`uvms_trajectory` turns a run into a :class:`~hydroarm.studies.runner.Trajectory` (the
+arm's rows, the vehicle's pose in ``extra["base_pose"]``, the vehicle in ``meta["vehicle"]``)
+that ``hydroarm animate`` draws with the vehicle's hull.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
@@ -21,8 +26,10 @@ from hydroarm.control.uvms_control import UVMSController
 from hydroarm.control.vehicle_control import VehicleControlConfig
 from hydroarm.model.uvms import UVMS, build_uvms
 from hydroarm.model.uvms_fast import FastUVMSConfig, FastUVMSPlant
+from hydroarm.model.vehicle import load_vehicle
 from hydroarm.model.water import CurrentConfig, Water
 from hydroarm.studies.experiment import ExperimentConfig
+from hydroarm.studies.runner import Trajectory
 
 Angles = list[float]
 
@@ -154,3 +161,59 @@ def uvms_metrics(run: UVMSRun, target: np.ndarray) -> dict:
         "ee_error_rms_m": float(np.sqrt(np.mean(run.ee_error**2))),
         "ee_error_max_m": float(np.max(run.ee_error)),
     }
+
+
+def _source(name: str) -> str:
+    """A built-in name as is; a file as its absolute path (the saved run can be read elsewhere)."""
+    path = Path(name)
+    return str(path.resolve()) if path.is_file() else name
+
+
+def uvms_trajectory(run: UVMSRun) -> Trajectory:
+    """``run`` as a :class:`Trajectory` at the control instants t_k (K rows): ``x`` the arm's
+    [q, v], ``u`` the arm's torques, ``q_ref``/``v_ref`` the reach-and-return reference; ``extra``:
+    ``base_pose`` (K, 7: position, quaternion x y z w), ``base_velocity`` (K, 6: body twist),
+    ``thrust_command`` (K, n_thr) N, ``vehicle_disturbance_estimate`` (K, 6), ``saturated`` (K,);
+    ``meta``: ``vehicle`` and ``arm`` (built-in names or absolute file paths), ``target_pose``
+    (the station-keeping target), the run's settings (``uvms``) and metrics. The arm's true
+    disturbance is not separated on the floating system: NaN."""
+    config = run.config
+    n, steps = len(config.home), run.t.shape[0]
+    nq = 7 + n
+    states = run.x[:steps]
+    reference = ReachReturn(config.home, config.reach, config.task_period)
+    q_ref, v_ref = np.empty((steps, n)), np.empty((steps, n))
+    for k, t in enumerate(run.t):
+        q_ref[k], v_ref[k] = reference.sample(float(t))[:2]
+    arm_state = np.hstack([states[:, 7:nq], states[:, nq + 6 : nq + 6 + n]])
+    unknown = np.full((steps, n), np.nan)
+    arm = load_vehicle(config.vehicle).mount_arm if config.arm == "mount" else config.arm
+    label = f"{config.arm_controller} arm, {config.vehicle_controller.upper()} vehicle"
+    meta = {
+        "controller": label + (" + GP feed-forward" if config.aware else ""),
+        "vehicle": _source(config.vehicle),
+        "arm": _source(arm),
+        "target_pose": run.x[0, :7].tolist(),
+        "duration": config.duration,
+        "control_period": config.control_period,
+        "steps": steps,
+        "diverged": False,
+        "stopped": None,
+        "error": None,
+        "faults": {},
+        "uvms": config.model_dump(mode="json"),
+        "metrics": run.metrics,
+    }
+    extra = {
+        "base_pose": states[:, :7].copy(),
+        "base_velocity": states[:, nq : nq + 6].copy(),
+        "thrust_command": run.u[:, n:].copy(),
+        "vehicle_disturbance_estimate": run.d_hat.copy(),
+        "saturated": run.saturated.copy(),
+    }
+    return Trajectory(
+        t=run.t.copy(), x=arm_state, y=arm_state.copy(), u=run.u[:, :n].copy(), q_ref=q_ref, v_ref=v_ref,
+        disturbance=unknown, disturbance_estimate=unknown.copy(), disturbance_var=unknown.copy(),
+        terminal_violation=np.zeros(steps), status=np.full(steps, "", dtype=str),
+        events=np.full(steps, "", dtype=str), meta=meta, extra=extra,
+    )  # fmt: skip
