@@ -62,12 +62,11 @@ class StripGeometry:
 
 
 @numba.njit(cache=True)
-def _rotation(axis, angle):
-    """Rodrigues: rotation by ``angle`` about unit ``axis``, (3, 3)."""
+def rotation_into(axis, angle, out):
+    """Rodrigues: ``out`` (3, 3) = the rotation by ``angle`` about unit ``axis``."""
     c, s = np.cos(angle), np.sin(angle)
     x, y, z = axis[0], axis[1], axis[2]
     t = 1.0 - c
-    out = np.empty((3, 3))
     out[0, 0] = c + x * x * t
     out[0, 1] = x * y * t - z * s
     out[0, 2] = x * z * t + y * s
@@ -77,6 +76,13 @@ def _rotation(axis, angle):
     out[2, 0] = z * x * t - y * s
     out[2, 1] = z * y * t + x * s
     out[2, 2] = c + z * z * t
+
+
+@numba.njit(cache=True)
+def _rotation(axis, angle):
+    """Rodrigues: rotation by ``angle`` about unit ``axis``, (3, 3)."""
+    out = np.empty((3, 3))
+    rotation_into(axis, angle, out)
     return out
 
 

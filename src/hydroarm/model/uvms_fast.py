@@ -34,7 +34,7 @@ from hydroarm.model.plant import inner_steps
 from hydroarm.model.strips import StripGeometry
 from hydroarm.model.uvms import UVMS
 from hydroarm.model.uvms_fast_kernels import evaluate, workspace
-from hydroarm.model.uvms_plant import UVMSPlant, UVMSStepInfo, _ad, integrate_configuration, thrust_at
+from hydroarm.model.uvms_plant import UVMSPlant, UVMSStepInfo, integrate_configuration, rkmk4_update, thrust_at
 from hydroarm.model.water import Water
 
 
@@ -166,7 +166,6 @@ def fast_step_kernel(
     water_velocity = np.empty(3)
     none = np.empty(0)
     joints = np.zeros((3, 0))
-    xi = np.zeros(6)
     time = t
     for _ in range(steps):
         for stage in range(4):
@@ -208,28 +207,7 @@ def fast_step_kernel(
                 for b in range(n_thr):
                     s += allocation[i, b] * thrust[b]
                 wrench[i] += weight * s
-            scale = 0.0 if stage == 0 else (h if stage == 3 else 0.5 * h)
-            for i in range(6):
-                xi[i] = scale * slopes[stage - 1, i] if stage > 0 else 0.0
-            first = _ad(xi, vs[:6])
-            second = _ad(xi, first)
-            for i in range(6):
-                slopes[stage, i] = vs[i] + 0.5 * first[i] + second[i] / 12.0
-            for i in range(6, nv):
-                slopes[stage, i] = vs[i]
-            for i in range(nv):
-                accelerations[stage, i] = acc[i]
-            if stage < 3:
-                nxt = h if stage == 2 else 0.5 * h
-                for i in range(nv):
-                    increment[i] = nxt * slopes[stage, i]
-                    vs[i] = v0[i] + nxt * accelerations[stage, i]
-            else:
-                sixth = h / 6.0
-                for i in range(nv):
-                    increment[i] = sixth * (slopes[0, i] + 2.0 * slopes[1, i] + 2.0 * slopes[2, i] + slopes[3, i])
-                    vs[i] = v0[i] + sixth * (accelerations[0, i] + 2.0 * accelerations[1, i]
-                                             + 2.0 * accelerations[2, i] + accelerations[3, i])  # fmt: skip
+            rkmk4_update(stage, h, v0, vs, acc, slopes, accelerations, increment)
             integrate_configuration(q0, increment, qs)
         q0[:] = qs
         v0[:] = vs

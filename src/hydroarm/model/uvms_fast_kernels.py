@@ -7,6 +7,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from hydroarm.model.strips import rotation_into
 from hydroarm.model.vehicle import quaternion_matrix, vehicle_generalised_force
 
 
@@ -61,23 +62,6 @@ def _motion_matrix(rot, pos, x):  # pragma: no cover - compiled
         x[i, 3] = -(rot[1, i] * pos[2] - rot[2, i] * pos[1])
         x[i, 4] = -(rot[2, i] * pos[0] - rot[0, i] * pos[2])
         x[i, 5] = -(rot[0, i] * pos[1] - rot[1, i] * pos[0])
-
-
-@numba.njit(cache=True)
-def _rotation_into(axis, angle, out):  # pragma: no cover - compiled
-    """Rodrigues (as :func:`hydroarm.model.strips._rotation`) into ``out``."""
-    c, s = np.cos(angle), np.sin(angle)
-    x, y, z = axis[0], axis[1], axis[2]
-    t = 1.0 - c
-    out[0, 0] = c + x * x * t
-    out[0, 1] = x * y * t - z * s
-    out[0, 2] = x * z * t + y * s
-    out[1, 0] = y * x * t + z * s
-    out[1, 1] = c + y * y * t
-    out[1, 2] = y * z * t - x * s
-    out[2, 0] = z * x * t - y * s
-    out[2, 1] = z * y * t + x * s
-    out[2, 2] = c + z * z * t
 
 
 @numba.njit(cache=True, inline="always")
@@ -187,7 +171,7 @@ def evaluate(
         acc[1, i] = 0.0
     for i in range(2, nj):
         par = parents[i]
-        _rotation_into(axes[i], q[5 + i], rj)
+        rotation_into(axes[i], q[5 + i], rj)
         for a in range(3):
             pos[i, a] = place_translation[i, a]
             for b in range(3):

@@ -29,6 +29,7 @@ from hydroarm.config import FrozenModel
 from hydroarm.model.current import current_at
 from hydroarm.model.plant import inner_steps
 from hydroarm.model.uvms import UVMS, UVMSDynamics, uvms_acceleration_kernel
+from hydroarm.model.vehicle import quaternion_matrix
 from hydroarm.model.water import Water
 
 
@@ -155,16 +156,7 @@ def integrate_configuration(q0, xi, out):  # pragma: no cover - compiled
     """``out = q0 (+) xi``: Pinocchio's ``integrate`` for a free-flyer root and 1-DOF joints."""
     translation, dq = se3_exp_quaternion(xi[:6])
     x0, y0, z0, w0 = q0[3], q0[4], q0[5], q0[6]
-    rot = np.empty((3, 3))
-    rot[0, 0] = 1.0 - 2.0 * (y0 * y0 + z0 * z0)
-    rot[0, 1] = 2.0 * (x0 * y0 - z0 * w0)
-    rot[0, 2] = 2.0 * (x0 * z0 + y0 * w0)
-    rot[1, 0] = 2.0 * (x0 * y0 + z0 * w0)
-    rot[1, 1] = 1.0 - 2.0 * (x0 * x0 + z0 * z0)
-    rot[1, 2] = 2.0 * (y0 * z0 - x0 * w0)
-    rot[2, 0] = 2.0 * (x0 * z0 - y0 * w0)
-    rot[2, 1] = 2.0 * (y0 * z0 + x0 * w0)
-    rot[2, 2] = 1.0 - 2.0 * (x0 * x0 + y0 * y0)
+    rot = quaternion_matrix(x0, y0, z0, w0)
     for i in range(3):
         out[i] = q0[i] + rot[i, 0] * translation[0] + rot[i, 1] * translation[1] + rot[i, 2] * translation[2]
     x1, y1, z1, w1 = dq[0], dq[1], dq[2], dq[3]
@@ -226,7 +218,21 @@ def rkmk4_stage_kernel(
     thrust_wrench = allocation @ thrust
     for i in range(6):
         wrench[i] += weight * thrust_wrench[i]
-    # the stage's increment xi (a multiple of the previous slopes), then the corrected slope
+    increment = np.empty(nv)
+    rkmk4_update(stage, h, v0, vs, acc, slopes, accelerations, increment)
+    integrate_configuration(q0, increment, qs)
+
+
+@numba.njit(cache=True)
+def rkmk4_update(stage, h, v0, vs, acc, slopes, accelerations, increment):  # pragma: no cover - compiled
+    """The RKMK4 bookkeeping of one stage, shared by :class:`UVMSPlant` and the compiled fast path.
+
+    Stores the stage's acceleration ``acc`` (nv,) and configuration slope (the velocity, its base
+    part corrected by dexp^-1 of the stage's increment ``xi``, a multiple of the previous slope),
+    then writes the next stage's configuration increment into ``increment`` (nv,) and its
+    velocity into ``vs``; after stage 3, the step's increment and final velocity.
+    """
+    nv = vs.shape[0]
     scale = 0.0 if stage == 0 else (h if stage == 3 else 0.5 * h)
     xi = np.zeros(6)
     if stage > 0:
@@ -240,7 +246,6 @@ def rkmk4_stage_kernel(
         slopes[stage, i] = vs[i]
     for i in range(nv):
         accelerations[stage, i] = acc[i]
-    increment = np.empty(nv)
     if stage < 3:
         nxt = h if stage == 2 else 0.5 * h
         for i in range(nv):
@@ -253,4 +258,3 @@ def rkmk4_stage_kernel(
             vs[i] = v0[i] + sixth * (
                 accelerations[0, i] + 2.0 * accelerations[1, i] + 2.0 * accelerations[2, i] + accelerations[3, i]
             )
-    integrate_configuration(q0, increment, qs)

@@ -37,13 +37,13 @@ FIGURES = {
     "fig06_disturbance_noisy.png": "Fig. 6: true vs GP-estimated disturbance (noise)",
     "fig07_disturbance_error_noisy.png": "Fig. 7: disturbance estimate error (noise)",
     "fig08_position.png": "Fig. 8: position tracking, GP-MPC (no noise)",
-    "fig09_error_comparison.png": "Fig. 9: tracking error of SMC, MPC, GP-MPC (no noise)",
+    "fig09_error_comparison.png": "Fig. 9: tracking error of SMC, MPC, GP-MPC and hydroarm's GP-IDMPC (no noise)",
     "fig10_velocity.png": "Fig. 10: velocity tracking, GP-MPC (no noise)",
     "fig11_torque.png": "Fig. 11: joint torques, GP-MPC (no noise)",
     "fig12_position_noisy.png": "Fig. 12: position tracking, GP-MPC (noise)",
     "fig13_velocity_noisy.png": "Fig. 13: velocity tracking, GP-MPC (noise)",
     "fig14_torque_noisy.png": "Fig. 14: joint torques, GP-MPC (noise)",
-    "fig15_error_comparison_noisy.png": "Fig. 15: tracking error of SMC, MPC, GP-MPC (noise)",
+    "fig15_error_comparison_noisy.png": "Fig. 15: tracking error of SMC, MPC, GP-MPC and hydroarm's GP-IDMPC (noise)",
 }
 
 
