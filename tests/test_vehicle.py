@@ -50,19 +50,26 @@ def test_builtin_vehicle_has_the_benchmark_numbers(bluerov):
     assert np.allclose(bluerov.linear_damping, [13.7, 0.0, 33.0, 0.0, 0.8, 0.0])
     assert np.allclose(bluerov.quadratic_damping, [141.0, 217.0, 190.0, 1.192, 0.47, 1.5])
     assert np.allclose(bluerov.cb, [0.0, 0.0, 0.01]) and bluerov.n_thrusters == 8
-    # von Benzon et al.'s thrust configuration matrix (NED), converted to y left / z up
-    ned = np.array(
-        [
-            [0.707, 0.707, -0.707, -0.707, 0, 0, 0, 0],
-            [-0.707, 0.707, -0.707, 0.707, 0, 0, 0, 0],
-            [0, 0, 0, 0, -1, 1, 1, -1],
-            [0.06, -0.06, 0.06, -0.06, -0.218, -0.218, 0.218, 0.218],
-            [0.06, 0.06, -0.06, -0.06, 0.12, -0.12, 0.12, -0.12],
-            [-0.1888, 0.1888, 0.1888, -0.1888, 0, 0, 0, 0],
-        ]
-    )
-    flip = np.diag([1.0, -1.0, -1.0, 1.0, -1.0, -1.0])
+
+    # von Benzon et al.'s Table A1 (NED: x forward, y right, z down): column i = [e_i; r_i x e_i]
+    def rot_z(angle):
+        c, s = np.cos(angle), np.sin(angle)
+        return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+    half = np.sqrt(0.5)
+    columns = []
+    # horizontal: the printed beta = 3 pi / 4 of T3 is a typo for 3 pi / 2 (the benchmark's code)
+    for alpha, beta in zip((0.0, 5.05, 1.91, np.pi), (0.0, np.pi / 2, 3 * np.pi / 2, np.pi)):
+        r, e = rot_z(alpha) @ [0.156, 0.111, 0.085], rot_z(beta) @ [half, -half, 0.0]
+        columns.append(np.concatenate([e, np.cross(r, e)]))
+    for gamma in (0.0, 4.15, 1.01, np.pi):  # vertical: all four thrust upwards, e = (0, 0, -1)
+        r, e = rot_z(gamma) @ [0.120, 0.218, 0.0], np.array([0.0, 0.0, -1.0])
+        columns.append(np.concatenate([e, np.cross(r, e)]))
+    ned = np.array(columns).T
+    flip = np.diag([1.0, -1.0, -1.0, 1.0, -1.0, -1.0])  # NED body axes -> x forward, y left, z up
+    # atol 1e-3 m: Table A1 rounds the angles to 3 digits, which moves the positions by < 0.6 mm
     assert np.allclose(bluerov.allocation, flip @ ned, atol=1e-3)
+    assert np.allclose(bluerov.allocation[2, 4:], 1.0)  # every vertical thruster lifts
 
 
 def test_allocation_matrix_is_force_and_moment():

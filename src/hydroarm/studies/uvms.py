@@ -4,6 +4,9 @@ Runs (each one :func:`~hydroarm.studies.uvms_run.run_uvms`, through the executor
 cache, ``<out>/runs/<id>.json``):
 
 * the vehicle controllers, blind to the arm vs coupling-aware (GP feed-forward): PID and MPC;
+* the PID pair again in still water (current 0): the GP's residual then holds the arm's forces
+  only, so its gain there is the gain on the arm-induced disturbance alone (in the current
+  the residual also holds the current's drag on the vehicle, which the vehicle model lacks);
 * which of the arm's effects matter for the vehicle: the blind PID with one effect off at a
   time (arm buoyancy, arm added mass, arm drag, the current on the arm): the change of the
   drift and of the mean wrench the thrusters deliver, against the full model.
@@ -32,6 +35,12 @@ EFFECTS = {
     "arm_current": "the current on the arm",
 }
 
+GP_PAIRS = {  # GP gain key -> (blind run, aware run)
+    "pid": ("pid_blind", "pid_aware"),
+    "mpc": ("mpc_blind", "mpc_aware"),
+    "pid_still_water": ("pid_blind_still_water", "pid_aware_still_water"),
+}
+
 
 @dataclass(frozen=True)
 class UVMSTask:
@@ -54,6 +63,8 @@ def _tasks(duration: float) -> list[UVMSTask]:
         "pid_aware": {"vehicle_controller": "pid", "aware": True},
         "mpc_blind": {"vehicle_controller": "mpc"},
         "mpc_aware": {"vehicle_controller": "mpc", "aware": True},
+        "pid_blind_still_water": {"vehicle_controller": "pid", "current": 0.0},
+        "pid_aware_still_water": {"vehicle_controller": "pid", "aware": True, "current": 0.0},
     }
     for effect in EFFECTS:
         variants[f"pid_blind_no_{effect}"] = {"vehicle_controller": "pid", "plant": {effect: False}}
@@ -115,7 +126,8 @@ def run_uvms_study(out: str | Path, quick: bool = False, workers: int = 2, on_pr
     if report.failed:
         task, error = report.failed[0]
         raise RuntimeError(f"UVMS run {task.id} failed: {error}")
-    results = finished | report.results
+    done = finished | report.results
+    results = {task.id: done[task.id] for task in tasks}  # the study's order, not the finishing order
     metrics = summarise(results)
     metrics["quick"] = quick
     atomic_write(out / "metrics.json", json.dumps(metrics, indent=2) + "\n")
@@ -131,8 +143,8 @@ def _gain(blind: float, aware: float) -> float:
 def summarise(results: dict) -> dict:
     runs = {name: result["metrics"] for name, result in results.items()}
     gains = {}
-    for kind in ("pid", "mpc"):
-        blind, aware = runs[f"{kind}_blind"], runs[f"{kind}_aware"]
+    for kind, (blind_run, aware_run) in GP_PAIRS.items():
+        blind, aware = runs[blind_run], runs[aware_run]
         gains[kind] = {
             key: _gain(blind[key], aware[key])
             for key in ("drift_rms_m", "drift_max_m", "attitude_rms_deg", "ee_error_rms_m")
@@ -190,7 +202,8 @@ def render_report(metrics: dict) -> str:
         )
     lines += ["", "GP feed-forward gain (blind -> aware, % reduction):", ""]
     for kind, gains in metrics["gp_gain_percent"].items():
-        lines.append(f"- {kind.upper()}: " + ", ".join(f"{k} {v:.1f}%" for k, v in gains.items()))
+        label = {"pid": "PID", "mpc": "MPC", "pid_still_water": "PID in still water (the arm's forces only)"}[kind]
+        lines.append(f"- {label}: " + ", ".join(f"{k} {v:.1f}%" for k, v in gains.items()))
     lines += ["", "Which arm effects matter (blind PID, one effect off; change against the full model):", "",
               "| effect off | drift RMS change (m) | attitude RMS change (deg) | sum of mean wrench changes |",
               "|---|---:|---:|---:|"]  # fmt: skip
