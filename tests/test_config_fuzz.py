@@ -89,6 +89,7 @@ EXPERIMENT = ExperimentConfig.model_validate(
         "mpc": {"horizon": 4, "q_position": [300.0] * 6, "r": [0.1] * 6, "torque_limit": [500.0] * 6},
         "gp": {"window": 4, "theta0": [1.0] * 14, "input_scale": [1.0] * 12, "output_scale": [1.0] * 6},
         "gpmpc": {"min_samples": 2},
+        "idmpc": {"gp_features": "state"},  # the GP section is shared: d = 12 for GP-MPC and GP-IDMPC
     }
 ).model_dump(mode="json")
 
@@ -637,6 +638,20 @@ def test_gp_vector_of_the_wrong_length_is_refused_before_any_run(field):
     config = validate(ExperimentConfig, data, "settings")
     with pytest.raises(ConfigError, match=rf"settings: gp\.{field} = \(1\.0, .*: \d+ values: give"):
         check_settings_for_arm(config, _arm("paper"))
+
+
+def test_gp_vectors_must_fit_every_gp_controller_that_runs():
+    """The `gp` section is shared: theta0 for GP-MPC's 12 state inputs does not fit GP-IDMPC's
+    18 (state + planned acceleration); refused for a run of GP-IDMPC, accepted for GP-MPC alone."""
+    data = copy.deepcopy(EXPERIMENT)
+    data["idmpc"]["gp_features"] = "state+acceleration"
+    config = validate(ExperimentConfig, data, "settings")
+    check_settings_for_arm(config, _arm("paper"), controllers=("GP-MPC", "SMC"))
+    for controllers in (None, ("gp-idmpc",)):
+        with pytest.raises(ConfigError, match=r"gp\.theta0 = .*14 values: give 20 \(GP-IDMPC: idmpc\.gp_features"):
+            check_settings_for_arm(config, _arm("paper"), controllers=controllers)
+    with pytest.raises(ConfigError, match=r"gp\.theta0"):
+        run_experiment(config, "GP-IDMPC")
 
 
 def test_run_experiment_checks_the_settings_against_the_arm_before_running():

@@ -87,7 +87,7 @@ def run(
         options = {"arm": arm, "plant.noise_variance": noise}
         config = with_overrides(config, {key: value for key, value in options.items() if value is not None})
         arm_model = load_arm(config.arm)
-        check_settings_for_arm(config, arm_model)
+        check_settings_for_arm(config, arm_model, controllers=(name,))
         what = {"experiment": config.model_dump(mode="json"), "controller": name, "seed": seed}
         made_by = f"hydroarm run --controller {name.lower()} --seed {seed} --arm {config.arm}"
         claim_output(out, "run", what, description=made_by, overwrite=overwrite)

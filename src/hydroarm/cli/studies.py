@@ -174,11 +174,11 @@ def sweep(
         checked = set()
         for row in plan.rows:
             arm_key = plan.tasks[row.id].arm_key
-            if (id(row.config), arm_key) not in checked:
-                checked.add((id(row.config), arm_key))
+            if (id(row.config), arm_key, row.controller) not in checked:
+                checked.add((id(row.config), arm_key, row.controller))
                 where = ", ".join(f"{key} = {value!r}" for key, value in row.params.items())
                 source = f"{sweep_file}: the runs with {where}" if where else f"{sweep_file}: base"
-                check_settings_for_arm(row.config, plan.arms[arm_key], source)
+                check_settings_for_arm(row.config, plan.arms[arm_key], source, controllers=(row.controller,))
         if ray or ray_address:
             from hydroarm.studies.executor import import_ray
 
@@ -257,7 +257,7 @@ def tune(
     try:
         name = canonical_name(controller)
         config = with_overrides(_experiment_config(config_file, overrides or []), {"arm": arm})
-        check_settings_for_arm(config, load_arm(config.arm))
+        check_settings_for_arm(config, load_arm(config.arm), controllers=(name,))
     except ConfigError as error:
         _fail(str(error))
     if out.exists() and not out.is_file():

@@ -14,7 +14,10 @@ algebraic Riccati equation
     Sigma = A Sigma A^T - A Sigma (Sigma + R)^-1 Sigma A^T + Q_w,
 
 found at construction by iterating it to a fixed point (:func:`steady_state_covariance`);
-the gain is ``L = Sigma (Sigma + R)^-1`` (2 x 2 per joint). Each step::
+the gain is ``L = Sigma (Sigma + R)^-1`` (2 x 2 per joint). The filter is designed for the
+sensor it sits behind: by default (``measurement_variance = "plant"``) sigma_m^2 is the
+plant's measurement-noise variance, and a noise-free sensor (sigma_m^2 = 0) gives L = I, the
+measurement passed through unchanged. Each step::
 
     z_pred = A z_hat + B a_prev          (predict with the last commanded acceleration)
     z_hat  = z_pred + L (y - z_pred)     (correct with the measurement)
@@ -50,12 +53,36 @@ class EstimatorConfig(FrozenModel):
     """
 
     kind: EstimatorKind = pydantic.Field("auto", description="none, kalman, or auto (the controller's default)")
-    measurement_variance: float = pydantic.Field(
-        1e-3, gt=0.0, le=10.0, description="sigma_m^2 the filter assumes on q and v (rad^2, (rad/s)^2)"
+    measurement_variance: float | Literal["plant"] = pydantic.Field(
+        "plant",
+        description=(
+            "sigma_m^2 the filter assumes on q and v (rad^2, (rad/s)^2), 0 <= x <= 10; "
+            "'plant' = the plant's own (plant.noise_variance): a noise-free sensor gets a pass-through filter"
+        ),
     )
     acceleration_variance: float = pydantic.Field(
         1e2, gt=0.0, le=1e8, description="sigma_a^2: variance of the acceleration the command misses ((rad/s^2)^2)"
     )
+
+    @pydantic.field_validator("measurement_variance", mode="before")
+    @classmethod
+    def _variance_in_range(cls, value):
+        if value == "plant":
+            return value
+        try:
+            variance = float(value)
+        except (TypeError, ValueError):
+            variance = float("nan")
+        if isinstance(value, bool) or not 0.0 <= variance <= 10.0:
+            raise ValueError(f"must be 'plant' or a variance 0 <= x <= 10 (rad^2), got {value!r}")
+        return variance
+
+    def for_sensor(self, noise_variance: float) -> EstimatorConfig:
+        """This config with ``measurement_variance = "plant"`` resolved to the sensor's
+        ``noise_variance`` (rad^2); a numeric setting is kept."""
+        if self.measurement_variance != "plant":
+            return self
+        return self.model_copy(update={"measurement_variance": float(noise_variance)})
 
 
 def double_integrator(period: float) -> tuple[np.ndarray, np.ndarray]:
@@ -97,11 +124,23 @@ class JointKalmanFilter:
     """
 
     def __init__(self, n_joints: int, period: float, config: EstimatorConfig):
+        if config.measurement_variance == "plant":
+            raise ConfigError(
+                "estimator.measurement_variance = 'plant' needs the plant's noise variance: "
+                "resolve it with EstimatorConfig.for_sensor(noise_variance), or give a variance 0 <= x <= 10 (rad^2)"
+            )
         self.n = n_joints
         self.period = float(period)
         self.config = config
-        self.covariance = steady_state_covariance(period, config.measurement_variance, config.acceleration_variance)
-        self.gain = self.covariance @ np.linalg.inv(self.covariance + config.measurement_variance * np.eye(2))
+        variance = float(config.measurement_variance)
+        if variance == 0.0:  # exact sensor: the prior is the process noise, the gain the identity
+            _, b_vec = double_integrator(period)
+            self.covariance = config.acceleration_variance * np.outer(b_vec, b_vec)
+            self.gain = np.eye(2)
+        else:
+            self.covariance = steady_state_covariance(period, variance, config.acceleration_variance)
+            self.gain = self.covariance @ np.linalg.inv(self.covariance + variance * np.eye(2))
+        self._exact = variance == 0.0  # L = I: the estimate is the measurement, bit for bit
         self._a, self._b = double_integrator(period)
         self.reset()
 
@@ -122,7 +161,7 @@ class JointKalmanFilter:
         """Correct with the measurement ``y = [q, v]`` (2n,); return the estimate (2n,)."""
         n = self.n
         q_meas, v_meas = y[:n], y[n:]
-        if self._q is None:
+        if self._q is None or self._exact:
             self._q, self._v = q_meas.copy(), v_meas.copy()
         else:
             dq, dv = q_meas - self._q, v_meas - self._v

@@ -48,8 +48,12 @@ torque and the acceleration the dynamics then gives. ``"clip"``: each torque cli
 (plain computed-torque saturation, for comparison).
 
 The GP (:class:`~hydroarm.control.gp.SlidingWindowGP`) learns the one-step residual of the
-dry model (:meth:`~hydroarm.model.nominal.NominalModel.residual`) from the state, as in
-:mod:`hydroarm.control.gpmpc`.
+dry model (:meth:`~hydroarm.model.nominal.NominalModel.residual`), n outputs, from the state
+y (2n,) and, with ``gp_features = "state+acceleration"`` (default), the planned acceleration
+a_0 (n,) divided by ``acceleration_scale``: the water's added mass answers the acceleration,
+which the state alone does not tell. The outer plan does not depend on w_hat (only the torque
+rows do), so each step plans a_0 first, then asks the GP at (y, a_0), then maps to torques;
+the sample added after the step pairs that input with the residual the step showed.
 """
 
 from __future__ import annotations
@@ -105,6 +109,17 @@ class IDMPCConfig(FrozenModel):
         None, description="|tau_i| <= limit (N m); None = the arm's"
     )
     min_samples: int = pydantic.Field(2, ge=1, le=10_000, description="GP window samples before feeding forward")
+    gp_features: Literal["state", "state+acceleration"] = pydantic.Field(
+        "state+acceleration", description="GP inputs: the state, or the state and the planned acceleration a_0"
+    )
+    acceleration_scale: PositiveFloat = pydantic.Field(
+        100.0, description="divisor of a_0 in the GP's inputs (rad/s^2 per input unit)"
+    )
+
+
+def gp_input_size(features: str, n_joints: int) -> int:
+    """The GP's input count d for ``gp_features`` on n joints: 2n (state) or 3n (+ a_0)."""
+    return 3 * n_joints if features == "state+acceleration" else 2 * n_joints
 
 
 def joint_lqr(period: float, q_position: float, q_velocity: float, r_acceleration: float):
@@ -207,15 +222,16 @@ class InverseDynamicsMPC:
                 self.torque_limit,
                 cfg.sqp_iterations,
             )
-        self.gp = SlidingWindowGP(2 * n, n, gp_config) if gp_config is not None else None
+        self.n_gp_inputs = gp_input_size(cfg.gp_features, n)
+        self.gp = SlidingWindowGP(self.n_gp_inputs, n, gp_config) if gp_config is not None else None
         # load the compiled code now, not in the first control steps (a throwaway GP: same config)
         unconstrained_move(np.zeros((n, 2)), np.zeros((1, n, 2)), self.P, self.K, self._g, self.control_period)
         if gp_config is not None:
-            warm = SlidingWindowGP(2 * n, n, gp_config)
+            warm = SlidingWindowGP(self.n_gp_inputs, n, gp_config)
             for k in range(2):
-                warm.add(np.full(2 * n, 0.1 * k), np.full(n, 0.1 * k))
+                warm.add(np.full(self.n_gp_inputs, 0.1 * k), np.full(n, 0.1 * k))
             warm.update_hyperparameters()
-            warm.predict(np.zeros(2 * n))
+            warm.predict(np.zeros(self.n_gp_inputs))
         self.reset()
 
     def reset(self) -> None:
@@ -224,6 +240,7 @@ class InverseDynamicsMPC:
             self.gp.reset()
         self.saturated_steps = 0
         self._pending_events: list[str] = []
+        self._gp_input: np.ndarray | None = None  # the GP input of the last compute
 
     # --- pieces (public for tests) ------------------------------------------------------
     def planned_acceleration(self, t: float, y: np.ndarray, reference: Reference) -> np.ndarray:
@@ -266,25 +283,32 @@ class InverseDynamicsMPC:
                 return clipped, constrained, np.abs(tau) >= self.torque_limit * (1.0 - 1e-9)
         return allocate(mass, bias, acceleration, self.torque_limit)
 
+    def gp_input(self, y: np.ndarray, acceleration: np.ndarray) -> np.ndarray:
+        """The GP's input (2n,) or (3n,) for the state y (2n,) and planned acceleration a_0 (n,)."""
+        if self.n_gp_inputs == 2 * self.n:
+            return y.copy()
+        return np.concatenate([y, acceleration / self.config.acceleration_scale])
+
     # --- the controller interface ---------------------------------------------------------
     def compute(self, t: float, y: np.ndarray, reference: Reference) -> ControlOutput:
         start = time.perf_counter()
         n = self.n
         y = np.asarray(y, dtype=float)
+        acceleration = self.planned_acceleration(t, y, reference)
+        t_plan = time.perf_counter()
         mean = np.zeros(n)
         var = None
         if self.gp is not None:
             var = np.full(n, np.nan)
+            self._gp_input = self.gp_input(y, acceleration)
             if self.gp.n_samples >= self.config.min_samples:
                 _, events = self.gp.update_hyperparameters(return_events=True)
-                mean, var, predicted = self.gp.predict(y, return_events=True)
+                mean, var, predicted = self.gp.predict(self._gp_input, return_events=True)
                 self._pending_events.extend((*events, *predicted))
                 if not np.all(np.isfinite(mean)):
                     self._pending_events.append("gp_nonfinite_prediction")
                     mean = np.where(np.isfinite(mean), mean, 0.0)
         t_gp = time.perf_counter()
-        acceleration = self.planned_acceleration(t, y, reference)
-        t_plan = time.perf_counter()
         tau, realised, saturated = self.torque_map(y[:n], y[n:], acceleration, mean)
         self.saturated_steps += bool(saturated.any())
         end = time.perf_counter()
@@ -292,7 +316,7 @@ class InverseDynamicsMPC:
         return ControlOutput(
             tau=tau,
             status="saturated" if saturated.any() else "ok",
-            timings={"gp": t_gp - start, "plan": t_plan - t_gp, "torque": end - t_plan, "total": end - start},
+            timings={"plan": t_plan - start, "gp": t_gp - t_plan, "torque": end - t_gp, "total": end - start},
             disturbance_mean=mean if self.gp is not None else None,
             disturbance_var=var,
             events=events,
@@ -300,11 +324,16 @@ class InverseDynamicsMPC:
         )
 
     def observe(self, t: float, y: np.ndarray, u: np.ndarray, y_next: np.ndarray) -> None:
-        """Add the disturbance seen over the last step to the GP window (no-op without a GP)."""
+        """Add the disturbance seen over the last step to the GP window (no-op without a GP): the
+        input of the last :meth:`compute` (at ``y``) with the residual of the step to ``y_next``."""
         if self.gp is None:
             return
+        y = np.asarray(y, dtype=float)
         residual, _ = self.nominal.residual(y, u, y_next, self.control_period)
-        if not (np.all(np.isfinite(residual)) and np.all(np.isfinite(y))):
+        gp_input = self._gp_input
+        if gp_input is None or not np.array_equal(gp_input[: 2 * self.n], y):  # no compute at y: plan-free input
+            gp_input = self.gp_input(y, np.zeros(self.n))
+        if not (np.all(np.isfinite(residual)) and np.all(np.isfinite(gp_input))):
             self._pending_events.append("gp_sample_rejected")
             return
-        self.gp.add(np.asarray(y, dtype=float).copy(), residual)
+        self.gp.add(gp_input, residual)

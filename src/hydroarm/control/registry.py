@@ -121,15 +121,26 @@ def estimator_kind(name: str, estimator: EstimatorConfig | None) -> str:
     return controller_spec(name).default_estimator if kind == "auto" else kind
 
 
-def build_controller(name: str, arm: Arm, sections: Mapping[str, Any], control_period: float) -> Controller:
+def build_controller(
+    name: str,
+    arm: Arm,
+    sections: Mapping[str, Any],
+    control_period: float,
+    sensor_variance: float | None = None,
+) -> Controller:
     """Controller ``name`` on ``arm`` from its config ``sections`` (section name -> config
     model, e.g. ``{"mpc": MPCConfig()}``) with the control period (s), behind the state
-    estimator of ``sections["estimator"]`` (an :class:`EstimatorConfig`; absent = ``auto``)."""
+    estimator of ``sections["estimator"]`` (an :class:`EstimatorConfig`; absent = ``auto``).
+
+    ``sensor_variance``: the measurement-noise variance of the plant it will run on (rad^2),
+    what ``estimator.measurement_variance = "plant"`` stands for; needed only then."""
     spec = controller_spec(name)
     controller = spec.build(arm, sections, control_period)
     estimator = sections.get("estimator")
     if estimator_kind(spec.name, estimator) == "kalman":
         config = estimator if estimator is not None else EstimatorConfig()
+        if sensor_variance is not None:
+            config = config.for_sensor(sensor_variance)
         kalman = JointKalmanFilter(arm.n_joints, control_period, config)
         controller = FilteredController(controller, kalman, NominalModel(arm, inner_step=None))
     return controller

@@ -68,7 +68,10 @@ class UVMSController:
         self.uvms = uvms
         self.n_arm = uvms.n_arm
         self.period = control_period
-        self.arm = build_controller(arm_controller, mounted_arm(uvms), arm_sections or {}, control_period)
+        # the vehicle-manipulator plant gives its true state: an estimator set to "plant" passes it through
+        self.arm = build_controller(
+            arm_controller, mounted_arm(uvms), arm_sections or {}, control_period, sensor_variance=0.0
+        )
         self.vehicle = make_vehicle_controller(uvms.vehicle, vehicle, control_period)
         self.aware = aware
         self.gp = SlidingWindowGP(3 * self.n_arm, 6, gp if gp is not None else GPConfig(window=60)) if aware else None

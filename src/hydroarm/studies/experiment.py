@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import hashlib
 import json
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
@@ -32,7 +32,7 @@ from hydroarm.control import registry
 from hydroarm.control.estimator import EstimatorConfig
 from hydroarm.control.gp import GPConfig
 from hydroarm.control.gpmpc import GPMPCConfig, feature_size
-from hydroarm.control.idmpc import IDMPCConfig
+from hydroarm.control.idmpc import IDMPCConfig, gp_input_size
 from hydroarm.control.interface import Controller
 from hydroarm.control.mpc import MPCConfig
 from hydroarm.control.registry import CONTROLLERS, canonical_name
@@ -170,12 +170,28 @@ def with_overrides(config: ExperimentConfig, overrides: dict[str, Any]) -> Exper
     return validate(ExperimentConfig, data, "settings")
 
 
-def check_settings_for_arm(config: ExperimentConfig, arm: Arm, source: str = "settings") -> None:
+def gp_inputs(name: str, config: ExperimentConfig, n_joints: int) -> tuple[int, str] | None:
+    """``(d, why)``: the GP input count of controller ``name`` under ``config`` on n joints and
+    the setting that decides it; None for a controller without a GP."""
+    canonical = canonical_name(name)
+    if canonical == "GP-MPC":
+        features = config.gpmpc.features
+        return feature_size(features, n_joints), f"GP-MPC: gpmpc.features = '{features}'"
+    if canonical == "GP-IDMPC":
+        features = config.idmpc.gp_features
+        return gp_input_size(features, n_joints), f"GP-IDMPC: idmpc.gp_features = '{features}'"
+    return None
+
+
+def check_settings_for_arm(
+    config: ExperimentConfig, arm: Arm, source: str = "settings", controllers: Sequence[str] | None = None
+) -> None:
     """What the settings' types cannot say until the arm is known; raises :class:`ConfigError`.
 
     Every per-joint list (``smc.*``, ``mpc.*``) must have one value per joint; the GP's
     ``theta0`` (d + 2 values), ``input_scale`` (d) and ``output_scale`` (1 or n) must fit
-    the d GP inputs of ``gpmpc.features`` on the arm's n joints; ``plant.friction`` must
+    the d GP inputs (:func:`gp_inputs`) of each GP controller among ``controllers`` (default:
+    every registered controller; the section is shared) on the arm's n joints; ``plant.friction`` must
     suit the RK4 step on this arm (:class:`~hydroarm.model.plant.UnderwaterPlant` checks it).
     Nothing is run (with friction, the plant is built: about a millisecond).
     """
@@ -187,23 +203,31 @@ def check_settings_for_arm(config: ExperimentConfig, arm: Arm, source: str = "se
     except ConfigError as error:
         raise ConfigError(f"{source}: {error}") from None
     gp = config.gp
-    d = feature_size(config.gpmpc.features, n)
-    inputs = f"gpmpc.features = '{config.gpmpc.features}' gives d = {d} GP inputs on {n} joints"
-    for name, value, allowed in (
-        ("theta0", gp.theta0, (d + 2,)),
-        ("input_scale", gp.input_scale, (d,)),
-        ("output_scale", gp.output_scale, (1, n)),
-    ):
-        if value is not None and len(value) not in allowed:
-            wanted = " or ".join(str(k) for k in allowed)
-            raise ConfigError(f"{source}: gp.{name} = {shown(value)}: {len(value)} values: give {wanted} ({inputs})")
+    for controller in CONTROLLERS if controllers is None else controllers:
+        found = gp_inputs(controller, config, n)
+        if found is None:
+            continue
+        d, why = found
+        inputs = f"{why} gives d = {d} GP inputs on {n} joints"
+        for name, value, allowed in (
+            ("theta0", gp.theta0, (d + 2,)),
+            ("input_scale", gp.input_scale, (d,)),
+            ("output_scale", gp.output_scale, (1, n)),
+        ):
+            if value is not None and len(value) not in allowed:
+                wanted = " or ".join(str(k) for k in allowed)
+                raise ConfigError(
+                    f"{source}: gp.{name} = {shown(value)}: {len(value)} values: give {wanted} ({inputs})"
+                )
 
 
 def build_controller(name: str, arm: Arm, config: ExperimentConfig) -> Controller:
     """The controller ``name`` (any spelling of :data:`~hydroarm.control.registry.CONTROLLERS`)
     on ``arm`` with the experiment's settings and its one control period."""
     sections = {section: getattr(config, section) for section in CONTROLLER_SECTIONS}
-    return registry.build_controller(name, arm, sections, config.control_period)
+    return registry.build_controller(
+        name, arm, sections, config.control_period, sensor_variance=config.plant.noise_variance
+    )
 
 
 def start_for_arm(arm: Arm, config: ExperimentConfig) -> tuple[SinusoidReference, np.ndarray]:
@@ -264,7 +288,7 @@ def build_experiment(
     :func:`start_for_arm`'s.
     """
     arm = load_arm(config.arm) if arm is None else arm
-    check_settings_for_arm(config, arm)
+    check_settings_for_arm(config, arm, controllers=() if controller is None else (controller,))
     plant = UnderwaterPlant(arm if plant_arm is None else plant_arm, config.water, config.plant)
     reference, x0 = start_for_arm(arm, config)
     built = None if controller is None else build_controller(controller, arm, config)

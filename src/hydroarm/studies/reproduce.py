@@ -131,8 +131,13 @@ def idmpc_ablation_cases() -> list[tuple[str, str, str, dict]]:
         ("GP", "off (IDMPC)", "IDMPC", {}),
         ("GP", "on (GP-IDMPC)", "GP-IDMPC", {}),
     ]
-    for kind in ("none", "kalman"):
-        cases.append(("state estimator", kind, "GP-IDMPC", {"estimator.kind": kind}))
+    for features in ("state", "state+acceleration"):
+        cases.append(("GP inputs", features, "GP-IDMPC", {"idmpc.gp_features": features}))
+    for kind in ("none", "kalman"):  # on the noisy sensor: on the clean one the matched filter passes y through
+        overrides = {"estimator.kind": kind, "plant.noise_variance": NOISE_VARIANCE}
+        cases.append(("state estimator, noisy sensor (seed 0)", kind, "GP-IDMPC", overrides))
+    mistuned = {"estimator.kind": "kalman", "estimator.measurement_variance": NOISE_VARIANCE}
+    cases.append(("state estimator, clean sensor", f"kalman assuming noise {NOISE_VARIANCE:g}", "GP-IDMPC", mistuned))
     for limits in ("qp", "allocation"):  # ("clip" diverges on the paper task)
         cases.append(("torque limits", limits, "GP-IDMPC", {"idmpc.limits": limits}))
     for iterations in (0, 1, 2):

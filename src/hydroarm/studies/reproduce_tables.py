@@ -132,6 +132,9 @@ def summarise(runs: list, results: dict[str, Trajectory], paper_arm: bool = True
             "steady_ratio_SMC_over_best": [
                 b / a if a > 0 else math.inf for a, b in zip(best["Ep_steady"], block["SMC"]["Ep_steady"])
             ],
+            "steady_ratio_SMCKF_over_best": [  # the SMC behind the same estimator
+                b / a if a > 0 else math.inf for a, b in zip(best["Ep_steady"], block["SMC+KF"]["Ep_steady"])
+            ],
         }
     ablation: dict = {}
     ablation_idmpc: dict = {}
