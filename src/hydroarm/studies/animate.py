@@ -37,29 +37,13 @@ from mpl_toolkits.mplot3d.art3d import Poly3DCollection  # noqa: E402
 
 from hydroarm.config import ConfigError  # noqa: E402
 from hydroarm.model.arm import Arm
-from hydroarm.model.loading import load_arm  # noqa: E402
+from hydroarm.studies.playback import as_arm, as_trajectory, reach  # noqa: E402,F401 (reach: public here too)
 from hydroarm.studies.runner import Trajectory  # noqa: E402
 
 SIDES = 10  # facets per tube
 HULL_COLOUR = (1.0, 0.78, 0.05, 0.5)  # translucent amber: no link's colour
 HULL_FACES = ((0, 1, 3, 2), (4, 5, 7, 6), (0, 1, 5, 4), (2, 3, 7, 6), (0, 2, 6, 4), (1, 3, 7, 5))
 LINK_COLOURS = ("tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple", "tab:brown", "tab:pink", "tab:olive")
-
-
-def _as_trajectory(trajectory: Trajectory | str | Path) -> Trajectory:
-    return trajectory if isinstance(trajectory, Trajectory) else Trajectory.load(trajectory)
-
-
-def _as_arm(arm: Arm | str | Path | None, traj: Trajectory) -> Arm:
-    if isinstance(arm, Arm):
-        found = arm
-    else:
-        found = load_arm(arm if arm is not None else traj.meta.get("arm", "paper"))
-    if found.n_joints != traj.n_joints:
-        raise ConfigError(
-            f"arm '{found.name}' has {found.n_joints} joints, the trajectory {traj.n_joints}: pass the run's arm"
-        )
-    return found
 
 
 class _Vehicle:
@@ -118,27 +102,6 @@ def _vehicle_of(traj: Trajectory) -> _Vehicle | None:
     if traj.meta.get("vehicle") is None or "base_pose" not in traj.extra:
         return None
     return _Vehicle(traj)
-
-
-def reach(arm: Arm, configurations: np.ndarray | None = None, samples: int = 200, seed: int = 0) -> float:
-    """Largest distance (m) of any cylinder end from the base over ``configurations`` (K, n)
-    and ``samples`` random ones within the joint limits (+-pi where unlimited), plus its radius."""
-    rng = np.random.default_rng(seed)
-    n = arm.n_joints
-    low, high = np.full(n, -math.pi), np.full(n, math.pi)
-    if arm.position_limit is not None:
-        finite = np.isfinite(arm.position_limit)
-        low = np.where(finite[:, 0], arm.position_limit[:, 0], low)
-        high = np.where(finite[:, 1], arm.position_limit[:, 1], high)
-    rows = [rng.uniform(low, high, size=(samples, n))]
-    if configurations is not None:
-        rows.append(np.asarray(configurations, dtype=float).reshape(-1, n))
-    radius = max((c.diameter / 2.0 for c in arm.cylinders), default=0.0)
-    best = 0.0
-    for q in np.concatenate(rows):
-        ends = arm.cylinder_endpoints(q)
-        best = max(best, float(np.max(np.linalg.norm(ends.reshape(-1, 3), axis=1))))
-    return best + radius
 
 
 def _tube(start: np.ndarray, end: np.ndarray, radius: float, ring: np.ndarray) -> list[np.ndarray]:
@@ -309,8 +272,8 @@ def animate(
     of the movie; ``stride``: control steps per frame (default: real time at
     ``fps``); ``start``/``duration`` (s) choose the window. Returns the path.
     """
-    traj = _as_trajectory(trajectory)
-    the_arm = _as_arm(arm, traj)
+    traj = as_trajectory(trajectory)
+    the_arm = as_arm(arm, traj)
     out_path = Path(out_path)
     suffix = out_path.suffix.lower()
     if suffix == ".gif":
@@ -344,8 +307,8 @@ def render_frame(
     title: str | None = None,
 ) -> Path:
     """One frame (the sample nearest ``time`` s) as a PNG, drawn exactly as :func:`animate` draws it."""
-    traj = _as_trajectory(trajectory)
-    the_arm = _as_arm(arm, traj)
+    traj = as_trajectory(trajectory)
+    the_arm = as_arm(arm, traj)
     k = int(np.argmin(np.abs(traj.t - time)))
     scene, vehicle = _scene(traj, the_arm, np.array([k]), size, title)
     _draw(scene, vehicle, traj, k)

@@ -34,7 +34,7 @@ import numpy as np
 import viser
 
 from hydroarm.model.arm import Arm
-from hydroarm.studies.animate import _as_arm, _as_trajectory, reach
+from hydroarm.studies.playback import as_arm, as_trajectory, reach
 from hydroarm.studies.runner import Trajectory
 
 # tab10 (the colours of animate.LINK_COLOURS), RGB 0-255
@@ -112,6 +112,10 @@ class ArmScene:
         self.camera = camera_for(extent)
         scene = server.scene
         scene.set_up_direction("+z")
+        # plain lights, no shadows, no HDR environment map: a software-rendered (no GPU) browser
+        # draws the first frame several times faster (bench: docs/bench.md, "Browser viewer")
+        scene.configure_environment_map(hdri=None)
+        scene.configure_default_lights(enabled=True, cast_shadow=False)
         server.initial_camera.position = tuple(self.camera.position)
         server.initial_camera.look_at = tuple(self.camera.look_at)
         server.initial_camera.fov = self.camera.fov
@@ -169,8 +173,8 @@ class TrajectoryViewer:
         port: int = 8080,
         verbose: bool = False,
     ):
-        self.traj = _as_trajectory(trajectory)
-        self.arm = _as_arm(arm, self.traj)
+        self.traj = as_trajectory(trajectory)
+        self.arm = as_arm(arm, self.traj)
         traj = self.traj
         self.server = viser.ViserServer(host=host, port=port, label="hydroarm", verbose=verbose)
         self.url = f"http://{host}:{self.server.get_port()}"
@@ -298,8 +302,8 @@ def write_html(
     Opens in any browser, offline, with no server: viser's client with the recorded scene
     (timeline, play/pause); send it to a colleague. Returns the path.
     """
-    traj = _as_trajectory(trajectory)
-    the_arm = _as_arm(arm, traj)
+    traj = as_trajectory(trajectory)
+    the_arm = as_arm(arm, traj)
     server = viser.ViserServer(host="127.0.0.1", port=_free_port(), verbose=False)
     try:
         scene = ArmScene(server, the_arm, reach(the_arm, np.concatenate([traj.q, traj.q_ref])))
