@@ -37,8 +37,10 @@ def _command_paths() -> list[list[str]]:
     return paths
 
 
-def test_animate_on_a_file_that_is_no_trajectory_says_so_in_one_line():
-    result = RUNNER.invoke(app, ["animate", str(ROOT / "README.md")])
+@pytest.mark.parametrize("command", ["animate", "view"])
+def test_animate_on_a_file_that_is_no_trajectory_says_so_in_one_line(command):
+    """(``view`` checks the file before it starts its server.)"""
+    result = RUNNER.invoke(app, [command, str(ROOT / "README.md"), *(["--no-browser"] if command == "view" else [])])
     assert result.exit_code == 2
     lines = [line for line in result.output.splitlines() if line.strip()]
     assert len(lines) == 1 and lines[0].startswith("error:") and "README.md" in lines[0], result.output

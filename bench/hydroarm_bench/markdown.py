@@ -100,6 +100,9 @@ def render_markdown(report: dict) -> str:
         "gp_speedup_vs_sklearn": ("GP update speed-up vs scikit-learn fit", ">="),
         "gp_mean_agreement": ("GP predictive mean vs sklearn at our theta, max abs diff", "<="),
         "paper_scenario_wall_s": ("paper scenario, 10 s simulated, GP-MPC (wall s)", "<="),
+        "uvms_real_time_factor": ("vehicle + arm plant step, real-time factor (one core)", ">="),
+        "viewer_open_s": ("`hydroarm view` of a 10 s run to the arm drawn (s)", "<="),
+        "viewer_recording_mb": ("shareable recording of a 10 s run (MB)", "<="),
     }
     for key, (label, sense) in labels.items():
         row = status[key]

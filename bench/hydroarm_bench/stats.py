@@ -20,6 +20,9 @@ TARGETS = {
     "paper_scenario_wall_s": 2.0,
     "torque_agreement_nm": 1e-4,
     "gp_mean_agreement": 1e-6,
+    "uvms_real_time_factor": 200.0,
+    "viewer_open_s": 2.0,
+    "viewer_recording_mb": 20.0,
 }
 PEER_PACKAGES = (
     "do-mpc",

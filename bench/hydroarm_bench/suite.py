@@ -13,7 +13,7 @@ from hydroarm_bench.markdown import render_markdown
 from hydroarm_bench.mpc_peers import bench_mpc_peers
 from hydroarm_bench.plant import bench_plant
 from hydroarm_bench.profiling import profile_closed_loop
-from hydroarm_bench.report import assemble, json_default
+from hydroarm_bench.report import assemble, json_default, target_status
 from hydroarm_bench.scaling import bench_scaling
 from hydroarm_bench.stats import limit_threads
 from hydroarm_bench.uvms import bench_uvms, render_uvms
@@ -44,6 +44,7 @@ def run_benchmarks(out_dir: Path, quick: bool = False) -> dict:
     report["profile"] = profile
     report["uvms"] = uvms
     report["viewer"] = viewer
+    report["target_status"] = target_status(report)  # again, with the vehicle and viewer sections
     report["suite_wall_s"] = time.perf_counter() - started
     report = json.loads(json.dumps(report, default=json_default))  # plain JSON types only
     (out_dir / "bench.json").write_text(json.dumps(report, indent=2) + "\n")

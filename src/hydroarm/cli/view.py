@@ -13,6 +13,17 @@ from hydroarm.config import ConfigError
 INSTALL_HINT = "the viewer needs the viewer extra: pip install 'hydroarm[viewer]'"
 
 
+def _looks_like_a_trajectory(run_file: Path) -> bool:
+    """A cheap check before the server starts: an .npz with a trajectory's arrays."""
+    import numpy as np
+
+    try:
+        with np.load(run_file, allow_pickle=False) as archive:
+            return {"t", "x", "u", "q_ref", "meta_json"} <= set(archive.files)
+    except Exception:  # noqa: BLE001 - any unreadable file is bad input
+        return False
+
+
 def serve_run(
     run_file: Path,
     arm: str | None = None,
@@ -21,36 +32,50 @@ def serve_run(
     browser: bool = True,
     out: Path | None = None,
 ) -> None:
-    """Write ``run_file`` as a shareable .html (``out``), or serve it at http://host:port until Ctrl-C."""
+    """Write ``run_file`` as a shareable .html (``out``), or serve it at http://host:port until Ctrl-C.
+
+    Serving starts the web server first and points the browser at it, then loads the run, the
+    arm and the scene: the page loads while they do (what a user waits for is the arm drawn)."""
     try:
-        from hydroarm.studies import view
+        import viser
     except ImportError:
         _fail(INSTALL_HINT)
-    from hydroarm.model.loading import load_arm
-    from hydroarm.studies.runner import Trajectory
-
     if not run_file.is_file():
         _fail(f"RUN_FILE '{run_file}': no such file")
+    not_a_run = f"RUN_FILE '{run_file}': not a hydroarm trajectory (a .npz from run, reproduce or sweep --trajectories)"
+    if not _looks_like_a_trajectory(run_file):
+        _fail(not_a_run)
+    server = None
+    if out is None:
+        try:
+            server = viser.ViserServer(host=host, port=port, label="hydroarm", verbose=False)
+        except OSError as error:
+            _fail(f"cannot serve on {host}:{port}: {error}")
+        url = f"http://{host}:{server.get_port()}"
+        console.print(f"viewer at {url} (Ctrl-C to stop)")
+        if browser:
+            import webbrowser
+
+            webbrowser.open(url)
     try:
-        traj = Trajectory.load(run_file)
-    except Exception:  # noqa: BLE001 - any unreadable file is bad input
-        _fail(f"RUN_FILE '{run_file}': not a hydroarm trajectory (a .npz from run, reproduce or sweep --trajectories)")
-    try:
+        from hydroarm.model.loading import load_arm
+        from hydroarm.studies import view
+        from hydroarm.studies.runner import Trajectory
+
+        try:
+            traj = Trajectory.load(run_file)
+        except Exception:  # noqa: BLE001 - any unreadable file is bad input
+            raise ConfigError(not_a_run) from None
         arm_model = load_arm(arm) if arm else None
-        if out is not None:
+        if server is None:
             view.write_html(traj, out, arm=arm_model)
             console.print(f"wrote {out} (open it in a browser; no server needed)")
             return
-        viewer = view.TrajectoryViewer(traj, arm=arm_model, host=host, port=port)
+        viewer = view.TrajectoryViewer(traj, arm=arm_model, host=host, port=port, server=server)
     except (ConfigError, ValueError) as error:
+        if server is not None:
+            server.stop()
         _fail(str(error))
-    except OSError as error:
-        _fail(f"cannot serve on {host}:{port}: {error}")
-    console.print(f"viewer at {viewer.url} (Ctrl-C to stop)")
-    if browser:
-        import webbrowser
-
-        webbrowser.open(viewer.url)
     view.serve_until_interrupted(viewer)
 
 

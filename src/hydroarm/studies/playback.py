@@ -35,9 +35,12 @@ def as_arm(arm: Arm | str | Path | None, traj: Trajectory) -> Arm:
     return found
 
 
-def reach(arm: Arm, configurations: np.ndarray | None = None, samples: int = 200, seed: int = 0) -> float:
+def reach(
+    arm: Arm, configurations: np.ndarray | None = None, samples: int = 200, seed: int = 0, most: int = 400
+) -> float:
     """Largest distance (m) of any cylinder end from the base over ``configurations`` (K, n)
-    and ``samples`` random ones within the joint limits (+-pi where unlimited), plus its radius."""
+    (at most ``most`` of them, evenly spaced) and ``samples`` random ones within the joint
+    limits (+-pi where unlimited), plus its radius."""
     rng = np.random.default_rng(seed)
     n = arm.n_joints
     low, high = np.full(n, -math.pi), np.full(n, math.pi)
@@ -47,7 +50,8 @@ def reach(arm: Arm, configurations: np.ndarray | None = None, samples: int = 200
         high = np.where(finite[:, 1], arm.position_limit[:, 1], high)
     rows = [rng.uniform(low, high, size=(samples, n))]
     if configurations is not None:
-        rows.append(np.asarray(configurations, dtype=float).reshape(-1, n))
+        given = np.asarray(configurations, dtype=float).reshape(-1, n)
+        rows.append(given[:: max(1, -(-len(given) // most))])
     radius = max((c.diameter / 2.0 for c in arm.cylinders), default=0.0)
     best = 0.0
     for q in np.concatenate(rows):

@@ -162,7 +162,9 @@ class TrajectoryViewer:
     """Serve ``trajectory`` (a :class:`Trajectory` or its ``.npz``) at ``http://host:port``.
 
     ``arm``: the run's arm (default: the trajectory's ``meta["arm"]``). The server runs in
-    background threads until :meth:`stop`; ``url`` is the page's address.
+    background threads until :meth:`stop`; ``url`` is the page's address. ``server``: an
+    already-started viser server to fill (``host`` and ``port`` then only name it): a browser
+    may load the page while the run and the arm are still loading; the scene follows.
     """
 
     def __init__(
@@ -172,11 +174,14 @@ class TrajectoryViewer:
         host: str = "127.0.0.1",
         port: int = 8080,
         verbose: bool = False,
+        server: viser.ViserServer | None = None,
     ):
         self.traj = as_trajectory(trajectory)
         self.arm = as_arm(arm, self.traj)
         traj = self.traj
-        self.server = viser.ViserServer(host=host, port=port, label="hydroarm", verbose=verbose)
+        if server is None:
+            server = viser.ViserServer(host=host, port=port, label="hydroarm", verbose=verbose)
+        self.server = server
         self.url = f"http://{host}:{self.server.get_port()}"
         gui = self.server.gui
         gui.configure_theme(control_layout="fixed", control_width="large", show_share_button=False)
