@@ -133,16 +133,21 @@ class JointKalmanFilter:
         self.period = float(period)
         self.config = config
         variance = float(config.measurement_variance)
-        if variance == 0.0:  # exact sensor: the prior is the process noise, the gain the identity
-            _, b_vec = double_integrator(period)
-            self.covariance = config.acceleration_variance * np.outer(b_vec, b_vec)
+        self._a, self._b = double_integrator(period)
+        self._exact = variance == 0.0  # L = I: the estimate is the measurement, bit for bit
+        if self._exact:  # the prior is the process noise alone
+            self.covariance = config.acceleration_variance * np.outer(self._b, self._b)
             self.gain = np.eye(2)
         else:
             self.covariance = steady_state_covariance(period, variance, config.acceleration_variance)
             self.gain = self.covariance @ np.linalg.inv(self.covariance + variance * np.eye(2))
-        self._exact = variance == 0.0  # L = I: the estimate is the measurement, bit for bit
-        self._a, self._b = double_integrator(period)
         self.reset()
+
+    @property
+    def posterior_covariance(self) -> np.ndarray:
+        """``(I - L) Sigma`` (2, 2): the steady-state covariance of the estimate's error after a
+        correction, per joint (rad^2, rad^2/s, (rad/s)^2); zero on an exact sensor."""
+        return (np.eye(2) - self.gain) @ self.covariance
 
     def reset(self) -> None:
         """Forget the estimate: the next measurement is taken as it is."""

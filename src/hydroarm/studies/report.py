@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
+from hydroarm.control.estimator import EstimatorConfig, JointKalmanFilter
 from hydroarm.control.registry import PAPER_CONTROLLERS
 from hydroarm.studies import report_arm
 from hydroarm.studies.figures import ANIMATION, FIGURES
@@ -79,11 +80,8 @@ def _estimator_floor(metrics: dict, noisy: dict) -> list[str]:
     variance = metrics["settings"].get("noise_variance")
     if best is None or not variance:
         return []
-    from hydroarm.control.estimator import steady_state_covariance
-
-    estimator = experiment.get("estimator", {})
-    prior = steady_state_covariance(experiment["control_period"], variance, estimator.get("acceleration_variance", 1e2))
-    posterior = prior - prior @ np.linalg.inv(prior + variance * np.eye(2)) @ prior
+    config = EstimatorConfig.model_validate(experiment.get("estimator", {})).for_sensor(variance)
+    posterior = JointKalmanFilter(1, experiment["control_period"], config).posterior_covariance
     ours = np.asarray(noisy[best["row"]]["Ep_steady"])
     smc_kf = np.asarray(noisy["SMC+KF"]["Ep_steady"])
     return [
