@@ -9,7 +9,8 @@
   rigid + added mass), plus the vehicle's own restoring wrench (weight and buoyancy: the only
   model term it uses) and an optional learned feed-forward ``-d_hat``.
 * :class:`VehicleMPC`: a linear MPC on the 6-DOF model linearised about hover (pose error and
-  body velocity, inertia M_RB + M_A, linear damping, restoring stiffness), condensed, with
+  body velocity, inertia M_RB + M_A, linear damping; the restoring wrench is fed forward, not
+  modelled), condensed, with
   box bounds on the wrench (each axis' reach through the allocation), the same integral
   action and feed-forward; DAQP.
 
@@ -25,6 +26,7 @@ import pydantic
 import scipy.linalg
 
 from hydroarm.config import FrozenModel
+from hydroarm.control.mpc.condense import condense
 from hydroarm.control.qp import DaqpBoxSolver
 from hydroarm.model.vehicle import Vehicle
 
@@ -128,38 +130,28 @@ class VehiclePID:
 
 
 class VehicleMPC(VehiclePID):
-    """Linear MPC about hover (module docstring), integral action and feed-forward as the PID's."""
+    """Linear MPC about hover (module docstring), integral action and feed-forward as the PID's.
+
+    The prediction model is the hover linearisation *without* the restoring stiffness: the
+    commanded wrench already carries ``-restoring_wrench`` (the vehicle's own weight and
+    buoyancy at the measured attitude), so the plant sees no restoring moment from the MPC's
+    deviation variable; modelling it again would count it twice. Condensed once, here, by
+    :func:`hydroarm.control.mpc.condense.condense` (the one condensing routine of every MPC).
+    """
 
     def __init__(self, vehicle: Vehicle, config: VehicleControlConfig | None = None, control_period: float = 0.01):
         super().__init__(vehicle, config, control_period)
         c = self.config
-        minv = np.linalg.inv(self.inertia)
-        damping = np.diag(vehicle.linear_damping + 0.1 * vehicle.quadratic_damping)  # |nu_r| ~ 0.1 linearised
-        stiffness = np.zeros((6, 6))
-        metacentric = 1000.0 * 9.81 * vehicle.displaced_volume * (vehicle.cb[2] - vehicle.cg[2])
-        stiffness[3, 3] = stiffness[4, 4] = max(metacentric, 0.0)
-        # state s = [pose deviation e_dev = -error (6), nu (6)], input wrench (6)
-        a = np.zeros((12, 12))
-        a[:6, 6:] = np.eye(6)
-        a[6:, :6] = -minv @ stiffness
-        a[6:, 6:] = -minv @ damping
-        b = np.vstack([np.zeros((6, 6)), minv])
-        block = scipy.linalg.expm(np.block([[a, b], [np.zeros((6, 18))]]) * c.mpc_step)
-        ad, bd = block[:12, :12], block[:12, 12:]
+        self.ad, self.bd = hover_model(vehicle, self.inertia, c.mpc_step)
         n = c.horizon
-        phi = np.zeros((12 * n, 12))
-        gamma = np.zeros((12 * n, 6 * n))
-        power = np.eye(12)
-        for i in range(n):
-            power = ad @ power
-            phi[12 * i : 12 * i + 12] = power
-            for j in range(i + 1):
-                gamma[12 * i : 12 * i + 12, 6 * j : 6 * j + 6] = np.linalg.matrix_power(ad, i - j) @ bd
-        q = np.tile(np.concatenate([c.mpc_pose_weight, c.mpc_velocity_weight]), n)
-        r = c.mpc_input_weight * np.ones(6 * n)
-        self.phi, self.gamma, self.q = phi, gamma, q
-        self.hessian = gamma.T @ (q[:, None] * gamma) + np.diag(r)
-        self.r = r
+        weights = np.concatenate([c.mpc_pose_weight, c.mpc_velocity_weight])
+        tiled_a, tiled_b = np.tile(self.ad, (n, 1, 1)), np.tile(self.bd, (n, 1, 1))
+        inputs = c.mpc_input_weight * np.ones(6)
+        condensed = [
+            condense(tiled_a, tiled_b, np.zeros((n, 12)), weights, inputs, np.diag(weights), e0) for e0 in np.eye(12)
+        ]
+        self.hessian = condensed[0].H
+        self.gradient_map = np.column_stack([problem.g for problem in condensed])  # (6 N, 12): g = F s
         self.solver = DaqpBoxSolver()
         self.warm = np.zeros(6 * n)
 
@@ -176,7 +168,7 @@ class VehicleMPC(VehiclePID):
         offset = feed + integral  # the wrench the MPC's deviation variable rides on
         state = np.concatenate([-error, nu])
         n = c.horizon
-        gradient = self.gamma.T @ (self.q * (self.phi @ state))
+        gradient = self.gradient_map @ state
         limit = np.tile(self.allocation.wrench_limit, n)
         lower, upper = -limit - np.tile(offset, n), limit - np.tile(offset, n)
         result = self.solver.solve(self.hessian, gradient, lower, upper, np.clip(self.warm, lower, upper))
@@ -188,6 +180,21 @@ class VehicleMPC(VehiclePID):
         wrench = delta[:6] + offset
         thrust, saturated = self.allocation.allocate(wrench)
         return thrust, wrench, saturated
+
+
+def hover_model(vehicle: Vehicle, inertia: np.ndarray, step: float) -> tuple[np.ndarray, np.ndarray]:
+    """``(A_d (12, 12), B_d (12, 6))``: the vehicle about hover, zero-order hold over ``step`` s,
+    state ``[pose deviation (6), body velocity (6)]``, input the body wrench beyond the
+    restoring feed-forward; ``inertia`` (6, 6) = M_RB + M_A. Linear damping plus the quadratic
+    damping linearised at |nu_r| = 0.1; no restoring stiffness (:class:`VehicleMPC`)."""
+    minv = np.linalg.inv(inertia)
+    damping = np.diag(vehicle.linear_damping + 0.1 * vehicle.quadratic_damping)
+    a = np.zeros((12, 12))
+    a[:6, 6:] = np.eye(6)
+    a[6:, 6:] = -minv @ damping
+    b = np.vstack([np.zeros((6, 6)), minv])
+    block = scipy.linalg.expm(np.block([[a, b], [np.zeros((6, 18))]]) * step)
+    return block[:12, :12], block[:12, 12:]
 
 
 def make_vehicle_controller(vehicle: Vehicle, config: VehicleControlConfig | None = None, control_period=0.01):
