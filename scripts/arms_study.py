@@ -21,9 +21,10 @@ from pathlib import Path
 
 import numpy as np
 
-from hydroarm.studies.executor import RunCache, atomic_write, make_executor, run_tasks
-from hydroarm.studies.experiment import ExperimentConfig, build_experiment, with_overrides
-from hydroarm.studies.runner import tracking_metrics
+from hydroarm.sim.experiment import ExperimentConfig, build_experiment, with_overrides
+from hydroarm.sim.files import atomic_write
+from hydroarm.sim.runner import tracking_metrics
+from hydroarm.studies.executor import RunCache, make_executor, run_tasks
 from hydroarm.studies.tune import tune
 
 UR5_LIMITS = [150.0, 150.0, 150.0, 28.0, 28.0, 28.0]

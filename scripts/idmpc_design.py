@@ -136,7 +136,7 @@ def _limit_overrides(controller: str, limits) -> dict:
 def run_one(job):
     """One run: ``job = (group, name, controller, overrides, arm, limits, label, noise, seed)``."""
     import hydroarm
-    from hydroarm.studies.experiment import ExperimentConfig, run_experiment, with_overrides
+    from hydroarm.sim.experiment import ExperimentConfig, run_experiment, with_overrides
 
     group, name, controller, overrides, patch, arm, limits, label, noise, seed = job
     settings = {"arm": arm, "plant.noise_variance": noise, **_limit_overrides(controller, limits), **overrides}

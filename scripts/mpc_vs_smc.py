@@ -23,8 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
-from hydroarm.studies.experiment import ExperimentConfig, run_experiment, with_overrides
-from hydroarm.studies.runner import tracking_metrics
+from hydroarm.sim.experiment import ExperimentConfig, run_experiment, with_overrides
+from hydroarm.sim.runner import tracking_metrics
 
 R_VALUES = [0.1, 1e-2, 1e-3, 1e-4, 1e-5, 1e-6]
 GRID = {"mpc.r": R_VALUES, "mpc.q_velocity": [0.01, 1.0], "mpc.horizon": [10, 20]}

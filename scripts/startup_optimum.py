@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 import scipy.optimize
 
-from hydroarm.studies.experiment import ExperimentConfig, build_experiment, run_experiment, with_overrides
+from hydroarm.sim.experiment import ExperimentConfig, build_experiment, run_experiment, with_overrides
 
 STARTS = {  # label -> (controller, overrides): the closed-loop runs whose torques start the search
     "GP-IDMPC (defaults)": ("gp-idmpc", {}),

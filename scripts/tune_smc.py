@@ -21,7 +21,7 @@ import numpy as np
 import hydroarm
 from hydroarm.control.smc import SlidingModeController, SMCConfig
 from hydroarm.model.plant import PlantConfig
-from hydroarm.studies.runner import run_closed_loop, tracking_metrics
+from hydroarm.sim.runner import run_closed_loop, tracking_metrics
 
 
 def score(args: tuple[str, tuple[float, float, float, float]]) -> dict:

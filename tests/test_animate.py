@@ -12,8 +12,8 @@ from hydroarm.control.smc import SlidingModeController
 from hydroarm.model.plant import UnderwaterPlant
 from hydroarm.model.task import paper_reference
 from hydroarm.model.water import Water
+from hydroarm.sim.runner import Trajectory, run_closed_loop
 from hydroarm.studies.animate import animate, reach, render_frame
-from hydroarm.studies.runner import Trajectory, run_closed_loop
 
 
 @pytest.fixture(scope="module")

@@ -78,6 +78,20 @@ def test_import_hydroarm_is_light():
     assert result.returncode == 0, result.stdout + result.stderr
 
 
+@pytest.mark.subprocess
+def test_the_simulation_core_loads_no_study_env_cli_or_plotting():
+    """A run through the public API (hydroarm.run_experiment: the sim layer) needs no study,
+    env or CLI module, nor matplotlib or gymnasium (the layer rule, checked where it matters)."""
+    code = (
+        "import sys, hydroarm; hydroarm.ExperimentConfig; hydroarm.build_experiment; hydroarm.Trajectory; "
+        "import hydroarm.sim.experiment, hydroarm.sim.runner; "
+        "heavy = [m for m in sys.modules if m.startswith(('hydroarm.studies', 'hydroarm.envs', 'hydroarm.cli', "
+        "'gymnasium', 'matplotlib'))]; print(heavy); assert not heavy"
+    )
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stdout + result.stderr
+
+
 def test_public_api_names_resolve():
     for name in hydroarm.__all__:
         assert getattr(hydroarm, name) is not None, name

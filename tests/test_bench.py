@@ -272,7 +272,7 @@ def test_a_missing_peer_is_skipped_with_a_reason(monkeypatch):
 
 def test_the_suite_builds_its_runs_with_build_experiment():
     """The benchmark runs what ``hydroarm run`` runs: the paper scenario of build_experiment."""
-    from hydroarm.studies.experiment import ExperimentConfig, run_experiment
+    from hydroarm.sim.experiment import ExperimentConfig, run_experiment
 
     traj, observe_s, _, controller = closed_loop("SMC", 0.05, 0)
     expected = run_experiment(ExperimentConfig(duration=0.05), "SMC", seed=0)

@@ -22,7 +22,7 @@ from hydroarm.config import ConfigError, FrozenModel, load_model, validate
 from hydroarm.control.gp import GPConfig
 from hydroarm.model.loading import builtin_arm_path, load_arm
 from hydroarm.model.water import Water
-from hydroarm.studies.experiment import ExperimentConfig, with_overrides
+from hydroarm.sim.experiment import ExperimentConfig, with_overrides
 from hydroarm.studies.sweep import validate_sweep
 
 

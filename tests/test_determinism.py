@@ -14,13 +14,13 @@ import sys
 import numpy as np
 import pytest
 
-from hydroarm.studies.runner import Trajectory
+from hydroarm.sim.runner import Trajectory
 
 pytestmark = [pytest.mark.subprocess]
 
 SCRIPT = r"""
 import sys
-from hydroarm.studies.experiment import ExperimentConfig, run_experiment, with_overrides
+from hydroarm.sim.experiment import ExperimentConfig, run_experiment, with_overrides
 
 config = with_overrides(ExperimentConfig(), {
     "duration": 1.5, "plant.noise_variance": 1e-3, "water.current.scale": 2.0,

@@ -17,8 +17,8 @@ from hydroarm.envs import ENV_ID  # noqa: E402
 from hydroarm.envs.underwater_arm import ControllerPolicy, UnderwaterArmEnv  # noqa: E402
 from hydroarm.model.loading import load_arm  # noqa: E402
 from hydroarm.model.task import task_for_arm  # noqa: E402
-from hydroarm.studies.experiment import ExperimentConfig, run_experiment, with_overrides  # noqa: E402
-from hydroarm.studies.runner import tracking_metrics  # noqa: E402
+from hydroarm.sim.experiment import ExperimentConfig, run_experiment, with_overrides  # noqa: E402
+from hydroarm.sim.runner import tracking_metrics  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 URDF_ARM = str(ROOT / "examples" / "urdf" / "myarm.urdf")

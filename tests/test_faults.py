@@ -25,8 +25,8 @@ from hydroarm.control.mpc import (
 )
 from hydroarm.model.plant import PlantConfig, UnderwaterPlant
 from hydroarm.model.water import Water
-from hydroarm.studies.experiment import ExperimentConfig, build_controller
-from hydroarm.studies.runner import Trajectory, run_closed_loop, tracking_metrics
+from hydroarm.sim.experiment import ExperimentConfig, build_controller
+from hydroarm.sim.runner import Trajectory, run_closed_loop, tracking_metrics
 
 DURATION = 1.0  # s: 100 control steps, enough for the GP window to fill and the faults to recur
 

@@ -9,8 +9,8 @@ import hydroarm
 from hydroarm.control.gp import GPConfig
 from hydroarm.control.gpmpc import GPMPC, GPMPCConfig
 from hydroarm.control.mpc import LinearMPC
-from hydroarm.studies.experiment import ExperimentConfig, run_experiment, with_overrides
-from hydroarm.studies.runner import run_closed_loop, tracking_metrics
+from hydroarm.sim.experiment import ExperimentConfig, run_experiment, with_overrides
+from hydroarm.sim.runner import run_closed_loop, tracking_metrics
 
 
 @pytest.fixture(scope="module")

@@ -15,7 +15,7 @@ from hydroarm.control.estimator import EstimatorConfig, JointKalmanFilter, stead
 from hydroarm.control.idmpc import IDMPCConfig, InverseDynamicsMPC, allocate, authority_weights, unconstrained_move
 from hydroarm.control.idmpc_limits import predicted_plan
 from hydroarm.model.task import SinusoidReference, paper_reference
-from hydroarm.studies.experiment import build_experiment, with_overrides
+from hydroarm.sim.experiment import build_experiment, with_overrides
 
 T = 0.01
 

@@ -15,10 +15,10 @@ from pathlib import Path
 
 import pytest
 
+from hydroarm.sim.experiment import ExperimentConfig
+from hydroarm.sim.runner import Trajectory
 from hydroarm.studies.executor import LocalExecutor, run_tasks
-from hydroarm.studies.experiment import ExperimentConfig
 from hydroarm.studies.reproduce import RunSpec, TrajectoryFiles, run_one
-from hydroarm.studies.runner import Trajectory
 
 pytestmark = [pytest.mark.slow, pytest.mark.subprocess]
 

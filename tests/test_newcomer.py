@@ -17,7 +17,7 @@ from hydroarm.cli import _experiment_config, app
 from hydroarm.control.registry import canonical_name
 from hydroarm.model.loading import builtin_arm_path
 from hydroarm.model.urdf_import import load_hydro_spec
-from hydroarm.studies import experiment
+from hydroarm.sim import experiment
 
 ROOT = Path(__file__).resolve().parents[1]
 TUTORIAL = ROOT / "docs" / "tutorial.md"
@@ -92,7 +92,7 @@ def test_the_tutorials_same_run_in_python_is_the_same_run(tmp_path, monkeypatch)
         return None
 
     monkeypatch.setattr(experiment, "run_experiment", fake_run)
-    monkeypatch.setattr("hydroarm.studies.runner.tracking_metrics", lambda traj: {"Ep": []})
+    monkeypatch.setattr("hydroarm.sim.runner.tracking_metrics", lambda traj: {"Ep": []})
     exec(compile(snippet, str(TUTORIAL), "exec"), {})  # noqa: S102 - our own tutorial
     (config, name, seed), *_ = calls
     assert config == cli_config, "the tutorial's Python snippet builds other settings than its command"

@@ -13,8 +13,8 @@ import pytest
 from typer.testing import CliRunner
 
 from hydroarm.cli import app
+from hydroarm.sim.experiment import ExperimentConfig
 from hydroarm.studies.executor import SerialExecutor
-from hydroarm.studies.experiment import ExperimentConfig
 from hydroarm.studies.outputs import MANIFEST, OutputConflict, dumps, slug, strict
 from hydroarm.studies.reproduce import RunSpec, plan_runs
 from hydroarm.studies.sweep import plan_sweep, run_sweep, validate_sweep

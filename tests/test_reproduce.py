@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hydroarm.studies.experiment import ExperimentConfig
+from hydroarm.sim.experiment import ExperimentConfig
 from hydroarm.studies.figures import FIGURES
 from hydroarm.studies.reproduce import RunSpec, load_finished
 
@@ -151,7 +151,7 @@ def test_rerun_loads_finished_runs_and_recomputes_a_corrupt_one(quick_run):
 def test_a_run_with_other_settings_is_not_reused(tmp_path):
     config = ExperimentConfig(duration=0.05)
     spec = RunSpec("clean", "SMC", 0, config)
-    from hydroarm.studies.experiment import run_experiment
+    from hydroarm.sim.experiment import run_experiment
 
     path = tmp_path / f"{spec.key}.npz"
     run_experiment(config, "SMC", 0).save(path)

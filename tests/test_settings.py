@@ -13,7 +13,7 @@ from typer.testing import CliRunner
 
 from hydroarm.cli import app
 from hydroarm.config import ConfigError, _members, dotted_keys
-from hydroarm.studies.experiment import ExperimentConfig, with_overrides
+from hydroarm.sim.experiment import ExperimentConfig, with_overrides
 from hydroarm.studies.settings import experiment_settings, settings_markdown, settings_table
 from hydroarm.studies.sweep import plan_sweep, validate_sweep
 from hydroarm.studies.sweep.schema import Mismatch
@@ -71,7 +71,7 @@ def test_cli_settings_of_one_controller_shows_only_the_sections_it_reads():
     result = RUNNER.invoke(app, ["settings", "--controller", "gp-mpc", "--json"])
     assert result.exit_code == 0, result.output
     sections = {row["section"].split(".")[0] for row in json.loads(result.output)}
-    assert sections == {"", "water", "plant", "initial_state", "mpc", "gp", "gpmpc", "estimator"}
+    assert sections == {"", "water", "plant", "initial_state", "vehicle", "mpc", "gp", "gpmpc", "estimator"}
     every = RUNNER.invoke(app, ["settings", "--json"])
     assert [row["key"] for row in json.loads(every.output)] == [row.key for row in experiment_settings()]
     text = RUNNER.invoke(app, ["settings", "--controller", "smc"]).output

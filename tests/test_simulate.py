@@ -10,7 +10,7 @@ import pytest
 import hydroarm
 from hydroarm.control.smc import SlidingModeController, SMCConfig
 from hydroarm.model.plant import PlantConfig
-from hydroarm.studies.runner import Trajectory, run_closed_loop, tracking_metrics
+from hydroarm.sim.runner import Trajectory, run_closed_loop, tracking_metrics
 
 
 @pytest.fixture(scope="session")

@@ -15,8 +15,7 @@ from hydroarm.config import ConfigError, read_mapping
 from hydroarm.model.loading import load_arm
 from hydroarm.model.plant import UnderwaterPlant
 from hydroarm.model.task import task_for_arm
-from hydroarm.studies.executor import SerialExecutor
-from hydroarm.studies.experiment import (
+from hydroarm.sim.experiment import (
     ExperimentConfig,
     InitialState,
     build_controller,
@@ -24,7 +23,8 @@ from hydroarm.studies.experiment import (
     start_for_arm,
     with_overrides,
 )
-from hydroarm.studies.runner import run_closed_loop
+from hydroarm.sim.runner import run_closed_loop
+from hydroarm.studies.executor import SerialExecutor
 from hydroarm.studies.sweep import (
     Robustness,
     error_envelope,

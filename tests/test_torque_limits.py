@@ -14,8 +14,8 @@ from hydroarm.control.mpc import MPCConfig
 from hydroarm.control.smc import SMCConfig
 from hydroarm.model.plant import PlantConfig, UnderwaterPlant
 from hydroarm.model.water import CurrentConfig, Water
-from hydroarm.studies.experiment import ExperimentConfig, build_controller
-from hydroarm.studies.runner import run_closed_loop
+from hydroarm.sim.experiment import ExperimentConfig, build_controller
+from hydroarm.sim.runner import run_closed_loop
 
 UR5_LIMITS = [150.0, 150.0, 150.0, 28.0, 28.0, 28.0]
 

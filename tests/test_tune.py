@@ -10,23 +10,24 @@ import sys
 import pytest
 
 from hydroarm.config import load_model
-from hydroarm.studies.experiment import ExperimentConfig, with_overrides
-from hydroarm.studies.tune import DRY, TUNING_GRIDS, plan_tuning, tune, write_settings
+from hydroarm.sim.experiment import ExperimentConfig, with_overrides
+from hydroarm.studies.tune import DRY, plan_tuning, tune, tuning_grid, write_settings
 
 
 def test_every_registered_controller_has_a_grid():
     from hydroarm.control.registry import CONTROLLERS
 
-    assert set(TUNING_GRIDS) == set(CONTROLLERS)
     base = ExperimentConfig()
-    for grid in TUNING_GRIDS.values():
+    for name in CONTROLLERS:
+        grid = tuning_grid(name)
+        assert grid, name
         for key in grid:
             with_overrides(base, {key: grid[key][0]})  # every tuned key is a real setting
 
 
 def test_plan_is_the_grid_clean_and_noisy_on_the_dry_arm():
     tasks = plan_tuning(ExperimentConfig(), "smc")
-    grid = TUNING_GRIDS["SMC"]
+    grid = tuning_grid("SMC")
     assert len(tasks) == 2 * math.prod(len(v) for v in grid.values())
     assert len({t.id for t in tasks}) == len(tasks)
     for task in tasks:

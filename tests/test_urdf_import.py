@@ -17,8 +17,8 @@ from hydroarm.model.task import SinusoidReference
 from hydroarm.model.urdf_export import arm_to_urdf
 from hydroarm.model.urdf_import import arm_from_urdf, hydro_spec_of, load_urdf_arm
 from hydroarm.model.water import CurrentConfig, Water, WaterModel, added_mass_matrix, hydrodynamic_torques
-from hydroarm.studies.experiment import ExperimentConfig, build_controller
-from hydroarm.studies.runner import run_closed_loop
+from hydroarm.sim.experiment import ExperimentConfig, build_controller
+from hydroarm.sim.runner import run_closed_loop
 
 RNG = np.random.default_rng(2023_1641)
 

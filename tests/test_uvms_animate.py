@@ -1,5 +1,5 @@
-"""Issue 15, interfaces: ``hydroarm run --vehicle`` (the run of ``run-uvms``), the trajectory a
-vehicle-manipulator run saves, and ``animate`` drawing the vehicle's hull with the arm."""
+"""The vehicle run's interfaces: ``hydroarm run --vehicle`` (an ordinary experiment), the
+trajectory a vehicle-manipulator run saves, and ``animate`` drawing the vehicle's hull with the arm."""
 
 from __future__ import annotations
 
@@ -12,16 +12,21 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from hydroarm.sim.experiment import ExperimentConfig, build_experiment
+from hydroarm.sim.runner import Trajectory
+from hydroarm.sim.vehicle import VehicleRun
 from hydroarm.studies.animate import render_frame
-from hydroarm.studies.runner import Trajectory
-from hydroarm.studies.uvms_run import UVMSRunConfig, run_uvms, uvms_trajectory
+
+
+def vehicle_config(**settings) -> ExperimentConfig:
+    return ExperimentConfig(arm="mount", vehicle=VehicleRun(name="bluerov2_heavy"), **settings)
 
 
 @pytest.fixture(scope="module")
 def saved(tmp_path_factory):
-    """0.3 s of station keeping, saved as ``run-uvms --out`` saves it."""
+    """0.3 s of station keeping, saved as ``run --vehicle --out`` saves it."""
     path = tmp_path_factory.mktemp("uvms") / "trajectory.npz"
-    uvms_trajectory(run_uvms(UVMSRunConfig(duration=0.3))).save(path)
+    build_experiment(vehicle_config(duration=0.3), "smc").run().save(path)
     return path
 
 
@@ -40,7 +45,8 @@ def test_saved_uvms_run_is_a_trajectory_with_the_base_pose(saved):
     assert traj.extra["base_pose"].shape == (steps, 7)
     assert np.allclose(traj.extra["base_pose"][0], traj.meta["target_pose"])
     assert np.allclose(np.linalg.norm(traj.extra["base_pose"][:, 3:], axis=1), 1.0)
-    assert np.allclose(traj.q[0], UVMSRunConfig().home)
+    assert np.allclose(traj.q[0], VehicleRun().home)
+    assert len(traj.meta["final_state"]) == 7 + 4 + 6 + 4 + 8  # q, v, thrust of the floating plant
     assert "drift_rms_m" in traj.meta["metrics"]
 
 
@@ -69,16 +75,15 @@ def _cli(*args, cwd=None):
 
 
 @pytest.mark.subprocess
-def test_run_with_vehicle_is_run_uvms_and_animates(tmp_path):
-    via_run = _cli("run", "--vehicle", "bluerov2-heavy", "--arm", "alpha5", "--set", "duration=0.2",
+def test_run_with_vehicle_is_the_python_experiment_and_animates(tmp_path):
+    via_run = _cli("run", "--vehicle", "bluerov2-heavy", "--arm", "alpha5", "--set", "duration=0.2", "--json",
                    "--out", str(tmp_path / "a"))  # fmt: skip
     assert via_run.returncode == 0, via_run.stderr
-    via_uvms = _cli("run-uvms", "--vehicle", "bluerov2-heavy", "--arm", "alpha5", "--duration", "0.2",
-                    "--out", str(tmp_path / "b"))  # fmt: skip
-    assert via_uvms.returncode == 0, via_uvms.stderr
-    assert json.loads(via_run.stdout) == json.loads(via_uvms.stdout)
-    for name in ("metrics.json", "trajectory.npz"):
-        assert (tmp_path / "a" / name).is_file() and (tmp_path / "b" / name).is_file()
+    printed = json.loads(via_run.stdout.strip().splitlines()[-1])
+    in_python = build_experiment(vehicle_config(duration=0.2), "smc").run().meta["metrics"]
+    assert printed["station_keeping"] == in_python  # one code path: the same numbers
+    for name in ("metrics.json", "trajectory.npz", "hydroarm-run.json"):
+        assert (tmp_path / "a" / name).is_file()
     traj = Trajectory.load(tmp_path / "a" / "trajectory.npz")
     assert traj.meta["vehicle"] == "bluerov2_heavy" and traj.extra["base_pose"].shape == (20, 7)
     movie = _cli("animate", str(tmp_path / "a" / "trajectory.npz"), "--out", str(tmp_path / "uvms.gif"))
@@ -96,7 +101,11 @@ def test_run_with_a_bad_vehicle_exits_2(tmp_path):
     cases = {
         "no-such-vehicle": (("--vehicle", "no-such-vehicle"), "neither a built-in vehicle"),
         "bad file": (("--vehicle", str(bad)), "mass"),
-        "arm controller": (("--vehicle", "bluerov2-heavy", "--controller", "smc"), "pid or mpc"),
+        "arm controller": (("--vehicle", "bluerov2-heavy", "--controller", "pid"), "must be one of"),
+        "station keeper": (
+            ("--vehicle", "bluerov2-heavy", "--set", "vehicle.control.kind=lqr"),
+            "vehicle.control.kind",
+        ),
         "arm-only option": (("--vehicle", "bluerov2-heavy", "--noise", "0.1"), "--noise"),
         "unknown setting": (("--vehicle", "bluerov2-heavy", "--set", "durations=1"), "durations"),
     }

@@ -12,7 +12,14 @@ import pytest
 
 from hydroarm.control.vehicle_control import ThrusterAllocation, pose_error
 from hydroarm.model.vehicle import load_vehicle
-from hydroarm.studies.uvms_run import UVMSRunConfig, run_uvms
+from hydroarm.sim.experiment import ExperimentConfig, build_experiment
+from hydroarm.sim.vehicle import VehicleRun
+
+
+def vehicle_run(duration: float, controller: str = "smc", **vehicle) -> dict:
+    """The station-keeping metrics of a run of the BlueROV2 Heavy with its Alpha 5."""
+    config = ExperimentConfig(arm="mount", duration=duration, vehicle=VehicleRun(name="bluerov2_heavy", **vehicle))
+    return build_experiment(config, controller).run()
 
 
 @pytest.fixture(scope="module")
@@ -69,15 +76,28 @@ def test_vehicle_mpc_predicts_what_the_plant_does_under_the_restoring_feed_forwa
 @pytest.mark.slow
 @pytest.mark.parametrize("kind", ["pid", "mpc"])
 def test_gp_feed_forward_beats_the_blind_controller(kind):
-    blind = run_uvms(UVMSRunConfig(duration=6.0, vehicle_controller=kind)).metrics
-    aware = run_uvms(UVMSRunConfig(duration=6.0, vehicle_controller=kind, aware=True)).metrics
+    blind = vehicle_run(6.0, control={"kind": kind}).meta["metrics"]
+    aware = vehicle_run(6.0, control={"kind": kind}, aware=True).meta["metrics"]
     assert blind["drift_max_m"] < 0.1 and aware["drift_rms_m"] < 0.5 * blind["drift_rms_m"]
 
 
 def test_short_run_holds_station():
-    run = run_uvms(UVMSRunConfig(duration=1.5))
-    assert np.all(np.isfinite(run.x)) and run.metrics["drift_max_m"] < 0.05
-    assert set(run.metrics) >= {"drift_rms_m", "attitude_rms_deg", "saturation_time_s", "ee_error_rms_m"}
+    traj = vehicle_run(1.5)
+    metrics = traj.meta["metrics"]
+    assert np.all(np.isfinite(traj.x)) and np.all(np.isfinite(traj.meta["final_state"]))
+    assert metrics["drift_max_m"] < 0.05 and traj.meta["stopped"] is None
+    assert set(metrics) >= {"drift_rms_m", "attitude_rms_deg", "saturation_time_s", "ee_error_rms_m"}
+    assert traj.extra["thrust_command"].shape == (150, 8) and traj.extra["saturated"].dtype == bool
+
+
+def test_learning_arm_controllers_run_on_the_vehicle_and_report_the_gp_events():
+    """Any registry controller drives the arm on the vehicle (GP-IDMPC here, behind its Kalman
+    filter on the true state), through the one runner: its faults are counted, none stop it."""
+    traj = vehicle_run(0.5, "gp-idmpc", aware=True)
+    assert traj.meta["stopped"] is None, traj.meta["error"]
+    assert traj.meta["controller"] == "GP-IDMPC+KF+PID+GP"
+    assert np.all(np.isfinite(traj.disturbance_estimate[5:]))  # the arm's GP estimate is recorded
+    assert set(traj.meta["faults"]) >= {"gp_jittered", "diverged"}
 
 
 @pytest.mark.slow
@@ -132,8 +152,9 @@ def test_cli_lists_vehicles_and_rejects_bad_vehicle_files(tmp_path):
     for field, content in cases.items():
         path = tmp_path / f"bad_{field}.toml"
         path.write_text(content)
-        result = _cli("run-uvms", "--vehicle", str(path), "--duration", "0.1")
+        result = _cli("run", "--vehicle", str(path), "--set", "duration=0.1", "--out", str(tmp_path / "out"))
         assert result.returncode == 2, (field, result.stderr)
         assert field in result.stderr and "Traceback" not in result.stderr
-    ok = _cli("run-uvms", "--vehicle", "bluerov2-heavy", "--arm", "alpha5", "--duration", "0.2")
+    ok = _cli("run", "--vehicle", "bluerov2-heavy", "--arm", "alpha5", "--set", "duration=0.2", "--json",
+              "--out", str(tmp_path / "ok"))  # fmt: skip
     assert ok.returncode == 0 and "drift_rms_m" in ok.stdout

@@ -96,7 +96,7 @@ def test_viewer_draws_the_arm_and_the_slider_moves_it(tmp_path):
     _requirements()
     from playwright.sync_api import sync_playwright
 
-    from hydroarm.studies.experiment import ExperimentConfig, run_experiment
+    from hydroarm.sim.experiment import ExperimentConfig, run_experiment
     from hydroarm.studies.playback import reach
     from hydroarm.studies.view import camera_for, cylinder_poses, link_colour
 

@@ -14,7 +14,7 @@ Run it with ``hydroarm bench --out DIR [--quick]`` from a source checkout, or
 5. ``profile`` (:mod:`~hydroarm_bench.profiling`): cProfile of the GP-MPC closed loop.
 
 Every plant, controller and reference comes from
-:func:`hydroarm.studies.experiment.build_experiment` (:mod:`~hydroarm_bench.loop`).
+:func:`hydroarm.sim.experiment.build_experiment` (:mod:`~hydroarm_bench.loop`).
 The document is assembled and validated in :mod:`~hydroarm_bench.report` and rendered
 in :mod:`~hydroarm_bench.markdown`.
 """

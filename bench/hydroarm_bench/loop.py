@@ -1,4 +1,4 @@
-"""The paper scenario, built by :func:`hydroarm.studies.experiment.build_experiment`.
+"""The paper scenario, built by :func:`hydroarm.sim.experiment.build_experiment`.
 
 Every section of the suite takes its plant, controller and reference from here, so the
 benchmark runs exactly what ``hydroarm run`` runs (the default ``ExperimentConfig``:
@@ -10,7 +10,7 @@ from __future__ import annotations
 import time
 from typing import Any
 
-from hydroarm.studies.experiment import Experiment, ExperimentConfig, build_experiment, with_overrides
+from hydroarm.sim.experiment import Experiment, ExperimentConfig, build_experiment, with_overrides
 
 
 def paper_config(duration: float = 10.0, overrides: dict[str, Any] | None = None) -> ExperimentConfig:

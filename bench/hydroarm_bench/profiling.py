@@ -6,7 +6,7 @@ import cProfile
 import pstats
 from pathlib import Path
 
-from hydroarm.studies.experiment import with_overrides
+from hydroarm.sim.experiment import with_overrides
 from hydroarm_bench.loop import paper_experiment
 
 

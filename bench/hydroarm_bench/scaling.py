@@ -3,7 +3,7 @@
 GP step vs window, MPC step vs horizon, plant step vs Gauss points per cylinder, each
 with the growth exponent (least-squares slope of log median time on log size). The
 settings are the paper scenario's with one dotted-key override each, built by
-:func:`hydroarm.studies.experiment.build_experiment`.
+:func:`hydroarm.sim.experiment.build_experiment`.
 """
 
 from __future__ import annotations

@@ -72,7 +72,7 @@ def bench_viewer(quick: bool = False) -> dict:
     from playwright.sync_api import sync_playwright
 
     from hydroarm.model.loading import load_arm
-    from hydroarm.studies.experiment import ExperimentConfig, run_experiment
+    from hydroarm.sim.experiment import ExperimentConfig, run_experiment
     from hydroarm.studies.playback import reach
     from hydroarm.studies.view import camera_for, cylinder_poses, link_colour
 

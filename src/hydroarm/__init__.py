@@ -57,14 +57,14 @@ _EXPORTS: dict[str, str] = {
     "GPConfig": "hydroarm.control.gp",
     "SlidingWindowGP": "hydroarm.control.gp",
     # studies
-    "ExperimentConfig": "hydroarm.studies.experiment",
-    "Experiment": "hydroarm.studies.experiment",
-    "build_experiment": "hydroarm.studies.experiment",
-    "build_controller": "hydroarm.studies.experiment",
-    "run_experiment": "hydroarm.studies.experiment",
-    "Trajectory": "hydroarm.studies.runner",
-    "run_closed_loop": "hydroarm.studies.runner",
-    "tracking_metrics": "hydroarm.studies.runner",
+    "ExperimentConfig": "hydroarm.sim.experiment",
+    "Experiment": "hydroarm.sim.experiment",
+    "build_experiment": "hydroarm.sim.experiment",
+    "build_controller": "hydroarm.sim.experiment",
+    "run_experiment": "hydroarm.sim.experiment",
+    "Trajectory": "hydroarm.sim.runner",
+    "run_closed_loop": "hydroarm.sim.runner",
+    "tracking_metrics": "hydroarm.sim.runner",
 }
 
 __all__ = sorted(_EXPORTS)

@@ -112,7 +112,7 @@ def _experiment_config(config_file: Path | None, overrides: list[str], tuned: bo
     then the ``--set`` overrides."""
     from hydroarm.config import read_mapping
     from hydroarm.model.loading import tuned_settings_path
-    from hydroarm.studies.experiment import ExperimentConfig, with_overrides
+    from hydroarm.sim.experiment import ExperimentConfig, with_overrides
 
     config = load_model(ExperimentConfig, config_file) if config_file else ExperimentConfig()
     if tuned:

@@ -28,10 +28,18 @@ from hydroarm.config import ConfigError
 
 @app.command()
 def run(
-    ctx: typer.Context,
-    controller: Annotated[str, typer.Option("--controller", help="smc, mpc, gp-mpc, idmpc or gp-idmpc.")] = "gp-mpc",
+    controller: Annotated[
+        str | None,
+        typer.Option(
+            "--controller",
+            help="A registered controller (hydroarm controllers; default gp-mpc; on a vehicle the arm's, default smc).",
+        ),
+    ] = None,
     arm: Annotated[
-        str | None, typer.Option("--arm", help="Built-in arm name or arm file (default: the settings' arm, paper).")
+        str | None,
+        typer.Option(
+            "--arm", help="Built-in arm name or arm file (default: the settings' arm; on a vehicle its file's)."
+        ),
     ] = None,
     noise: Annotated[
         float | None,
@@ -53,7 +61,7 @@ def run(
         str | None,
         typer.Option(
             "--vehicle",
-            help="Mount the arm on this vehicle (bluerov2-heavy or a vehicle file): the run of hydroarm run-uvms.",
+            help="Mount the arm on this vehicle (bluerov2-heavy or a vehicle file): = --set vehicle.name=VEHICLE.",
         ),
     ] = None,
 ) -> None:
@@ -63,94 +71,69 @@ def run(
     --view serves the saved run in the browser as soon as it is written (hydroarm view).
     Example: hydroarm run --controller gp-mpc --arm paper --noise 0.001 --seed 3 --out DIR
 
-    With --vehicle, the vehicle-manipulator run of hydroarm run-uvms: --controller is the
-    vehicle's (pid or mpc, default pid), --arm defaults to the vehicle file's, --set sets the
-    run's settings (duration, current, aware, ...); writes metrics.json and trajectory.npz.
-    Example: hydroarm run --vehicle bluerov2-heavy --arm alpha5 --set duration=5 --out DIR
+    With --vehicle (or vehicle.name in the settings), the arm works on the vehicle while the
+    vehicle holds station: --controller is the arm's, the station keeper is
+    vehicle.control.kind (pid or mpc), and metrics.json adds the station-keeping metrics.
+    Example: hydroarm run --vehicle bluerov2-heavy --set vehicle.control.kind=mpc --set duration=5 --out DIR
     """
-    if vehicle is not None:
-        _run_on_vehicle(ctx, vehicle, controller, arm, out, overrides or [])
-        return
-    from hydroarm.model.loading import load_arm
-    from hydroarm.studies import figures
-    from hydroarm.studies.experiment import canonical_name, check_settings_for_arm, run_experiment, with_overrides
-    from hydroarm.studies.outputs import claim_output, dumps
-    from hydroarm.studies.runner import tracking_metrics
+    import numpy as np
 
-    try:
-        name = canonical_name(controller)
-    except ConfigError as error:
-        _fail(f"--{error}")
+    from hydroarm.sim.experiment import build_experiment, canonical_name, with_overrides
+    from hydroarm.sim.runner import tracking_metrics
+    from hydroarm.studies import figures
+    from hydroarm.studies.outputs import claim_output, dumps
+
     _check_out(out)
     try:
         config = _experiment_config(config_file, overrides or [], tuned, arm)
-        options = {"arm": arm, "plant.noise_variance": noise}
+        options = {"arm": arm, "plant.noise_variance": noise, "vehicle.name": vehicle}
         config = with_overrides(config, {key: value for key, value in options.items() if value is not None})
-        arm_model = load_arm(config.arm)
-        check_settings_for_arm(config, arm_model, controllers=(name,))
+        on_vehicle = config.vehicle.name is not None
+        if on_vehicle and arm is None and config.arm == "paper":
+            config = with_overrides(config, {"arm": "mount"})  # the arm the vehicle file mounts
+        if on_vehicle and noise is not None:
+            raise ConfigError("--noise does not apply on a vehicle: the floating plant gives its true state")
+        name = canonical_name(controller if controller is not None else ("smc" if on_vehicle else "gp-mpc"))
+        experiment = build_experiment(config, name)
         what = {"experiment": config.model_dump(mode="json"), "controller": name, "seed": seed}
         made_by = f"hydroarm run --controller {name.lower()} --seed {seed} --arm {config.arm}"
+        if on_vehicle:
+            made_by += f" --vehicle {config.vehicle.name}"
         claim_output(out, "run", what, description=made_by, overwrite=overwrite)
     except ConfigError as error:
-        _fail(str(error))
+        _fail(str(error) if not str(error).startswith("controller =") else f"--{error}")
+    label = experiment.controller.name
     with Progress(
-        TextColumn(name), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(), console=console
+        TextColumn(label), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(), console=console
     ) as progress:
-        task = progress.add_task(name, total=int(round(config.duration / config.control_period)))
-        traj = run_experiment(config, name, seed, progress=lambda k, total: progress.update(task, completed=k))
+        task = progress.add_task(label, total=int(round(config.duration / config.control_period)))
+        traj = experiment.run(seed, progress=lambda k, total: progress.update(task, completed=k))
     traj.save(out / "trajectory.npz")
     metrics = tracking_metrics(traj)
+    if on_vehicle:
+        metrics["station_keeping"] = traj.meta["metrics"]
     (out / "metrics.json").write_text(dumps(metrics, indent=1))
-    figures.plot_tracking(traj, out / "position.png", f"{name}: position tracking", "position")
-    figures.plot_tracking(traj, out / "velocity.png", f"{name}: velocity tracking", "velocity")
-    figures.plot_torque(traj, out / "torque.png", f"{name}: joint torques", arm_model.torque_limit)
-    if name == "GP-MPC":
-        figures.plot_disturbance(traj, out / "disturbance.png", "true vs GP-estimated disturbance")
+    figures.plot_tracking(traj, out / "position.png", f"{label}: position tracking", "position")
+    figures.plot_tracking(traj, out / "velocity.png", f"{label}: velocity tracking", "velocity")
+    figures.plot_torque(traj, out / "torque.png", f"{label}: joint torques", experiment.arm.torque_limit)
+    if np.isfinite(traj.disturbance_estimate).any() and np.isfinite(traj.disturbance).any():
+        figures.plot_disturbance(traj, out / "disturbance.png", f"{label}: true vs estimated disturbance")
     if as_json:
         print(dumps(metrics))
     else:
         console.print(f"E_p per joint (rad^2): {[round(x, 5) for x in metrics['Ep']]}; files in {out}")
+        if on_vehicle:
+            kept = metrics["station_keeping"]
+            console.print(
+                f"station keeping: drift RMS {kept['drift_rms_m'] * 1e3:.2f} mm, "
+                f"attitude RMS {kept['attitude_rms_deg']:.3f} deg"
+            )
     if view:
         from hydroarm.cli.view import serve_run
 
         serve_run(out / "trajectory.npz")
     if traj.diverged:
         raise typer.Exit(1)
-
-
-def _run_on_vehicle(
-    ctx: typer.Context, vehicle: str, controller: str, arm: str | None, out: Path, overrides: list[str]
-) -> None:
-    """``run --vehicle``: the options of ``run`` mapped onto ``run-uvms``'s run (one code path,
-    :func:`hydroarm.cli.vehicles.run_vehicle`); options that mean nothing there exit 2."""
-    from hydroarm.cli._common import _parse_value
-    from hydroarm.cli.vehicles import run_vehicle
-
-    def given(param: str) -> bool:  # on the command line (Typer's own click: compare by name)
-        source = ctx.get_parameter_source(param)
-        return source is not None and source.name != "DEFAULT"
-
-    for param in ("noise", "seed", "config_file", "tuned", "view", "overwrite"):
-        if given(param):
-            flag = "--config" if param == "config_file" else f"--{param}"
-            _fail(f"{flag} does not apply with --vehicle (set the vehicle run with --set KEY=VALUE)")
-    settings: dict = {}
-    if given("controller"):
-        if controller.lower() not in ("pid", "mpc"):
-            _fail(f"--controller '{controller}': with --vehicle, the vehicle's controller: pid or mpc")
-        settings["vehicle_controller"] = controller.lower()
-    for item in overrides:
-        if "=" not in item:
-            _fail(f"--set '{item}': expected key=value, e.g. duration=5")
-        key, value = item.split("=", 1)
-        *parents, last = key.strip().split(".")
-        target = settings
-        for part in parents:
-            target = target.setdefault(part, {})
-            if not isinstance(target, dict):
-                _fail(f"--set '{item}': '{part}' is not a section")
-        target[last] = _parse_value(value.strip())
-    run_vehicle(vehicle, arm or "mount", settings, out)
 
 
 @app.command()
@@ -169,8 +152,8 @@ def animate(
     Example: hydroarm animate results/runs/clean__GP-MPC__seed0.npz --out arm.gif
     """
     from hydroarm.model.loading import load_arm
+    from hydroarm.sim.runner import Trajectory
     from hydroarm.studies.animate import animate as render
-    from hydroarm.studies.runner import Trajectory
 
     if not run_file.is_file():
         _fail(f"RUN_FILE '{run_file}': no such file")
@@ -187,6 +170,37 @@ def animate(
     except (ConfigError, ValueError) as error:
         _fail(str(error))
     console.print(f"wrote {out}")
+
+
+@app.command()
+def controllers(as_json: Annotated[bool, typer.Option("--json", help="Machine-readable list.")] = False) -> None:
+    """List the registered controllers: name, what it is, the settings sections it reads, its
+    default state estimator and its GP's inputs on a 6-joint arm (default settings)."""
+    from hydroarm.control.registry import REGISTRY, settings_read_by
+    from hydroarm.sim.experiment import ExperimentConfig, gp_inputs
+
+    rows = []
+    for name, spec in REGISTRY.items():
+        inputs = gp_inputs(name, ExperimentConfig(), 6)
+        rows.append(
+            {
+                "name": name.lower(),
+                "description": spec.description,
+                "sections": list(settings_read_by(name)),
+                "default_estimator": spec.default_estimator,
+                "gp_inputs_6_joints": None if inputs is None else inputs[0],
+            }
+        )
+    if as_json:
+        typer.echo(json.dumps(rows, indent=1))
+        return
+    table = Table(title="registered controllers (--controller NAME; either spelling)")
+    for column in ("name", "description", "reads", "estimator", "GP inputs (6 joints)"):
+        table.add_column(column)
+    for row in rows:
+        gp = "-" if row["gp_inputs_6_joints"] is None else str(row["gp_inputs_6_joints"])
+        table.add_row(row["name"], row["description"], ", ".join(row["sections"]), row["default_estimator"], gp)
+    Console(soft_wrap=True).print(table)
 
 
 @app.command()

@@ -14,9 +14,7 @@ from hydroarm.config import ConfigError
 def settings(
     controller: Annotated[
         str | None,
-        typer.Option(
-            "--controller", help="Only the sections this controller reads (smc, mpc, gp-mpc, idmpc, gp-idmpc)."
-        ),
+        typer.Option("--controller", help="Only the sections this controller reads (hydroarm controllers lists them)."),
     ] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print the table as JSON (one object per key).")] = False,
     markdown: Annotated[

@@ -57,7 +57,7 @@ def reproduce(
     """
     from hydroarm.control.registry import PAPER_CONTROLLERS
     from hydroarm.model.loading import load_arm
-    from hydroarm.studies.experiment import check_settings_for_arm, with_overrides
+    from hydroarm.sim.experiment import check_settings_for_arm, with_overrides
     from hydroarm.studies.outputs import dumps
     from hydroarm.studies.reproduce import claim_folder, plan_study
     from hydroarm.studies.reproduce import reproduce as run
@@ -162,23 +162,17 @@ def sweep(
 
     Examples: hydroarm sweep examples/sweep.toml --out sweep1;  hydroarm sweep examples/sweep.toml --out sweep1 --ray
     """
-    from hydroarm.studies.experiment import check_settings_for_arm
     from hydroarm.studies.outputs import dumps
     from hydroarm.studies.sweep import claim_sweep_folder, load_sweep, plan_sweep, run_sweep
 
     if not sweep_file.is_file():
         _fail(f"SWEEP_FILE '{sweep_file}': no such file")
     _check_out(out)
-    try:  # every setting and arm checked before the progress bar starts
-        plan = plan_sweep(load_sweep(sweep_file), sweep_file.parent, str(sweep_file))
-        checked = set()
-        for row in plan.rows:
-            arm_key = plan.tasks[row.id].arm_key
-            if (id(row.config), arm_key, row.controller) not in checked:
-                checked.add((id(row.config), arm_key, row.controller))
-                where = ", ".join(f"{key} = {value!r}" for key, value in row.params.items())
-                source = f"{sweep_file}: the runs with {where}" if where else f"{sweep_file}: base"
-                check_settings_for_arm(row.config, plan.arms[arm_key], source, controllers=(row.controller,))
+    try:  # every setting and arm checked before the progress bar starts (plan_sweep does it all)
+        sweep = load_sweep(sweep_file)
+        if trajectories:
+            sweep = sweep.model_copy(update={"save_trajectories": True})
+        plan = plan_sweep(sweep, sweep_file.parent, str(sweep_file))
         if ray or ray_address:
             from hydroarm.studies.executor import import_ray
 
@@ -197,12 +191,11 @@ def sweep(
         try:
             with _sigterm_as_interrupt():
                 summary = run_sweep(
-                    sweep_file,
+                    plan,
                     out,
                     workers=workers,
                     ray_address=ray_address or ("local" if ray else None),
                     on_progress=hook,
-                    save_trajectories=True if trajectories else None,
                     overwrite=overwrite,
                 )
         except ConfigError as error:
@@ -235,7 +228,7 @@ def sweep(
 
 @app.command()
 def tune(
-    controller: Annotated[str, typer.Option("--controller", help="smc, mpc, gp-mpc, idmpc or gp-idmpc.")],
+    controller: Annotated[str, typer.Option("--controller", help="A registered controller (hydroarm controllers).")],
     arm: Annotated[str, typer.Option("--arm", help="Built-in arm name or arm file.")] = "paper",
     out: Annotated[
         Path, typer.Option("--out", help="Settings file (TOML) to write or update; --config reads it.")
@@ -250,9 +243,9 @@ def tune(
     the best mean E_p wins. Example: hydroarm tune --arm alpha5 --controller smc --out alpha5.toml
     """
     from hydroarm.model.loading import load_arm
-    from hydroarm.studies.experiment import canonical_name, check_settings_for_arm, with_overrides
-    from hydroarm.studies.tune import TUNING_GRIDS, write_settings
+    from hydroarm.sim.experiment import canonical_name, check_settings_for_arm, with_overrides
     from hydroarm.studies.tune import tune as run_tune
+    from hydroarm.studies.tune import tuning_grid, write_settings
 
     try:
         name = canonical_name(controller)
@@ -262,7 +255,7 @@ def tune(
         _fail(str(error))
     if out.exists() and not out.is_file():
         _fail(f"--out '{out}': exists and is not a file")
-    grid = TUNING_GRIDS[name]
+    grid = tuning_grid(name)
     with (
         _sigterm_as_interrupt(),
         Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),

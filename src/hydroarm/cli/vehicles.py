@@ -1,6 +1,6 @@
-"""Commands of the vehicle-manipulator system: ``hydroarm vehicles``, ``hydroarm study uvms``,
-``hydroarm run-uvms``. Bad input (a vehicle file with a bad field, an unknown vehicle) exits
-with code 2 and one line naming the field."""
+"""Commands of the vehicle-manipulator system: ``hydroarm vehicles``, ``hydroarm study uvms``
+(one run on a vehicle is ``hydroarm run --vehicle``). Bad input (a vehicle file with a bad
+field, an unknown vehicle) exits with code 2 and one line naming the field."""
 
 from __future__ import annotations
 
@@ -12,21 +12,12 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from hydroarm.cli._common import _check_out, _fail, app, console
-from hydroarm.config import ConfigError
+from hydroarm.cli._common import _check_out, app, console
 
 study_app = typer.Typer(
     help="Studies beyond the paper (the UVMS: hydroarm study uvms --out DIR).", no_args_is_help=True
 )
 app.add_typer(study_app, name="study")
-
-
-def _vehicle_name(name: str) -> str:
-    """``bluerov2-heavy`` and ``bluerov2_heavy`` both name the built-in vehicle; files pass through."""
-    from hydroarm.model.vehicle import BUILTIN_VEHICLES
-
-    key = name.replace("-", "_").lower()
-    return key if key in BUILTIN_VEHICLES else name
 
 
 @app.command()
@@ -78,57 +69,3 @@ def study_uvms(
         f"wrote {out}/report.md: GP feed-forward cuts the drift RMS by {gains['pid']['drift_rms_m']:.0f}% (PID), "
         f"{gains['mpc']['drift_rms_m']:.0f}% (MPC); effects by drift: {', '.join(metrics['effect_ranking_by_drift'])}"
     )
-
-
-@app.command("run-uvms")
-def run_uvms_command(
-    vehicle: Annotated[str, typer.Option("--vehicle", help="Built-in vehicle (bluerov2-heavy) or vehicle file.")] = (
-        "bluerov2-heavy"
-    ),
-    arm: Annotated[str, typer.Option("--arm", help="Arm: 'mount' (the vehicle file's), built-in or file.")] = "mount",
-    controller: Annotated[str, typer.Option("--controller", help="Vehicle controller: pid or mpc.")] = "pid",
-    aware: Annotated[bool, typer.Option("--aware", help="GP feed-forward of the arm's force.")] = False,
-    current: Annotated[float, typer.Option("--current", help="Current along x (m/s).")] = 0.2,
-    duration: Annotated[float, typer.Option("--duration", help="Simulated time (s).")] = 10.0,
-    out: Annotated[
-        Path | None,
-        typer.Option("--out", help="Folder for metrics.json and trajectory.npz (default: print only)."),
-    ] = None,
-) -> None:
-    """One station-keeping run of a vehicle with its arm working; prints its metrics.
-
-    With --out, also writes trajectory.npz: hydroarm animate DIR/trajectory.npz draws the
-    vehicle with its arm. The same run as hydroarm run --vehicle.
-    """
-    settings = {"vehicle_controller": controller, "aware": aware, "current": current, "duration": duration}
-    run_vehicle(vehicle, arm, settings, out)
-
-
-def run_vehicle(vehicle: str, arm: str, settings: dict, out: Path | None) -> None:
-    """The one code path of ``run-uvms`` and ``run --vehicle``: validate the vehicle, the arm and
-    ``settings`` (:class:`~hydroarm.studies.uvms_run.UVMSRunConfig` fields, nested for ``plant``;
-    bad input exits 2 with one line), run, print the metrics as JSON and, with ``out``, write
-    ``metrics.json`` and ``trajectory.npz`` there."""
-    from hydroarm.config import validate
-    from hydroarm.model.uvms import build_uvms
-    from hydroarm.model.vehicle import load_vehicle
-    from hydroarm.studies.uvms_run import UVMSRunConfig, run_uvms, uvms_trajectory
-
-    if out is not None:
-        _check_out(out)
-    name = _vehicle_name(vehicle)
-    try:
-        spec = load_vehicle(name)
-        build_uvms(spec, arm)
-        config = validate(UVMSRunConfig, {**settings, "vehicle": name, "arm": arm}, "settings")
-    except ConfigError as error:
-        _fail(str(error))
-    except (ValueError, FileNotFoundError) as error:
-        _fail(str(error).splitlines()[0])
-    result = run_uvms(config)
-    text = json.dumps(result.metrics, indent=1)
-    if out is not None:
-        out.mkdir(parents=True, exist_ok=True)
-        (out / "metrics.json").write_text(text + "\n")
-        uvms_trajectory(result).save(out / "trajectory.npz")
-    typer.echo(text)

@@ -59,8 +59,8 @@ def serve_run(
             webbrowser.open(url)
     try:
         from hydroarm.model.loading import load_arm
+        from hydroarm.sim.runner import Trajectory
         from hydroarm.studies import view
-        from hydroarm.studies.runner import Trajectory
 
         try:
             traj = Trajectory.load(run_file)

@@ -70,7 +70,7 @@ import scipy.linalg
 from hydroarm.config import FrozenModel, per_joint
 from hydroarm.control.gp import GPConfig, SlidingWindowGP
 from hydroarm.control.idmpc_limits import HorizonQP, allocate  # noqa: F401 (allocate: public here too)
-from hydroarm.control.interface import ControlOutput, Reference, require_period
+from hydroarm.control.interface import DEFAULT_CONTROL_PERIOD, ControlOutput, Reference, require_period
 from hydroarm.model.arm import Arm
 from hydroarm.model.nominal import NominalModel
 
@@ -184,7 +184,7 @@ class InverseDynamicsMPC:
         self,
         arm: Arm,
         config: IDMPCConfig | None = None,
-        control_period: float = 0.01,
+        control_period: float = DEFAULT_CONTROL_PERIOD,
         gp_config: GPConfig | None = None,
     ):
         self.arm = arm

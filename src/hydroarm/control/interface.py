@@ -34,7 +34,9 @@ class ControlOutput:
     ``events``: the faults met and recovered from since the previous step
     (names from :data:`FAULT_EVENTS`), counted by the runner; ``acceleration`` (n,)
     rad/s^2: the joint acceleration the controller commands, when it plans in
-    accelerations (a state estimator is driven by it), else None.
+    accelerations (a state estimator is driven by it), else None; ``record``: further
+    per-step values the runner keeps as ``Trajectory.extra`` arrays (name -> array of a fixed
+    shape; e.g. the station keeper's thrust command), empty for most controllers.
     """
 
     tau: np.ndarray
@@ -45,6 +47,7 @@ class ControlOutput:
     terminal_violation: float = 0.0
     events: tuple[str, ...] = ()
     acceleration: np.ndarray | None = None
+    record: dict[str, np.ndarray] = field(default_factory=dict)
 
 
 FAULT_EVENTS: dict[str, str] = {
@@ -67,15 +70,24 @@ FAULT_EVENTS: dict[str, str] = {
 counts each one; docs/reliability.md)."""
 
 
+DEFAULT_CONTROL_PERIOD = 0.01
+"""T (s): the paper's control period, every controller's default (SPEC)."""
+
+CONTROL_PERIOD_RANGE = (1e-4, 1.0)
+"""The control periods (s) a controller and an experiment accept, inclusive."""
+
+
 def require_period(control_period: float) -> float:
-    """``control_period`` (s) as a float, checked to lie in [1e-4, 1] (raises ValueError otherwise).
+    """``control_period`` (s) as a float, checked to lie in :data:`CONTROL_PERIOD_RANGE` (raises
+    ValueError otherwise).
 
     The period is a setting of the experiment (``ExperimentConfig.control_period``), not of
     any one controller: the builder hands the same value to the controller and the runner.
     """
     period = float(control_period)
-    if not 1e-4 <= period <= 1.0:
-        raise ValueError(f"control_period = {control_period!r}: must be >= 0.0001 and <= 1 (s)")
+    low, high = CONTROL_PERIOD_RANGE
+    if not low <= period <= high:
+        raise ValueError(f"control_period = {control_period!r}: must be >= {low:g} and <= {high:g} (s)")
     return period
 
 

@@ -7,19 +7,19 @@ sections it reads, and a builder. Names are matched case-insensitively, with ``_
 To add a controller: write it in :mod:`hydroarm.control` with the
 :class:`~hydroarm.control.interface.Controller` interface and a config model, then add one
 :class:`ControllerSpec` to :data:`REGISTRY` (and its config section to
-:class:`~hydroarm.studies.experiment.ExperimentConfig`).
+:class:`~hydroarm.sim.experiment.ExperimentConfig`).
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
 from typing import Any
 
 from hydroarm.config import ConfigError
 from hydroarm.control.estimator import EstimatorConfig, FilteredController, JointKalmanFilter
-from hydroarm.control.gpmpc import GPMPC
-from hydroarm.control.idmpc import InverseDynamicsMPC
+from hydroarm.control.gpmpc import GPMPC, feature_size
+from hydroarm.control.idmpc import InverseDynamicsMPC, gp_input_size
 from hydroarm.control.interface import Controller
 from hydroarm.control.mpc import LinearMPC
 from hydroarm.control.smc import SlidingModeController
@@ -29,16 +29,21 @@ from hydroarm.model.nominal import NominalModel
 
 @dataclass(frozen=True)
 class ControllerSpec:
-    """A controller of the registry: its canonical ``name``, the config ``sections`` it reads
-    (keys of the ``sections`` mapping :func:`build_controller` takes; every controller also
-    reads ``estimator``), a one-line ``description``, its ``build(arm, sections,
-    control_period)`` and the state estimator it uses when ``estimator.kind = "auto"``."""
+    """A controller of the registry, declared once: its canonical ``name``, the config
+    ``sections`` it reads (keys of the ``sections`` mapping :func:`build_controller` takes;
+    every controller also reads ``estimator``), a one-line ``description`` (the CLI's help),
+    its ``build(arm, sections, control_period)``, the state estimator it uses when
+    ``estimator.kind = "auto"``, ``gp_inputs(sections, n_joints) -> (d, why)``: the input count
+    of its GP on n joints and the setting that decides it (None: no GP), and ``tuning_grid``:
+    the gains ``hydroarm tune`` searches (dotted setting -> values)."""
 
     name: str
     sections: tuple[str, ...]
     description: str
     build: Callable[[Arm, Mapping[str, Any], float], Controller]
     default_estimator: str = "none"
+    gp_inputs: Callable[[Mapping[str, Any], int], tuple[int, str]] | None = None
+    tuning_grid: Mapping[str, Sequence[Any]] = field(default_factory=dict)
 
 
 def _smc(arm: Arm, sections: Mapping[str, Any], period: float) -> Controller:
@@ -61,13 +66,41 @@ def _gp_idmpc(arm: Arm, sections: Mapping[str, Any], period: float) -> Controlle
     return InverseDynamicsMPC(arm, sections["idmpc"], control_period=period, gp_config=sections["gp"])
 
 
+def _gpmpc_inputs(sections: Mapping[str, Any], n: int) -> tuple[int, str]:
+    features = sections["gpmpc"].features
+    return feature_size(features, n), f"GP-MPC: gpmpc.features = '{features}'"
+
+
+def _gp_idmpc_inputs(sections: Mapping[str, Any], n: int) -> tuple[int, str]:
+    features = sections["idmpc"].gp_features
+    return gp_input_size(features, n), f"GP-IDMPC: idmpc.gp_features = '{features}'"
+
+
+_SMC_GRID = {
+    "smc.surface_slope": [10.0, 20.0, 40.0],
+    "smc.switching_gain": [50.0, 200.0, 800.0],
+    "smc.boundary_layer": [0.5, 2.0],
+    "smc.linear_gain": [0.0, 10.0, 30.0],
+}
+_MPC_GRID = {"mpc.r": [1e-1, 1e-2, 1e-3, 1e-4, 1e-5], "mpc.q_velocity": [0.01, 1.0]}
+_IDMPC_GRID = {"idmpc.r_acceleration": [1e-4, 1e-5, 1e-6], "idmpc.q_velocity": [0.01, 0.1, 1.0]}
+
 REGISTRY: dict[str, ControllerSpec] = {
     spec.name: spec
     for spec in (
-        ControllerSpec("SMC", ("smc",), "boundary-layer sliding-mode computed torque on the dry model", _smc),
-        ControllerSpec("MPC", ("mpc",), "linear time-varying MPC about the reference (the paper's)", _mpc),
         ControllerSpec(
-            "GP-MPC", ("mpc", "gp", "gpmpc"), "the paper's MPC with a sliding-window GP disturbance model", _gpmpc
+            "SMC", ("smc",), "boundary-layer sliding-mode computed torque on the dry model", _smc, tuning_grid=_SMC_GRID
+        ),
+        ControllerSpec(
+            "MPC", ("mpc",), "linear time-varying MPC about the reference (the paper's)", _mpc, tuning_grid=_MPC_GRID
+        ),
+        ControllerSpec(
+            "GP-MPC",
+            ("mpc", "gp", "gpmpc"),
+            "the paper's MPC with a sliding-window GP disturbance model",
+            _gpmpc,
+            gp_inputs=_gpmpc_inputs,
+            tuning_grid=_MPC_GRID,  # on land the GP has nothing to learn: its MPC is tuned as the MPC
         ),
         ControllerSpec(
             "IDMPC",
@@ -75,6 +108,7 @@ REGISTRY: dict[str, ControllerSpec] = {
             "hydroarm's inverse-dynamics MPC (acceleration-space MPC + computed torque)",
             _idmpc,
             default_estimator="kalman",
+            tuning_grid=_IDMPC_GRID,
         ),
         ControllerSpec(
             "GP-IDMPC",
@@ -82,12 +116,47 @@ REGISTRY: dict[str, ControllerSpec] = {
             "hydroarm's best: the inverse-dynamics MPC with the GP fed forward",
             _gp_idmpc,
             default_estimator="kalman",
+            gp_inputs=_gp_idmpc_inputs,
+            tuning_grid=_IDMPC_GRID,
         ),
     )
 }
+"""Every controller by canonical name, in the order tables show them (:func:`register` adds)."""
 
 CONTROLLERS: tuple[str, ...] = tuple(REGISTRY)
-"""Canonical controller names, in the order tables show them."""
+"""The built-in controllers' canonical names, in the order tables show them (every registered
+one, including those added by :func:`register`: :func:`controller_names`)."""
+
+
+def register(spec: ControllerSpec) -> ControllerSpec:
+    """Add ``spec`` to the registry: the builder, ``run``, sweeps, ``tune`` and the env then
+    know it by its name (either spelling). Raises :class:`ConfigError` if a controller of that
+    name (either spelling) is registered already."""
+    key = _key(spec.name)
+    taken = [name for name in REGISTRY if _key(name) == key]
+    if taken:
+        raise ConfigError(f"controller {spec.name!r}: a controller of that name is registered already ({taken[0]})")
+    REGISTRY[spec.name] = spec
+    return spec
+
+
+def controller_names() -> tuple[str, ...]:
+    """Every registered controller's canonical name, the built-ins first."""
+    return tuple(REGISTRY)
+
+
+def settings_read_by(name: str) -> tuple[str, ...]:
+    """The config sections controller ``name`` (either spelling) reads: its own and ``estimator``."""
+    return (*controller_spec(name).sections, "estimator")
+
+
+def controller_sections() -> tuple[str, ...]:
+    """Every config section some registered controller reads (and ``estimator``), in order."""
+    found: list[str] = []
+    for spec in REGISTRY.values():
+        found.extend(section for section in spec.sections if section not in found)
+    return (*found, "estimator")
+
 
 PAPER_CONTROLLERS: tuple[str, ...] = ("SMC", "MPC", "GP-MPC")
 """The controllers of Liu et al. 2023's tables (the reproduction's rows)."""
@@ -105,7 +174,7 @@ def canonical_name(name: str) -> str:
         for canonical in REGISTRY:
             if _key(canonical) == key:
                 return canonical
-    allowed = ", ".join(f"{c} ({c.lower()})" for c in CONTROLLERS)
+    allowed = ", ".join(f"{c} ({c.lower()})" for c in REGISTRY)
     raise ConfigError(f"controller = {name!r}: must be one of {allowed}")
 
 

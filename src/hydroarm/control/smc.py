@@ -24,7 +24,7 @@ import numpy as np
 import pydantic
 
 from hydroarm.config import FrozenModel, per_joint
-from hydroarm.control.interface import ControlOutput, Reference, require_period
+from hydroarm.control.interface import DEFAULT_CONTROL_PERIOD, ControlOutput, Reference, require_period
 from hydroarm.model.arm import Arm
 from hydroarm.model.nominal import NominalModel
 
@@ -57,7 +57,7 @@ class SlidingModeController:
 
     name = "SMC"
 
-    def __init__(self, arm: Arm, config: SMCConfig | None = None, control_period: float = 0.01):
+    def __init__(self, arm: Arm, config: SMCConfig | None = None, control_period: float = DEFAULT_CONTROL_PERIOD):
         self.arm = arm
         self.config = config if config is not None else SMCConfig()
         n = arm.n_joints

@@ -26,6 +26,7 @@ import pydantic
 import scipy.linalg
 
 from hydroarm.config import FrozenModel
+from hydroarm.control.interface import DEFAULT_CONTROL_PERIOD
 from hydroarm.control.mpc.condense import condense
 from hydroarm.control.qp import DaqpBoxSolver
 from hydroarm.model.vehicle import Vehicle
@@ -91,7 +92,12 @@ def restoring_wrench(vehicle: Vehicle, rot: np.ndarray, rho: float = 1000.0, gra
 class VehiclePID:
     """Cascaded pose -> velocity -> wrench PID (module docstring). ``compute(q7, nu, target, d_hat)``."""
 
-    def __init__(self, vehicle: Vehicle, config: VehicleControlConfig | None = None, control_period: float = 0.01):
+    def __init__(
+        self,
+        vehicle: Vehicle,
+        config: VehicleControlConfig | None = None,
+        control_period: float = DEFAULT_CONTROL_PERIOD,
+    ):
         self.vehicle = vehicle
         self.config = config if config is not None else VehicleControlConfig()
         self.period = control_period
@@ -139,7 +145,12 @@ class VehicleMPC(VehiclePID):
     :func:`hydroarm.control.mpc.condense.condense` (the one condensing routine of every MPC).
     """
 
-    def __init__(self, vehicle: Vehicle, config: VehicleControlConfig | None = None, control_period: float = 0.01):
+    def __init__(
+        self,
+        vehicle: Vehicle,
+        config: VehicleControlConfig | None = None,
+        control_period: float = DEFAULT_CONTROL_PERIOD,
+    ):
         super().__init__(vehicle, config, control_period)
         c = self.config
         self.ad, self.bd = hover_model(vehicle, self.inertia, c.mpc_step)
@@ -197,7 +208,9 @@ def hover_model(vehicle: Vehicle, inertia: np.ndarray, step: float) -> tuple[np.
     return block[:12, :12], block[:12, 12:]
 
 
-def make_vehicle_controller(vehicle: Vehicle, config: VehicleControlConfig | None = None, control_period=0.01):
+def make_vehicle_controller(
+    vehicle: Vehicle, config: VehicleControlConfig | None = None, control_period=DEFAULT_CONTROL_PERIOD
+):
     """:class:`VehiclePID` or :class:`VehicleMPC` by ``config.kind``."""
     config = config if config is not None else VehicleControlConfig()
     cls = VehicleMPC if config.kind == "mpc" else VehiclePID

@@ -1,18 +1,18 @@
 """A Gymnasium environment: an underwater arm tracking its task.
 
-``UnderwaterArmEnv`` is the closed loop of :func:`hydroarm.studies.runner.run_closed_loop`
+``UnderwaterArmEnv`` is the closed loop of :func:`hydroarm.sim.runner.run_closed_loop`
 with the controller taken out: the agent gives the joint torques. Everything else comes
-from the one experiment builder, :func:`hydroarm.studies.experiment.build_experiment`
+from the one experiment builder, :func:`hydroarm.sim.experiment.build_experiment`
 (with no controller): the true plant (:class:`~hydroarm.model.plant.UnderwaterPlant`,
 with the water, current and measurement noise of the settings), the arm's own task
 (:func:`~hydroarm.model.task.task_for_arm`: the paper's sinusoids, scaled into the joint
 ranges of arms with limits) and the start state (the task's, moved by the settings'
-``initial_state``: :func:`~hydroarm.studies.experiment.start_for_arm`).
+``initial_state``: :func:`~hydroarm.sim.experiment.start_for_arm`).
 
 ``arm``: a built-in arm (``"paper"``, ``"ur5"``, ``"alpha5"``), a DH arm file or a URDF
 (``.urdf`` with its ``<stem>.hydro.toml`` beside it, or the ``.hydro.toml`` itself);
 default: the settings' ``arm`` (``"paper"``). ``config``: an
-:class:`~hydroarm.studies.experiment.ExperimentConfig` (default: the SPEC settings);
+:class:`~hydroarm.sim.experiment.ExperimentConfig` (default: the SPEC settings);
 ``noise_variance`` and ``duration`` override ``plant.noise_variance`` and ``duration``.
 With n the arm's joint count:
 
@@ -27,14 +27,14 @@ With n the arm's joint count:
   over joints of the paper's E_p, plus a small velocity term;
 * truncation at the end of the task (``duration`` / ``control_period`` steps);
   termination if the plant diverges (a non-finite state or a joint faster than
-  :data:`~hydroarm.studies.runner.DIVERGENCE_SPEED`);
+  :data:`~hydroarm.sim.runner.DIVERGENCE_SPEED`);
 * ``info`` of ``step``: the true state ``x`` and time ``t`` at the start of the step, the
   water/current disturbance averaged over the step (``disturbance``, N m) and the
   tracking error ``q_r - q`` (``error``, rad); of ``reset``: ``x`` and ``t``;
 * ``reset(options={"x0": x0})`` starts at ``x0`` (2n,) instead of the task's start.
 
 Seeded through ``reset(seed=...)``: the measurement-noise stream is the one
-:func:`~hydroarm.studies.runner.run_closed_loop` draws with that seed, so a controller
+:func:`~hydroarm.sim.runner.run_closed_loop` draws with that seed, so a controller
 driven through :class:`ControllerPolicy` reproduces the runner bit for bit.
 
 Example (``gymnasium.make`` imports :mod:`hydroarm.envs`, which registers the id)::
@@ -62,8 +62,8 @@ import numpy as np
 from gymnasium import spaces
 
 from hydroarm.control.interface import Controller
-from hydroarm.studies.experiment import ExperimentConfig, build_controller, build_experiment, with_overrides
-from hydroarm.studies.runner import DIVERGENCE_SPEED
+from hydroarm.sim.experiment import ExperimentConfig, build_controller, build_experiment, with_overrides
+from hydroarm.sim.runner import DIVERGENCE_SPEED
 
 __all__ = ["VELOCITY_WEIGHT", "ControllerPolicy", "UnderwaterArmEnv"]
 
@@ -75,7 +75,7 @@ class UnderwaterArmEnv(gymnasium.Env):
     """An underwater arm tracking its task, as a Gymnasium environment (see the module docstring).
 
     Attributes: ``config`` (the settings), ``experiment`` (what
-    :func:`~hydroarm.studies.experiment.build_experiment` built), ``arm``, ``plant``,
+    :func:`~hydroarm.sim.experiment.build_experiment` built), ``arm``, ``plant``,
     ``reference``, ``x0`` (the default start), ``n`` (joints), ``period`` (s), ``steps``
     (per episode).
     """
@@ -206,7 +206,7 @@ class ControllerPolicy:
     @classmethod
     def from_name(cls, name: str, env: gymnasium.Env) -> ControllerPolicy:
         """The registry's controller ``name`` on the env's arm, with the env's settings
-        (:func:`~hydroarm.studies.experiment.build_controller`)."""
+        (:func:`~hydroarm.sim.experiment.build_controller`)."""
         inner: UnderwaterArmEnv = env.unwrapped  # type: ignore[assignment]
         return cls(build_controller(name, inner.arm, inner.config), env)
 

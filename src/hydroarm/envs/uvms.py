@@ -1,16 +1,20 @@
 """A Gymnasium environment: the vehicle holds station while its arm works (``hydroarm/UVMS-v0``).
 
-The plant is :class:`~hydroarm.model.uvms_fast.FastUVMSPlant` (BlueROV2 Heavy + Alpha 5 by
-default, a uniform current along world x); the arm runs its reach-and-return task under the
-registry's arm controller (``SMC`` on the fixed-base arm model, as in the UVMS study); the
-agent drives the thrusters.
+Built by the one experiment builder (:func:`hydroarm.sim.experiment.build_experiment` with the
+``vehicle`` section set): the plant is the floating system's
+(:class:`~hydroarm.model.uvms_fast.FastUVMSPlant`, BlueROV2 Heavy + Alpha 5 by default, a
+uniform current along world x), the arm runs its reach-and-return task under the registry's
+arm controller inside the whole system's
+:class:`~hydroarm.control.uvms_control.UVMSController` (``SMC`` by default, as in the vehicle
+study); the agent takes the station keeper's place and drives the thrusters.
 
 * action (n_thr,): thruster commands normalised to [-1, 1] (1: the thruster's forward limit,
   -1 its reverse limit); outside values are clipped, non-finite ones raise ``ValueError``;
 * observation (12 + 2 n_arm,), float64: the vehicle's body-frame pose error to its start pose
   (position m, rotation vector rad), its body twist, the arm's angles and rates;
-* reward: ``-(|position error|^2 + 0.1 |attitude error|^2)``;
-* truncation after ``duration`` s; termination if the state blows up or drifts > 5 m.
+* reward: ``-(|position error|^2 + attitude_weight |attitude error|^2)``;
+* truncation after ``duration`` s; termination if the state blows up or drifts more than
+  ``drift_limit`` m, with the reward ``termination_reward`` (settings: :class:`UVMSEnvConfig`).
 
 ``reset(seed=...)`` draws the vehicle's start offset (uniform within ``start_offset`` m per
 axis) from the seeded generator: the same seed gives the same episode.
@@ -22,40 +26,67 @@ from typing import Any
 
 import gymnasium
 import numpy as np
+import pydantic
 from gymnasium import spaces
 
-from hydroarm.control.uvms_control import UVMSController
+from hydroarm.config import FrozenModel
 from hydroarm.control.vehicle_control import pose_error
-from hydroarm.model.uvms import build_uvms
-from hydroarm.model.uvms_fast import FastUVMSPlant
-from hydroarm.model.water import CurrentConfig, Water
-from hydroarm.studies.uvms_run import ReachReturn, UVMSRunConfig, arm_sections
+from hydroarm.sim.experiment import ExperimentConfig, build_experiment
+
+
+class UVMSEnvConfig(FrozenModel):
+    """The episode's settings of :class:`UVMSEnv` (the run's are its ``ExperimentConfig``)."""
+
+    start_offset: float = pydantic.Field(
+        0.05, ge=0.0, le=10.0, description="half-width of the seeded start offset per axis (m)"
+    )
+    drift_limit: float = pydantic.Field(5.0, gt=0.0, le=1000.0, description="drift that ends an episode (m)")
+    termination_reward: float = pydantic.Field(
+        -100.0, ge=-1e9, le=0.0, description="the reward of the step that ends an episode early (-)"
+    )
+    attitude_weight: float = pydantic.Field(
+        0.1, ge=0.0, le=1e6, description="weight of the squared attitude error in the reward (1/rad^2 in m^2)"
+    )
 
 
 class UVMSEnv(gymnasium.Env):
-    """See the module docstring."""
+    """See the module docstring. ``config``: the run's settings (default: the vehicle
+    ``vehicle`` with ``arm``, the ``current``, ``duration`` s); ``episode``: :class:`UVMSEnvConfig`
+    (or its fields as keywords)."""
 
     metadata = {"render_modes": []}
 
-    def __init__(self, vehicle: str = "bluerov2_heavy", arm: str = "mount", current: float = 0.2,
-                 duration: float = 5.0, start_offset: float = 0.05, arm_controller: str = "SMC"):  # fmt: skip
-        defaults = UVMSRunConfig()
-        self.uvms = build_uvms(vehicle, arm)
-        self.plant = FastUVMSPlant(self.uvms, Water(current=CurrentConfig(model="uniform", mean=[current, 0.0, 0.0])))
-        self.period = defaults.control_period
-        self.steps = int(round(duration / self.period))
-        self.start_offset = start_offset
-        self.reference = ReachReturn(defaults.home, defaults.reach, defaults.task_period)
-        self.controller = UVMSController(
-            self.uvms, arm_controller=arm_controller, control_period=self.period,
-            arm_sections=arm_sections(arm_controller),
-        )  # fmt: skip
-        self.home = np.asarray(defaults.home, dtype=float)
+    def __init__(
+        self,
+        vehicle: str = "bluerov2_heavy",
+        arm: str = "mount",
+        current: float = 0.2,
+        duration: float = 5.0,
+        start_offset: float = 0.05,
+        arm_controller: str = "SMC",
+        config: ExperimentConfig | None = None,
+        episode: UVMSEnvConfig | None = None,
+        **episode_settings: Any,
+    ):
+        if config is None:
+            config = ExperimentConfig.model_validate(
+                {"arm": arm, "duration": duration, "vehicle": {"name": vehicle, "current": current}}
+            )
+        if episode is None:
+            episode = UVMSEnvConfig.model_validate({"start_offset": start_offset, **episode_settings})
+        self.config, self.episode = config, episode
+        self.experiment = build_experiment(config, arm_controller)
+        self.uvms = self.experiment.uvms
+        self.plant = self.experiment.plant
+        self.arm_controller = self.experiment.controller.arm  # the agent replaces the station keeper
+        self.reference = self.experiment.reference
+        self.period = config.control_period
+        self.steps = int(round(config.duration / self.period))
         vehicle_ = self.uvms.vehicle
         self.n_arm, self.n_thr = self.uvms.n_arm, vehicle_.n_thrusters
         self.action_space = spaces.Box(-1.0, 1.0, shape=(self.n_thr,), dtype=np.float64)
         self.observation_space = spaces.Box(-np.inf, np.inf, shape=(12 + 2 * self.n_arm,), dtype=np.float64)
-        self.x = self.plant.initial_state(self.uvms.neutral(q_arm=self.home))
+        self.x = self.experiment.x0.copy()
         self.target = self.x[:7].copy()
         self.k = 0
 
@@ -68,10 +99,11 @@ class UVMSEnv(gymnasium.Env):
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
-        self.controller.reset()
-        self.x = self.plant.initial_state(self.uvms.neutral(q_arm=self.home))
+        self.arm_controller.reset()
+        self.x = self.experiment.x0.copy()
         self.target = self.x[:7].copy()
-        self.x[:3] += self.np_random.uniform(-self.start_offset, self.start_offset, size=3)
+        offset = self.episode.start_offset
+        self.x[:3] += self.np_random.uniform(-offset, offset, size=3)
         self.k = 0
         return self._observation(), {"t": 0.0}
 
@@ -83,17 +115,16 @@ class UVMSEnv(gymnasium.Env):
         vehicle = self.uvms.vehicle
         thrust = np.where(action >= 0.0, action * vehicle.thrust_max, -action * vehicle.thrust_min)
         t = self.k * self.period
-        nq = self.uvms.nq
-        y_arm = np.concatenate([self.x[7:nq], self.x[nq + 6 : nq + 6 + self.n_arm]])
-        tau = self.controller.arm.compute(t, y_arm, self.reference).tau
+        y_arm = self.plant.joint_state(self.plant.measure(self.x, self.np_random))
+        tau = self.arm_controller.compute(t, y_arm, self.reference).tau
         self.x, _ = self.plant.step(t, self.x, np.concatenate([tau, thrust]), self.period)
         self.k += 1
         observation = self._observation()
         error = observation[:6]
-        reward = -float(error[:3] @ error[:3] + 0.1 * error[3:] @ error[3:])
-        terminated = bool(not np.all(np.isfinite(self.x)) or np.linalg.norm(error[:3]) > 5.0)
+        reward = -float(error[:3] @ error[:3] + self.episode.attitude_weight * error[3:] @ error[3:])
+        terminated = bool(not np.all(np.isfinite(self.x)) or np.linalg.norm(error[:3]) > self.episode.drift_limit)
         if terminated:
             observation = np.nan_to_num(observation, nan=0.0, posinf=0.0, neginf=0.0)
-            reward = -100.0
+            reward = float(self.episode.termination_reward)
         info: dict[str, Any] = {"t": self.k * self.period, "thrust": thrust}
         return observation, reward, terminated, self.k >= self.steps, info

@@ -222,6 +222,24 @@ class UnderwaterPlant:
         return x, StepInfo(disturbance=average, disturbance_start=start)
 
     # --- sensing ----------------------------------------------------------------------
+    @property
+    def n_inputs(self) -> int:
+        """Length of the input ``tau`` of :meth:`step` (the joint torques)."""
+        return self.n
+
+    @property
+    def state_size(self) -> int:
+        """Length of the state x = [q, v]."""
+        return 2 * self.n
+
+    def joint_state(self, x: np.ndarray) -> np.ndarray:
+        """The joints' [q, v] (2n,) of a state: the state itself."""
+        return x
+
+    def state_record(self, x: np.ndarray) -> dict[str, np.ndarray]:
+        """What a trajectory records of a state beyond the joints: nothing on a fixed base."""
+        return {}
+
     def measure(self, x: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """Measured state: x plus N(0, noise_variance) on every entry (q and v)."""
         variance = self.config.noise_variance

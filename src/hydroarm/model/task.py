@@ -1,4 +1,5 @@
-"""Reference trajectories: sums of sinusoids with analytic derivatives.
+"""Reference trajectories: sums of sinusoids with analytic derivatives, and the vehicle
+study's reach-and-return cycle (:class:`ReachReturn`).
 
 The paper's task (eq. 21, first six terms, SPEC section 4):
 ``q_r(t) = [3 cos t + 2 sin 2t, sin 2t, 2 cos t, 2 cos 2t, sin t, 3 cos t + 2 sin 2t]`` rad,
@@ -7,6 +8,7 @@ The paper's task (eq. 21, first six terms, SPEC section 4):
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -90,3 +92,27 @@ def task_for_arm(arm: Arm) -> tuple[SinusoidReference, np.ndarray]:
     amplitude = np.sum(np.abs(base.cos_amp) + np.abs(base.sin_amp), axis=1)
     scale = np.minimum(1.0, 0.8 * half / np.maximum(amplitude, 1e-12))
     return base.scaled(scale, offset=middle), np.concatenate([middle, np.zeros(n)])
+
+
+class ReachReturn:
+    """Joint reference: from ``home`` to ``reach`` (n,) rad and back every ``period`` s (cosine
+    blends, continuous acceleration at the ends of each leg), after ``start`` s at home.
+    ``sample(t)`` returns ``(q, v, a)``: each (n,) for a scalar time t (s), (m, n) for m times
+    (as :meth:`SinusoidReference.sample`, which the horizon of an MPC asks for)."""
+
+    def __init__(self, home, reach, period: float = 6.0, start: float = 1.0):
+        self.home, self.reach = np.asarray(home, float), np.asarray(reach, float)
+        self.period, self.start = period, start
+
+    def sample(self, t: float | np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        if np.ndim(t) > 0:
+            rows = [self.sample(float(time)) for time in np.ravel(t)]
+            return tuple(np.array([row[i] for row in rows]).reshape(*np.shape(t), -1) for i in range(3))
+        tau = max(0.0, t - self.start) % self.period
+        w = 2.0 * math.pi / self.period
+        s = 0.5 * (1.0 - math.cos(w * tau))
+        ds, dds = 0.5 * w * math.sin(w * tau), 0.5 * w * w * math.cos(w * tau)
+        if t < self.start:
+            ds = dds = 0.0
+        delta = self.reach - self.home
+        return self.home + s * delta, ds * delta, dds * delta

@@ -29,6 +29,7 @@ lagged a step.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numba
@@ -119,6 +120,19 @@ def build_uvms(
     g = gravity if gravity is not None else (arm.gravity_acceleration if arm is not None else 9.81)
     model.gravity = pin.Motion(np.array([0.0, 0.0, -g]), np.zeros(3))
     return UVMS(vehicle=vehicle, arm=arm, model=model, mount=mount, arm_joint_ids=ids)
+
+
+def mounted_arm(uvms: UVMS) -> Arm:
+    """The arm's fixed-base model with gravity in its base frame as mounted on a level vehicle
+    (what a fixed-base arm controller on the vehicle knows: the vehicle's motion is a
+    disturbance to it)."""
+    arm = uvms.arm
+    if arm is None:
+        raise ValueError(f"the vehicle {uvms.vehicle.name!r} carries no arm")
+    model = arm.model.copy()
+    gravity = uvms.mount.rotation.T @ uvms.model.gravity.linear
+    model.gravity = pin.Motion(gravity, np.zeros(3))
+    return dataclasses.replace(arm, model=model)
 
 
 class FloatingStrips:

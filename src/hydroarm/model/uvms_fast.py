@@ -242,7 +242,7 @@ class FastUVMSPlant(UVMSPlant):
             float(t), np.asarray(x, dtype=float), self._tau, target, steps, h, float(vehicle.thrust_time_constant),
             self.n_thr, self._world, *self.fast.constants, self.fast.flags,
         )  # fmt: skip
-        return x_next, UVMSStepInfo(thrust_wrench=wrench / (6.0 * steps))
+        return x_next, UVMSStepInfo(thrust_wrench=wrench / (6.0 * steps), disturbance=self._unknown.copy())
 
     def acceleration(self, t: float, x: np.ndarray, u: np.ndarray) -> np.ndarray:
         q, v, thrust = self.split(np.asarray(x, dtype=float))

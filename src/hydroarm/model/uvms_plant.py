@@ -43,9 +43,12 @@ class UVMSPlantConfig(FrozenModel):
 @dataclass(frozen=True)
 class UVMSStepInfo:
     """``thrust_wrench`` (6,): the thrusters' body wrench averaged over the step with the RK4
-    weights (N, N m)."""
+    weights (N, N m); ``disturbance`` (n_arm,): NaN, the arm's generalised disturbance is not
+    separated on the floating system (the field of the plant protocol,
+    :class:`hydroarm.sim.plant.Plant`)."""
 
     thrust_wrench: np.ndarray
+    disturbance: np.ndarray
 
 
 class UVMSPlant:
@@ -61,6 +64,27 @@ class UVMSPlant:
         self.n_arm = uvms.n_arm
         self.n_thr = uvms.vehicle.n_thrusters
         self.n_state = self.nq + self.nv + self.n_thr
+        self.n = self.n_arm  # the plant protocol's joints: the arm's
+        self.n_inputs = self.n_arm + self.n_thr  # u = [tau_arm, thrust command]
+        self.state_size = self.n_state
+        self._unknown = np.full(self.n_arm, np.nan)
+
+    def joint_state(self, x: np.ndarray) -> np.ndarray:
+        """The arm's [q, v] (2 n_arm,) of a state [q, v, f]."""
+        nq, n = self.nq, self.n_arm
+        return np.concatenate([x[7:nq], x[nq + 6 : nq + 6 + n]])
+
+    def state_record(self, x: np.ndarray) -> dict[str, np.ndarray]:
+        """The vehicle's part of a state, for the trajectory: ``base_pose`` (7: position m,
+        quaternion x y z w), ``base_velocity`` (6: body twist), ``thrust`` (n_thr: the
+        thrusters' delivered forces, N)."""
+        nq, nv = self.nq, self.nv
+        return {"base_pose": x[:7].copy(), "base_velocity": x[nq : nq + 6].copy(), "thrust": x[nq + nv :].copy()}
+
+    def measure(self, x: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """The measured state: the true state (no sensor model on the floating system; ``rng``
+        is not drawn from)."""
+        return np.array(x, dtype=float)
 
     def initial_state(self, q: np.ndarray | None = None, v: np.ndarray | None = None) -> np.ndarray:
         """``[q, v, f = 0]`` (default: the neutral configuration at rest)."""
@@ -107,7 +131,9 @@ class UVMSPlant:
             q0[:], v0[:] = qs, vs
             time += h
         thrust = thrust_at(target, thrust0, dt, lag)
-        return np.concatenate([q0, v0, thrust]), UVMSStepInfo(thrust_wrench=wrench / (6.0 * steps))
+        return np.concatenate([q0, v0, thrust]), UVMSStepInfo(
+            thrust_wrench=wrench / (6.0 * steps), disturbance=self._unknown.copy()
+        )
 
     def acceleration(self, t: float, x: np.ndarray, u: np.ndarray) -> np.ndarray:
         """v' (nv,) at state x under input u, the thrust being the state's ``f``."""

@@ -24,21 +24,18 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-import matplotlib
+import numpy as np
+from matplotlib import animation
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+from matplotlib.lines import Line2D
+from matplotlib.ticker import MaxNLocator
+from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 
-matplotlib.use("Agg")
-import numpy as np  # noqa: E402
-from matplotlib import animation  # noqa: E402
-from matplotlib.backends.backend_agg import FigureCanvasAgg  # noqa: E402
-from matplotlib.figure import Figure  # noqa: E402
-from matplotlib.lines import Line2D  # noqa: E402
-from matplotlib.ticker import MaxNLocator  # noqa: E402
-from mpl_toolkits.mplot3d.art3d import Poly3DCollection  # noqa: E402
-
-from hydroarm.config import ConfigError  # noqa: E402
+from hydroarm.config import ConfigError
 from hydroarm.model.arm import Arm
-from hydroarm.studies.playback import as_arm, as_trajectory, reach  # noqa: E402,F401 (reach: public here too)
-from hydroarm.studies.runner import Trajectory  # noqa: E402
+from hydroarm.sim.runner import Trajectory
+from hydroarm.studies.playback import as_arm, as_trajectory, reach  # noqa: F401 (reach: public here too)
 
 SIDES = 10  # facets per tube
 HULL_COLOUR = (1.0, 0.78, 0.05, 0.5)  # translucent amber: no link's colour

@@ -33,13 +33,12 @@ import multiprocessing
 import os
 import queue as queues
 import signal
-import tempfile
 from collections import deque
 from collections.abc import Callable, Generator, Iterable, Iterator, Mapping, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO, Any, Protocol
+from typing import Any, Protocol
 
 from hydroarm.config import ConfigError
 
@@ -77,37 +76,6 @@ RunFunction = Callable[[Any, Any, StepHook | None], Any]
 
 Outcome = Any
 """What a run function returned, or the exception it raised."""
-
-
-# --- atomic files ------------------------------------------------------------------------
-
-
-@contextlib.contextmanager
-def atomic_file(path: str | Path) -> Iterator[IO[bytes]]:
-    """A binary handle on a temporary file beside ``path`` that replaces ``path`` when the
-    block ends without an error (else it is removed): ``path`` is whole or untouched."""
-    path = Path(path)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    try:
-        with tmp.open("wb") as handle:
-            yield handle
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
-
-
-def atomic_write(path: str | Path, data: str | bytes) -> None:
-    """Write ``data`` (text as UTF-8) to ``path`` atomically (:func:`atomic_file`)."""
-    with atomic_file(path) as handle:
-        handle.write(data.encode() if isinstance(data, str) else data)
-
-
-def file_bytes(write: Callable[[Path], Any], name: str = "file") -> bytes:
-    """The bytes ``write(path)`` puts in a file (a worker's file, for the driver to write)."""
-    with tempfile.TemporaryDirectory() as folder:
-        path = Path(folder) / name
-        write(path)
-        return path.read_bytes()
 
 
 # --- the resume cache ----------------------------------------------------------------------

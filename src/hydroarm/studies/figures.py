@@ -1,21 +1,28 @@
 """Figures of a run or a comparison, one panel per joint (the paper's Figures 4-15), and
 the names of a reproduction's figure files (:data:`FIGURES`, :data:`ANIMATION`).
 
-Every function takes trajectories (:class:`hydroarm.studies.runner.Trajectory`) and a
-path, writes a PNG and returns the path. Headless (Agg backend).
+Every function takes trajectories (:class:`hydroarm.sim.runner.Trajectory`) and a
+path, writes a PNG and returns the path. Headless: figures are built on
+:class:`matplotlib.figure.Figure` (:func:`subplots`), never through pyplot, so importing this
+module chooses no backend and leaves the caller's alone.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
 
-import matplotlib
+import numpy as np
+from matplotlib.figure import Figure
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+from hydroarm.sim.runner import Trajectory
 
-from hydroarm.studies.runner import Trajectory  # noqa: E402
+
+def subplots(nrows: int = 1, ncols: int = 1, *, figsize: tuple[float, float] | None = None, **options):
+    """``(figure, axes)`` as ``pyplot.subplots`` gives them, without pyplot: the figure is not
+    registered with any GUI backend and draws with Agg when saved; nothing to close."""
+    figure = Figure(figsize=figsize)
+    return figure, figure.subplots(nrows, ncols, **options)
+
 
 COLOURS = {
     "SMC": "tab:green",
@@ -49,7 +56,7 @@ FIGURES = {
 
 def _panels(n: int, title: str, sharex: bool = True):
     rows = (n + 1) // 2
-    fig, axes = plt.subplots(rows, 2, figsize=(11, 2.4 * rows + 0.8), sharex=sharex, squeeze=False)
+    fig, axes = subplots(rows, 2, figsize=(11, 2.4 * rows + 0.8), sharex=sharex, squeeze=False)
     fig.suptitle(title, fontsize=12)
     flat = axes.ravel()
     for ax in flat[n:]:
@@ -66,7 +73,6 @@ def _finish(fig, axes, path: Path, xlabel: str = "time (s)") -> Path:
     fig.tight_layout()
     path = Path(path)
     fig.savefig(path, dpi=110)
-    plt.close(fig)
     return path
 
 

@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 
 from hydroarm.config import ConfigError
-from hydroarm.studies.executor import atomic_write
+from hydroarm.sim.files import atomic_write
 
 MANIFEST = "hydroarm-run.json"
 """The manifest of an output folder (see the module docstring)."""

@@ -13,7 +13,7 @@ import numpy as np
 from hydroarm.config import ConfigError
 from hydroarm.model.arm import Arm
 from hydroarm.model.loading import load_arm
-from hydroarm.studies.runner import Trajectory
+from hydroarm.sim.runner import Trajectory
 
 
 def as_trajectory(trajectory: Trajectory | str | Path) -> Trajectory:

@@ -43,24 +43,16 @@ import numpy as np
 from hydroarm.control.registry import PAPER_CONTROLLERS
 from hydroarm.model.arm import Arm
 from hydroarm.model.loading import arm_description, load_arm
+from hydroarm.sim.experiment import ExperimentConfig, run_experiment, start_for_arm, with_overrides
+from hydroarm.sim.files import atomic_write, file_bytes
+from hydroarm.sim.runner import Trajectory
 from hydroarm.studies import figures
 from hydroarm.studies.animate import animate
-from hydroarm.studies.executor import (
-    Executor,
-    ProgressHook,
-    RunCache,
-    StepHook,
-    atomic_write,
-    file_bytes,
-    make_executor,
-    run_tasks,
-)
-from hydroarm.studies.experiment import ExperimentConfig, run_experiment, start_for_arm, with_overrides
+from hydroarm.studies.executor import Executor, ProgressHook, RunCache, StepHook, make_executor, run_tasks
 from hydroarm.studies.figures import ANIMATION, FIGURES
 from hydroarm.studies.outputs import claim_output, dumps, slug, strict
 from hydroarm.studies.report import render_report
 from hydroarm.studies.reproduce_tables import BEST, EXTRA_ROWS, NOISE_VARIANCE, summarise, write_tables
-from hydroarm.studies.runner import Trajectory
 from hydroarm.studies.sweep.plan import arm_digest
 
 

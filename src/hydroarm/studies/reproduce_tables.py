@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from hydroarm.control.registry import PAPER_CONTROLLERS
-from hydroarm.studies.runner import Trajectory, fault_counts, stop_reason, tracking_metrics
+from hydroarm.sim.runner import Trajectory, fault_counts, stop_reason, tracking_metrics
 
 NOISE_VARIANCE = 0.001
 

@@ -1,7 +1,7 @@
 """Tuning a controller's gains on the dry arm: one procedure for every controller on every arm.
 
 The paper's premise is that the controllers are "tuned once on land". For controller C on
-arm A, every point of C's grid (:data:`TUNING_GRIDS`) runs A's own task
+arm A, every point of C's grid (:func:`tuning_grid`, the registry's) runs A's own task
 (:func:`~hydroarm.model.task.task_for_arm`) on A without water (no drag, added mass,
 buoyancy or current: the nominal model is then exact, as on land), once clean and once with
 measurement noise of variance ``NOISE_VARIANCE`` (seed 0). A point's score is the mean of the
@@ -29,10 +29,11 @@ from typing import Any
 import numpy as np
 
 from hydroarm.config import ConfigError
-from hydroarm.control.registry import canonical_name
-from hydroarm.studies.executor import RunCache, atomic_write, make_executor, run_tasks
-from hydroarm.studies.experiment import ExperimentConfig, build_experiment, with_overrides
-from hydroarm.studies.runner import tracking_metrics
+from hydroarm.control.registry import canonical_name, controller_spec
+from hydroarm.sim.experiment import ExperimentConfig, build_experiment, with_overrides
+from hydroarm.sim.files import atomic_write
+from hydroarm.sim.runner import tracking_metrics
+from hydroarm.studies.executor import RunCache, make_executor, run_tasks
 
 NOISE_VARIANCE = 1e-3
 """Measurement-noise variance of the noisy tuning run (the paper's Table 2)."""
@@ -40,22 +41,11 @@ NOISE_VARIANCE = 1e-3
 DRY = {"water.drag": False, "water.added_mass": False, "water.buoyancy": False, "water.current.model": "none"}
 """The overrides that take the water away ("on land")."""
 
-_MPC_GRID = {"mpc.r": [1e-1, 1e-2, 1e-3, 1e-4, 1e-5], "mpc.q_velocity": [0.01, 1.0]}
-_IDMPC_GRID = {"idmpc.r_acceleration": [1e-4, 1e-5, 1e-6], "idmpc.q_velocity": [0.01, 0.1, 1.0]}
 
-TUNING_GRIDS: dict[str, dict[str, list[Any]]] = {
-    "SMC": {
-        "smc.surface_slope": [10.0, 20.0, 40.0],
-        "smc.switching_gain": [50.0, 200.0, 800.0],
-        "smc.boundary_layer": [0.5, 2.0],
-        "smc.linear_gain": [0.0, 10.0, 30.0],
-    },
-    "MPC": _MPC_GRID,
-    "GP-MPC": _MPC_GRID,  # on land the GP has nothing to learn: its MPC is tuned as the MPC
-    "IDMPC": _IDMPC_GRID,
-    "GP-IDMPC": _IDMPC_GRID,
-}
-"""The gains each controller is tuned over (dotted keys of :class:`ExperimentConfig`)."""
+def tuning_grid(controller: str) -> dict[str, list[Any]]:
+    """The gains controller ``controller`` (either spelling) is tuned over: its registry spec's
+    ``tuning_grid`` (dotted keys of :class:`ExperimentConfig` -> values)."""
+    return {key: list(values) for key, values in controller_spec(controller).tuning_grid.items()}
 
 
 @dataclass(frozen=True)
@@ -80,7 +70,7 @@ def plan_tuning(base: ExperimentConfig, controller: str, grid: Mapping[str, list
     """The runs of tuning ``controller`` (any spelling) from the settings ``base`` (its arm,
     duration, control period): every grid point x {clean, noisy}, on the dry arm."""
     name = canonical_name(controller)
-    grid = TUNING_GRIDS[name] if grid is None else grid
+    grid = tuning_grid(name) if grid is None else grid
     keys = sorted(grid)
     tasks = []
     for values in itertools.product(*(grid[key] for key in keys)):

@@ -1,7 +1,7 @@
 """The UVMS study: station keeping in a 0.2 m/s current while the Alpha 5 reaches and returns.
 
-Runs (each one :func:`~hydroarm.studies.uvms_run.run_uvms`, through the executor and its resume
-cache, ``<out>/runs/<id>.json``):
+Runs (each one ordinary experiment on a vehicle, :func:`~hydroarm.sim.experiment.build_experiment`
+with ``vehicle.name`` set, through the executor and its resume cache, ``<out>/runs/<id>.json``):
 
 * the vehicle controllers, blind to the arm vs coupling-aware (GP feed-forward): PID and MPC;
 * the PID pair again in still water (current 0): the GP's residual then holds the arm's forces
@@ -24,8 +24,13 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
-from hydroarm.studies.executor import RunCache, atomic_write, make_executor, run_tasks
-from hydroarm.studies.uvms_run import UVMSRunConfig, run_uvms
+from hydroarm.sim.experiment import ExperimentConfig, build_experiment
+from hydroarm.sim.files import atomic_write
+from hydroarm.studies.executor import RunCache, make_executor, run_tasks
+
+VEHICLE = "bluerov2_heavy"
+ARM_CONTROLLER = "SMC"
+"""The study's vehicle (with the arm its file mounts, the Alpha 5) and the arm's controller."""
 
 AXES = ("x", "y", "z", "roll", "pitch", "yaw")
 EFFECTS = {
@@ -44,7 +49,8 @@ GP_PAIRS = {  # GP gain key -> (blind run, aware run)
 
 @dataclass(frozen=True)
 class UVMSTask:
-    """One run of the study: ``id`` (file name), ``label``, the run's settings as JSON."""
+    """One run of the study: ``id`` (file name), ``label``, the run's settings as JSON (an
+    :class:`~hydroarm.sim.experiment.ExperimentConfig` with its ``vehicle`` section)."""
 
     id: str
     label: str
@@ -57,47 +63,53 @@ def study_tasks(duration: float) -> list[UVMSTask]:
 
 
 def _tasks(duration: float) -> list[UVMSTask]:
-    base = {"duration": duration}
     variants = {
-        "pid_blind": {"vehicle_controller": "pid"},
-        "pid_aware": {"vehicle_controller": "pid", "aware": True},
-        "mpc_blind": {"vehicle_controller": "mpc"},
-        "mpc_aware": {"vehicle_controller": "mpc", "aware": True},
-        "pid_blind_still_water": {"vehicle_controller": "pid", "current": 0.0},
-        "pid_aware_still_water": {"vehicle_controller": "pid", "aware": True, "current": 0.0},
+        "pid_blind": {"control": {"kind": "pid"}},
+        "pid_aware": {"control": {"kind": "pid"}, "aware": True},
+        "mpc_blind": {"control": {"kind": "mpc"}},
+        "mpc_aware": {"control": {"kind": "mpc"}, "aware": True},
+        "pid_blind_still_water": {"control": {"kind": "pid"}, "current": 0.0},
+        "pid_aware_still_water": {"control": {"kind": "pid"}, "aware": True, "current": 0.0},
     }
     for effect in EFFECTS:
-        variants[f"pid_blind_no_{effect}"] = {"vehicle_controller": "pid", "plant": {effect: False}}
+        variants[f"pid_blind_no_{effect}"] = {"control": {"kind": "pid"}, "plant": {effect: False}}
     return [
-        UVMSTask(id=name, label=name, settings=UVMSRunConfig(**base, **values).model_dump_json())
+        UVMSTask(id=name, label=name, settings=_settings(duration, values).model_dump_json())
         for name, values in variants.items()
     ]
 
 
-def run_task(task: UVMSTask, arm, progress=None) -> dict:
-    """Module-level worker: the run's metrics and the series the figures need."""
-    config = UVMSRunConfig.model_validate_json(task.settings)
-    run = run_uvms(config, progress)
-    x, nq = run.x, 7 + len(config.home)
-    errors = np.empty((x.shape[0], 6))
-    errors[:, :3] = x[:, :3] - x[0, :3]
-    rot0 = pin.Quaternion(x[0, 6], *x[0, 3:6]).toRotationMatrix()
-    for k in range(x.shape[0]):
-        rot = pin.Quaternion(x[k, 6], *x[k, 3:6]).toRotationMatrix()
-        errors[k, 3:] = np.degrees(pin.rpy.matrixToRpy(rot0.T @ rot))
-    n_arm = len(config.home)
-    thrust = run.u[:, n_arm:]
-    from hydroarm.model.vehicle import load_vehicle
+def _settings(duration: float, vehicle: dict) -> ExperimentConfig:
+    return ExperimentConfig.model_validate(
+        {"arm": "mount", "duration": duration, "vehicle": {"name": VEHICLE, **vehicle}}
+    )
 
-    wrench = thrust @ load_vehicle(config.vehicle).allocation.T
+
+def run_task(task: UVMSTask, arm, progress=None) -> dict:
+    """Module-level worker: the run's metrics and the series the figures need (the K control
+    instants and the end of the run)."""
+    config = ExperimentConfig.model_validate_json(task.settings)
+    experiment = build_experiment(config, ARM_CONTROLLER)
+    traj = experiment.run(progress=progress)
+    final = np.asarray(traj.meta["final_state"])
+    nq = experiment.uvms.nq
+    poses = np.vstack([traj.extra["base_pose"], final[:7]])
+    errors = np.empty((poses.shape[0], 6))
+    errors[:, :3] = poses[:, :3] - poses[0, :3]
+    rot0 = pin.Quaternion(poses[0, 6], *poses[0, 3:6]).toRotationMatrix()
+    for k, pose in enumerate(poses):
+        rot = pin.Quaternion(pose[6], *pose[3:6]).toRotationMatrix()
+        errors[k, 3:] = np.degrees(pin.rpy.matrixToRpy(rot0.T @ rot))
+    wrench = traj.extra["thrust_command"] @ experiment.uvms.vehicle.allocation.T
     every = max(1, int(round(0.05 / config.control_period)))
+    arm_q = np.vstack([traj.q, final[7:nq]])
     return {
         "settings": json.loads(task.settings),
-        "metrics": run.metrics | {"mean_abs_wrench": np.mean(np.abs(wrench), axis=0).tolist()},
-        "t": (np.arange(x.shape[0]) * config.control_period)[::every].tolist(),
+        "metrics": traj.meta["metrics"] | {"mean_abs_wrench": np.mean(np.abs(wrench), axis=0).tolist()},
+        "t": (np.arange(poses.shape[0]) * config.control_period)[::every].tolist(),
         "errors": errors[::every].tolist(),
-        "d_hat": run.d_hat[::every].tolist(),
-        "arm_q": x[::every, 7:nq].tolist(),
+        "d_hat": traj.extra["vehicle_disturbance_estimate"][::every].tolist(),
+        "arm_q": arm_q[::every].tolist(),
     }
 
 
@@ -164,14 +176,11 @@ def summarise(results: dict) -> dict:
 
 
 def write_figures(results: dict, out: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from hydroarm.studies.figures import subplots
 
     units = ("m", "m", "m", "deg", "deg", "deg")
     for axis, name in enumerate(AXES):
-        fig, ax = plt.subplots(figsize=(7, 3))
+        fig, ax = subplots(figsize=(7, 3))
         for run, style in (("pid_blind", "-"), ("pid_aware", "--"), ("mpc_blind", ":"), ("mpc_aware", "-.")):
             data = results[run]
             ax.plot(data["t"], np.asarray(data["errors"])[:, axis], style, label=run.replace("_", " "))
@@ -181,7 +190,6 @@ def write_figures(results: dict, out: Path) -> None:
         ax.legend(fontsize=7)
         fig.tight_layout()
         fig.savefig(out / f"fig_{name}.png", dpi=110)
-        plt.close(fig)
 
 
 def render_report(metrics: dict) -> str:

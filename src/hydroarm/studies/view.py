@@ -34,8 +34,8 @@ import numpy as np
 import viser
 
 from hydroarm.model.arm import Arm
+from hydroarm.sim.runner import Trajectory
 from hydroarm.studies.playback import as_arm, as_trajectory, reach
-from hydroarm.studies.runner import Trajectory
 
 # tab10 (the colours of animate.LINK_COLOURS), RGB 0-255
 LINK_RGB = (

@@ -16,7 +16,7 @@ import time
 import numpy as np
 
 from hydroarm.config import ConfigError, per_joint
-from hydroarm.control.interface import ControlOutput, Reference, require_period
+from hydroarm.control.interface import DEFAULT_CONTROL_PERIOD, ControlOutput, Reference, require_period
 from hydroarm.control.mpc.condense import CondensedQP, condense
 from hydroarm.control.mpc.config import MPCConfig
 from hydroarm.control.mpc.riccati import lqr_gain, riccati_solution
@@ -31,7 +31,7 @@ CLIP_TOLERANCE = 1e-9
 class LinearMPC:
     """Linear time-varying MPC about the reference, with the controller interface.
 
-    ``LinearMPC(arm, config=None, control_period=0.01)`` (``config`` None: the defaults of
+    ``LinearMPC(arm, config=None, control_period=DEFAULT_CONTROL_PERIOD)`` (``config`` None: the defaults of
     :class:`MPCConfig`; ``control_period`` T in s, the step of the prediction model and of
     the reference index ``k = round(t / T)``);
     ``compute(t, y, reference, feedforward_acceleration=None, feedforward_torque=None)``
@@ -51,7 +51,9 @@ class LinearMPC:
 
     name = "MPC"
 
-    def __init__(self, arm: Arm, config: MPCConfig | None = None, control_period: float = 0.01) -> None:
+    def __init__(
+        self, arm: Arm, config: MPCConfig | None = None, control_period: float = DEFAULT_CONTROL_PERIOD
+    ) -> None:
         self.arm = arm
         self.config = config if config is not None else MPCConfig()
         cfg = self.config

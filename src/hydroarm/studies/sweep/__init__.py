@@ -2,7 +2,7 @@
 
 A sweep file (TOML or YAML, validated into :class:`SweepConfig`) names the
 controllers, the seeds, the settings shared by every run (``[base]``, an
-:class:`~hydroarm.studies.experiment.ExperimentConfig`) and the settings that vary
+:class:`~hydroarm.sim.experiment.ExperimentConfig`) and the settings that vary
 (``[parameters]``: dotted keys such as ``mpc.r``, ``water.current.scale``,
 ``plant.noise_variance``, ``arm``, ``mismatch.mass_scale``)::
 
@@ -43,7 +43,7 @@ into its output folder:
 Random starts: ``initial_state.position_spread`` / ``velocity_spread`` in
 ``[base]`` and ``"initial_state.seed" = {low = 0, high = 1000000, integer =
 true}`` in ``[parameters]`` give every sample its own start
-(:class:`~hydroarm.studies.experiment.InitialState`).
+(:class:`~hydroarm.sim.experiment.InitialState`).
 
 Model mismatch. The controllers know the arm file (the nominal model); the
 true plant is that arm plus the water. ``water.*`` and ``plant.*`` settings

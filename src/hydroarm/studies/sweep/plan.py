@@ -21,9 +21,10 @@ import numpy as np
 import pinocchio as pin
 
 from hydroarm.config import ConfigError, dotted_keys, unknown_key_message, validate
+from hydroarm.control.registry import controller_sections, settings_read_by
 from hydroarm.model.arm import Arm
 from hydroarm.model.loading import BUILTIN_ARMS, load_arm
-from hydroarm.studies.experiment import CONTROLLER_SECTIONS, CONTROLLER_SETTINGS, ExperimentConfig, with_overrides
+from hydroarm.sim.experiment import ExperimentConfig, check_settings_for_arm, with_overrides
 from hydroarm.studies.outputs import slug
 from hydroarm.studies.sweep.schema import (
     MAX_RUNS,
@@ -78,6 +79,7 @@ class Plan:
     tasks: dict[str, RunTask]  # by run id (rows that differ only in unused settings share one)
     arms: dict[str, Arm]  # by arm digest
     keys: list[str]  # the swept parameters, in file order
+    source: str = "sweep"  # the sweep file (or "sweep"), as messages name it
 
 
 def _resolve_arm(value: str, folder: Path | None) -> str:
@@ -115,8 +117,9 @@ def run_id(config: ExperimentConfig, controller: str, seed: int, mismatch: Misma
     ``gp-mpc__seed0__3f2a9c0d1e4b5a67``."""
     settings = config.model_dump(mode="json")
     settings["arm"] = arm_key
-    for section in CONTROLLER_SECTIONS:
-        if section not in CONTROLLER_SETTINGS[controller]:
+    read = settings_read_by(controller)
+    for section in controller_sections():
+        if section not in read:
             settings.pop(section, None)
     text = json.dumps(
         {
@@ -162,7 +165,9 @@ def _task_label(controller: str, seed: int, point: dict[str, Any]) -> str:
 
 
 def plan_sweep(config: SweepConfig, folder: Path | None = None, source: str = "sweep") -> Plan:
-    """Validate every run's settings and load every arm before any run starts."""
+    """Validate every run's settings and load every arm before any run starts: the settings'
+    types, then what only the arm can tell (:func:`~hydroarm.sim.experiment.check_settings_for_arm`
+    for each point, arm and controller). Raises :class:`ConfigError` naming ``source``."""
     check_sweep(config, source)
     points = sample_points(config)
     size = len(points) * len(config.seed_list) * len(config.controllers)
@@ -232,7 +237,16 @@ def plan_sweep(config: SweepConfig, folder: Path | None = None, source: str = "s
                         identifier, controller, seed, settings, mismatch.model_dump(), key, config.save_trajectories,
                         _task_label(controller, seed, point),
                     )  # fmt: skip
-    return Plan(config, rows, tasks, arms, keys)
+    checked: set[tuple[int, str, str]] = set()
+    for row in rows:
+        arm_key = tasks[row.id].arm_key
+        if (id(row.config), arm_key, row.controller) in checked:
+            continue
+        checked.add((id(row.config), arm_key, row.controller))
+        where = ", ".join(f"{key} = {value!r}" for key, value in row.params.items())
+        what = f"{source}: the runs with {where}" if where else f"{source}: base"
+        check_settings_for_arm(row.config, arms[arm_key], what, controllers=(row.controller,))
+    return Plan(config, rows, tasks, arms, keys, source)
 
 
 def perturbed_arm(arm: Arm, mismatch: Mismatch) -> Arm:

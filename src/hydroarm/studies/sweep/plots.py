@@ -16,10 +16,10 @@ from hydroarm.studies.sweep.schema import METRICS, Robustness, unique
 
 
 def _pyplot():
-    """pyplot on the Agg backend (:mod:`hydroarm.studies.figures` sets it)."""
+    """What the plots draw with: :func:`hydroarm.studies.figures.subplots` (no pyplot, no backend)."""
     from hydroarm.studies import figures
 
-    return figures.plt
+    return figures
 
 
 def _colour(name: str, default: str | None = None) -> str | None:
@@ -76,7 +76,6 @@ def plot_metric(
         scale(axes[0, 1], everything)
     fig.tight_layout()
     fig.savefig(out / "ep_boxplot.png", dpi=110)
-    plt.close(fig)
     plots["ep_boxplot"] = "ep_boxplot.png"
 
     fig, ax = plt.subplots(figsize=(6, 4.2))
@@ -93,7 +92,6 @@ def plot_metric(
     ax.legend()
     fig.tight_layout()
     fig.savefig(out / "ep_distribution.png", dpi=110)
-    plt.close(fig)
     plots["ep_distribution"] = "ep_distribution.png"
 
     for key in varying:
@@ -119,7 +117,6 @@ def plot_metric(
         fig.tight_layout()
         name = f"ep_by_{safe_name(key)}"
         fig.savefig(out / f"{name}.png", dpi=110)
-        plt.close(fig)
         plots[name] = f"{name}.png"
     return plots
 
@@ -158,7 +155,6 @@ def plot_robustness(out: Path, controllers: list[str], finished: list[dict], rob
     ax.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(out / "robustness.png", dpi=110)
-    plt.close(fig)
     return "robustness.png"
 
 
@@ -207,7 +203,6 @@ def plot_robustness_by_parameter(
     )
     fig.tight_layout()
     fig.savefig(out / "robustness_by_parameter.png", dpi=110)
-    plt.close(fig)
     return "robustness_by_parameter.png"
 
 

@@ -17,7 +17,8 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from hydroarm.studies.executor import RunCache, atomic_write
+from hydroarm.sim.files import atomic_write
+from hydroarm.studies.executor import RunCache
 from hydroarm.studies.sweep.plan import FORMAT, Plan, PlanRow, RunTask
 from hydroarm.studies.sweep.schema import MISMATCH_PREFIX, Robustness
 from hydroarm.studies.sweep.worker import finite
@@ -112,7 +113,7 @@ file whenever the table is written, so a changed ``[robustness]`` recomputes no 
 
 
 PER_JOINT = ("Ep", "Ep_steady", "rms", "max", "torque_rms", "time_to_band")
-"""The per-joint metrics of :func:`hydroarm.studies.runner.tracking_metrics`: columns ``Ep_1``, ``Ep_2``, ..."""
+"""The per-joint metrics of :func:`hydroarm.sim.runner.tracking_metrics`: columns ``Ep_1``, ``Ep_2``, ..."""
 
 
 def _cell(value: Any) -> Any:

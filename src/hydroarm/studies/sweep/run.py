@@ -7,13 +7,8 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-from hydroarm.studies.executor import (
-    Executor,
-    ProgressHook,
-    atomic_write,
-    make_executor,
-    run_tasks,
-)
+from hydroarm.sim.files import atomic_write
+from hydroarm.studies.executor import Executor, ProgressHook, make_executor, run_tasks
 from hydroarm.studies.outputs import claim_output, dumps
 from hydroarm.studies.sweep.plan import FORMAT, Plan, RunTask, plan_sweep
 from hydroarm.studies.sweep.results import ResultsTable, RunFiles
@@ -54,7 +49,7 @@ def claim_sweep_folder(
 
 
 def run_sweep(
-    sweep: str | Path | SweepConfig,
+    sweep: str | Path | SweepConfig | Plan,
     out_dir: str | Path,
     workers: int = 2,
     ray_address: str | None = None,
@@ -66,8 +61,9 @@ def run_sweep(
     """Run a sweep into ``out_dir`` (see the package docstring); return :func:`summarise`'s
     dict plus ``ran``, ``reused``, ``failed`` and ``wall_s``.
 
-    ``sweep``: a sweep file or a :class:`SweepConfig` (relative arm paths then
-    relative to the cwd). ``workers``: local processes (0 = this process), or
+    ``sweep``: a sweep file, a :class:`SweepConfig` (relative arm paths then
+    relative to the cwd) or a :class:`Plan` of :func:`plan_sweep` (planned and checked once:
+    the CLI's way). ``workers``: local processes (0 = this process), or
     the CPUs of a local Ray instance. ``ray_address``: ``None`` local processes;
     ``"local"`` a new local Ray instance; else a Ray address (``"auto"``,
     ``"ray://head:10001"``). ``executor``: any
@@ -82,13 +78,19 @@ def run_sweep(
     refused unless ``overwrite`` (:func:`claim_sweep_folder`).
     """
     start = time.perf_counter()
-    if isinstance(sweep, SweepConfig):
-        config, folder, source = sweep, None, "sweep"
+    if isinstance(sweep, Plan):
+        plan = sweep
+        if save_trajectories is not None and save_trajectories != plan.config.save_trajectories:
+            raise ValueError("save_trajectories: give it to plan_sweep (the plan's SweepConfig), not with a Plan")
     else:
-        config, folder, source = load_sweep(sweep), Path(sweep).parent, str(sweep)
-    if save_trajectories is not None:
-        config = config.model_copy(update={"save_trajectories": save_trajectories})
-    plan = plan_sweep(config, folder, source)
+        if isinstance(sweep, SweepConfig):
+            config, folder, source = sweep, None, "sweep"
+        else:
+            config, folder, source = load_sweep(sweep), Path(sweep).parent, str(sweep)
+        if save_trajectories is not None:
+            config = config.model_copy(update={"save_trajectories": save_trajectories})
+        plan = plan_sweep(config, folder, source)
+    source = plan.source
     out = Path(out_dir)
     claim_sweep_folder(out, plan, source, overwrite)
     cache = RunFiles(out / "runs")

@@ -1,7 +1,7 @@
 """The sweep file: :class:`SweepConfig` and what it is made of, validated before any run.
 
 A sweep file (TOML or YAML) names the controllers, the seeds, the settings shared by every
-run (``[base]``, an :class:`~hydroarm.studies.experiment.ExperimentConfig`), the settings
+run (``[base]``, an :class:`~hydroarm.sim.experiment.ExperimentConfig`), the settings
 that vary (``[parameters]``: a dotted key -> a list of values or a :class:`Range`), the
 plant's rigid-body :class:`Mismatch`, the summary's ``metric`` (:data:`METRICS`) and its
 tracking bound (:class:`Robustness`). See the package docstring for an example.
@@ -18,8 +18,8 @@ import numpy as np
 import pydantic
 
 from hydroarm.config import ConfigError, FrozenModel, read_mapping, validate
-from hydroarm.control.registry import CONTROLLERS, canonical_name
-from hydroarm.studies.experiment import ExperimentConfig
+from hydroarm.control.registry import canonical_name, controller_names
+from hydroarm.sim.experiment import ExperimentConfig
 
 MAX_RUNS = 100_000
 MISMATCH_PREFIX = "mismatch."
@@ -128,7 +128,7 @@ def _registered(name: str) -> str:
     try:
         return canonical_name(name)
     except ConfigError:
-        raise ValueError(f"not a controller: give one of {', '.join(CONTROLLERS)} (any case; _ or -)") from None
+        raise ValueError(f"not a controller: give one of {', '.join(controller_names())} (any case; _ or -)") from None
 
 
 ControllerName = Annotated[str, pydantic.AfterValidator(_registered)]

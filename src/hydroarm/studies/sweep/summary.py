@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from hydroarm.config import ConfigError, validate
-from hydroarm.studies.executor import atomic_write
+from hydroarm.sim.files import atomic_write
 from hydroarm.studies.sweep.plan import value_label
 from hydroarm.studies.sweep.plots import (
     plot_metric,

@@ -1,7 +1,7 @@
 """One run of a sweep, in a worker: :func:`execute_run` and what a run file records.
 
 The worker builds the experiment with the one builder
-(:func:`~hydroarm.studies.experiment.build_experiment`): the controller gets the nominal
+(:func:`~hydroarm.sim.experiment.build_experiment`): the controller gets the nominal
 arm, the true plant the perturbed one (:func:`~hydroarm.studies.sweep.plan.perturbed_arm`).
 It returns the run file's content (settings, metrics, one number per metric, fault counts
 and the error envelope, as strict JSON) and, on request, the trajectory's ``.npz`` bytes;
@@ -17,9 +17,10 @@ from typing import Any
 import numpy as np
 
 from hydroarm.model.arm import Arm
-from hydroarm.studies.executor import StepHook, file_bytes
-from hydroarm.studies.experiment import ExperimentConfig, build_experiment
-from hydroarm.studies.runner import Trajectory, fault_counts, stop_reason, tracking_metrics
+from hydroarm.sim.experiment import ExperimentConfig, build_experiment
+from hydroarm.sim.files import file_bytes
+from hydroarm.sim.runner import Trajectory, fault_counts, stop_reason, tracking_metrics
+from hydroarm.studies.executor import StepHook
 from hydroarm.studies.sweep.plan import FORMAT, RunTask, perturbed_arm
 from hydroarm.studies.sweep.schema import Mismatch
 
@@ -75,7 +76,7 @@ def _scalars(metrics: dict, traj: Trajectory) -> dict:
 def execute_run(task: RunTask, arm: Arm, progress: StepHook | None = None) -> dict:
     """Run one task on ``arm`` (the nominal arm: the controller's; the plant gets
     :func:`~hydroarm.studies.sweep.plan.perturbed_arm`'s), from
-    :func:`~hydroarm.studies.experiment.start_for_arm`'s state; ``progress(k, total)``.
+    :func:`~hydroarm.sim.experiment.start_for_arm`'s state; ``progress(k, total)``.
 
     Returns ``{"record": <the run file's content>, "trajectory": <.npz bytes or None>}``;
     the driver writes both (so workers need no shared disk, e.g. on a Ray cluster).

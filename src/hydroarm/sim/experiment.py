@@ -14,7 +14,7 @@ import hashlib
 import json
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 import pydantic
@@ -31,18 +31,23 @@ from hydroarm.config import (
 from hydroarm.control import registry
 from hydroarm.control.estimator import EstimatorConfig
 from hydroarm.control.gp import GPConfig
-from hydroarm.control.gpmpc import GPMPCConfig, feature_size
-from hydroarm.control.idmpc import IDMPCConfig, gp_input_size
-from hydroarm.control.interface import Controller
+from hydroarm.control.gpmpc import GPMPCConfig
+from hydroarm.control.idmpc import IDMPCConfig
+from hydroarm.control.interface import CONTROL_PERIOD_RANGE, DEFAULT_CONTROL_PERIOD, Controller, Reference
 from hydroarm.control.mpc import MPCConfig
-from hydroarm.control.registry import CONTROLLERS, canonical_name
+from hydroarm.control.registry import CONTROLLERS, canonical_name, controller_sections, controller_spec
 from hydroarm.control.smc import SMCConfig
 from hydroarm.model.arm import Arm
 from hydroarm.model.loading import load_arm
 from hydroarm.model.plant import PlantConfig, UnderwaterPlant
 from hydroarm.model.task import SinusoidReference, task_for_arm
 from hydroarm.model.water import Water
-from hydroarm.studies.runner import Trajectory, run_closed_loop
+from hydroarm.sim.plant import Plant
+from hydroarm.sim.runner import Trajectory, run_closed_loop
+from hydroarm.sim.vehicle import VehicleRun, station_keeping_metrics
+
+if TYPE_CHECKING:
+    from hydroarm.model.uvms import UVMS
 
 __all__ = [
     "CONTROLLERS",
@@ -63,15 +68,6 @@ SETTINGS_HINT = "`hydroarm settings` lists the allowed settings"
 
 MAX_CONTROL_STEPS = 1_000_000
 """Most control steps of one run (duration / control_period): every step's row is stored."""
-
-CONTROLLER_SECTIONS: tuple[str, ...] = ("smc", "mpc", "gp", "gpmpc", "idmpc", "estimator")
-"""The sections of :class:`ExperimentConfig` that only controllers read."""
-
-CONTROLLER_SETTINGS: dict[str, tuple[str, ...]] = {
-    name: (*spec.sections, "estimator") for name, spec in registry.REGISTRY.items()
-}
-"""The controller sections each controller reads (from the registry): a sweep leaves the
-other sections out of a run's id, so sweeping ``mpc.r`` runs SMC once."""
 
 
 class InitialState(FrozenModel):
@@ -120,7 +116,10 @@ class ExperimentConfig(FrozenModel):
     )
     duration: float = pydantic.Field(10.0, gt=0.0, le=3600.0, description="length of a run (s)")
     control_period: float = pydantic.Field(
-        0.01, ge=1e-4, le=1.0, description="T, the control period of every controller (s)"
+        DEFAULT_CONTROL_PERIOD,
+        ge=CONTROL_PERIOD_RANGE[0],
+        le=CONTROL_PERIOD_RANGE[1],
+        description="T, the control period of every controller (s)",
     )
     water: Water = pydantic.Field(Water(), description="the water of the true plant (section)")
     plant: PlantConfig = pydantic.Field(PlantConfig(), description="the true plant's integration and sensing (section)")
@@ -136,6 +135,9 @@ class ExperimentConfig(FrozenModel):
     )
     initial_state: InitialState = pydantic.Field(
         InitialState(), description="a seeded random start around the task's start (section)"
+    )
+    vehicle: VehicleRun = pydantic.Field(
+        VehicleRun(), description="the arm on a vehicle holding station (section; off unless vehicle.name is set)"
     )
 
     @pydantic.model_validator(mode="after")
@@ -170,17 +172,24 @@ def with_overrides(config: ExperimentConfig, overrides: dict[str, Any]) -> Exper
     return validate(ExperimentConfig, data, "settings")
 
 
+def controller_settings(config: ExperimentConfig) -> dict[str, Any]:
+    """The config sections the registered controllers read, by name, from ``config`` (the
+    ``sections`` mapping of :func:`hydroarm.control.registry.build_controller`)."""
+    sections = {}
+    for section in controller_sections():
+        if section not in ExperimentConfig.model_fields:
+            raise ConfigError(
+                f"a registered controller reads the settings section {section!r}, which ExperimentConfig has not"
+            )
+        sections[section] = getattr(config, section)
+    return sections
+
+
 def gp_inputs(name: str, config: ExperimentConfig, n_joints: int) -> tuple[int, str] | None:
     """``(d, why)``: the GP input count of controller ``name`` under ``config`` on n joints and
-    the setting that decides it; None for a controller without a GP."""
-    canonical = canonical_name(name)
-    if canonical == "GP-MPC":
-        features = config.gpmpc.features
-        return feature_size(features, n_joints), f"GP-MPC: gpmpc.features = '{features}'"
-    if canonical == "GP-IDMPC":
-        features = config.idmpc.gp_features
-        return gp_input_size(features, n_joints), f"GP-IDMPC: idmpc.gp_features = '{features}'"
-    return None
+    the setting that decides it (its spec's ``gp_inputs``); None for a controller without a GP."""
+    spec = controller_spec(name)
+    return None if spec.gp_inputs is None else spec.gp_inputs(controller_settings(config), n_joints)
 
 
 def check_settings_for_arm(
@@ -203,7 +212,7 @@ def check_settings_for_arm(
     except ConfigError as error:
         raise ConfigError(f"{source}: {error}") from None
     gp = config.gp
-    for controller in CONTROLLERS if controllers is None else controllers:
+    for controller in registry.controller_names() if controllers is None else controllers:
         found = gp_inputs(controller, config, n)
         if found is None:
             continue
@@ -224,7 +233,7 @@ def check_settings_for_arm(
 def build_controller(name: str, arm: Arm, config: ExperimentConfig) -> Controller:
     """The controller ``name`` (any spelling of :data:`~hydroarm.control.registry.CONTROLLERS`)
     on ``arm`` with the experiment's settings and its one control period."""
-    sections = {section: getattr(config, section) for section in CONTROLLER_SECTIONS}
+    sections = controller_settings(config)
     return registry.build_controller(
         name, arm, sections, config.control_period, sensor_variance=config.plant.noise_variance
     )
@@ -244,15 +253,17 @@ class Experiment:
     ``arm``: the arm the controller knows; ``plant``: the true plant (its arm may differ:
     a mismatch study); ``controller`` (canonical ``controller.name``; None when the torques
     come from outside, e.g. the Gymnasium env); ``reference``: the task on this arm; ``x0``
-    (2n,): the start state; ``config``: the settings.
+    (``plant.state_size``,): the start state; ``config``: the settings; ``uvms``: the floating
+    system of a vehicle run (``config.vehicle.name`` set), else None.
     """
 
     config: ExperimentConfig
     arm: Arm
-    plant: UnderwaterPlant
+    plant: Plant
     controller: Controller | None
-    reference: SinusoidReference
+    reference: Reference
     x0: np.ndarray
+    uvms: UVMS | None = None
 
     @property
     def control_period(self) -> float:
@@ -269,6 +280,13 @@ class Experiment:
         traj.meta["settings"] = self.config.model_dump(mode="json")
         traj.meta["digest"] = self.config.digest()
         traj.meta["arm"] = self.config.arm
+        if self.uvms is not None:
+            vehicle = self.config.vehicle
+            arm = self.uvms.vehicle.mount_arm if self.config.arm == "mount" else self.config.arm
+            traj.meta["arm"] = _source(arm)
+            traj.meta["vehicle"] = _source(vehicle.name)
+            traj.meta["target_pose"] = self.x0[:7].tolist()
+            traj.meta["metrics"] = station_keeping_metrics(self.uvms, traj, self.reference)
         return traj
 
 
@@ -286,13 +304,75 @@ def build_experiment(
     a different arm for the true plant only (default: ``arm``). The settings are checked
     against the arm first (:func:`check_settings_for_arm`); the reference and start are
     :func:`start_for_arm`'s.
+
+    With ``config.vehicle.name`` set, the arm is mounted on that vehicle
+    (:mod:`hydroarm.sim.vehicle`): the plant is the floating system's, the controller the
+    named arm controller on the mounted arm inside the whole system's
+    :class:`~hydroarm.control.uvms_control.UVMSController`, the reference the arm's
+    reach-and-return task, the start the vehicle level at the origin with the arm at home.
     """
+    if config.vehicle.name is not None:
+        return _build_vehicle_experiment(config, controller, arm)
     arm = load_arm(config.arm) if arm is None else arm
     check_settings_for_arm(config, arm, controllers=() if controller is None else (controller,))
     plant = UnderwaterPlant(arm if plant_arm is None else plant_arm, config.water, config.plant)
     reference, x0 = start_for_arm(arm, config)
     built = None if controller is None else build_controller(controller, arm, config)
     return Experiment(config, arm, plant, built, reference, x0)
+
+
+def _build_vehicle_experiment(config: ExperimentConfig, controller: str | None, arm: Arm | None) -> Experiment:
+    """:func:`build_experiment` for a vehicle run (``config.vehicle.name`` set)."""
+    from hydroarm.control.uvms_control import UVMSController
+    from hydroarm.model.uvms import build_uvms, mounted_arm
+    from hydroarm.model.uvms_fast import FastUVMSPlant
+
+    vehicle = config.vehicle
+    try:
+        uvms = build_uvms(vehicle.name, config.arm if arm is None else arm)
+    except ConfigError as error:
+        raise ConfigError(f"vehicle.name = {vehicle.name!r}: {error}") from None
+    except (ValueError, FileNotFoundError, OSError) as error:
+        raise ConfigError(f"vehicle.name = {vehicle.name!r} with arm = {config.arm!r}: {error}") from None
+    if uvms.arm is None:
+        raise ConfigError(f"arm = {config.arm!r}: a vehicle run needs an arm on the vehicle")
+    n = uvms.n_arm
+    if len(vehicle.home) != n:
+        raise ConfigError(
+            f"vehicle.home = {shown(vehicle.home)}: {len(vehicle.home)} angles; the arm on the vehicle has {n} joints"
+        )
+    arm_model = mounted_arm(uvms)
+    check_settings_for_arm(config, arm_model, controllers=() if controller is None else (controller,))
+    plant = FastUVMSPlant(uvms, vehicle.water(config.water), vehicle.plant)
+    reference = vehicle.reference()
+    x0 = plant.initial_state(uvms.neutral(q_arm=vehicle.home))
+    built = None
+    if controller is not None:
+        sections = controller_settings(config)
+        # the floating plant gives its true state: an estimator set to "plant" passes it through
+        arm_controller = registry.build_controller(
+            controller, arm_model, sections, config.control_period, sensor_variance=0.0
+        )
+        built = UVMSController(
+            uvms,
+            arm_controller,
+            x0[:7],
+            vehicle=vehicle.control,
+            gp=vehicle.gp,
+            aware=vehicle.aware,
+            control_period=config.control_period,
+        )
+    return Experiment(config, arm_model, plant, built, reference, x0, uvms=uvms)
+
+
+def _source(name: str | None) -> str | None:
+    """A built-in name as is; a file as its absolute path (the saved run can be read elsewhere)."""
+    from pathlib import Path
+
+    if name is None:
+        return None
+    path = Path(name)
+    return str(path.resolve()) if path.is_file() else name
 
 
 def run_experiment(

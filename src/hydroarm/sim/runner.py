@@ -17,9 +17,12 @@ Faults are caught where they happen and counted, never hidden
 * a controller that raises anyway, or returns a non-finite torque, stops the
   run cleanly (``meta["stopped"] = "controller_error"``, the message in
   ``meta["error"]``);
-* a plant that blows up (non-finite state or speed beyond
+* a plant that blows up (non-finite state or a joint speed beyond
   :data:`DIVERGENCE_SPEED`) stops the run cleanly (``meta["stopped"] =
   "diverged"``).
+
+Any plant of the protocol :class:`hydroarm.sim.plant.Plant` runs here: the fixed-base arm
+and the vehicle with its arm alike.
 """
 
 from __future__ import annotations
@@ -33,8 +36,8 @@ from pathlib import Path
 import numpy as np
 
 from hydroarm.control.interface import FAULT_EVENTS, Controller, Reference
-from hydroarm.model.plant import UnderwaterPlant
-from hydroarm.studies.executor import atomic_file
+from hydroarm.sim.files import atomic_file
+from hydroarm.sim.plant import Plant
 
 DIVERGENCE_SPEED = 1e3  # rad/s: beyond this the run is declared diverged
 
@@ -52,10 +55,13 @@ class Trajectory:
     (K,); ``events`` (K,) the fault events of each step, comma-separated
     ("" if none); ``meta``: settings and outcome (JSON-serialisable), with
     ``faults`` (event -> count over the run), ``stopped`` (None,
-    ``"diverged"`` or ``"controller_error"``) and ``error``; ``extra``: further
-    per-step arrays of other runners (a vehicle-manipulator run: ``base_pose``
-    (K, 7), see :func:`hydroarm.studies.uvms_run.uvms_trajectory`), saved only
-    when present.
+    ``"diverged"`` or ``"controller_error"``), ``error`` and ``final_state`` (the
+    plant's whole true state after the last step, a list); ``extra``: further
+    per-step arrays (K, ...), saved only when present: what the plant records of its
+    state beyond the joints (:meth:`~hydroarm.sim.plant.Plant.state_record`; on a
+    vehicle ``base_pose`` (K, 7), ``base_velocity`` (K, 6), ``thrust`` (K, n_thr)) and what
+    the controller reports beside its torque (``ControlOutput.record``; the station
+    keeper's ``thrust_command``, ``wrench``, ``vehicle_disturbance_estimate``, ``saturated``).
     """
 
     t: np.ndarray
@@ -117,7 +123,7 @@ class Trajectory:
 
 
 def run_closed_loop(
-    plant: UnderwaterPlant,
+    plant: Plant,
     controller: Controller,
     reference: Reference,
     duration: float,
@@ -128,18 +134,19 @@ def run_closed_loop(
     """Simulate ``controller`` on ``plant`` tracking ``reference`` for ``duration`` s.
 
     ``seed`` drives the measurement noise (the only random thing here);
-    ``x0`` (2n,) defaults to rest at q = 0 (the paper's start); ``progress(k, K)``
+    ``x0`` (``plant.state_size``,) defaults to rest at q = 0 (the paper's start; a fixed-base
+    plant only); ``progress(k, K)``
     is called after every step. Returns a :class:`Trajectory`; faults are
     handled and counted as the module docstring says. No exception from the
     controller or the plant's numbers escapes (bad arguments still raise).
     """
-    n = plant.n
+    n, m, size = plant.n, plant.n_inputs, plant.state_size
     period = controller.control_period
     steps = int(round(duration / period))
     rng = np.random.default_rng(seed)
-    x = np.zeros(2 * n) if x0 is None else np.asarray(x0, dtype=float).copy()
-    if x.shape != (2 * n,) or not np.all(np.isfinite(x)):
-        raise ValueError(f"x0 must be finite with shape ({2 * n},); got {x}")
+    x = np.zeros(size) if x0 is None else np.asarray(x0, dtype=float).copy()
+    if x.shape != (size,) or not np.all(np.isfinite(x)):
+        raise ValueError(f"x0 must be finite with shape ({size},); got {x}")
     rows = {
         name: np.full((steps, width), np.nan)
         for name, width in (
@@ -152,7 +159,16 @@ def run_closed_loop(
     status = np.full(steps, "", dtype=object)
     events = np.full(steps, "", dtype=object)
     timings: dict[str, np.ndarray] = {}
+    extra: dict[str, np.ndarray] = {}
     faults = dict.fromkeys(FAULT_EVENTS, 0)
+
+    def record(k: int, values: dict[str, np.ndarray]) -> None:
+        for key, value in values.items():
+            value = np.asarray(value)
+            if key not in extra:
+                extra[key] = np.zeros((steps, *value.shape), dtype=value.dtype)
+            extra[key][k] = value
+
     controller.reset()
     last_valid = x.copy()  # before any valid measurement: the known initial state
 
@@ -167,20 +183,24 @@ def run_closed_loop(
     y, y_valid = measure(x)
     step_events: list[str] = [] if y_valid else ["measurement_held"]
     stopped, error, used, stop_time = None, None, steps, None
+    final = x  # the last state the plant reached
     for k in range(steps):
         t = t_grid[k]
         q_r, v_r, _ = reference.sample(t)
         try:
             out = controller.compute(t, y, reference)
             tau = np.asarray(out.tau, dtype=float)
-            if tau.shape != (n,) or not np.all(np.isfinite(tau)):
-                raise ValueError(f"{controller.name} returned a torque that is not finite with shape ({n},): {tau}")
+            if tau.shape != (m,) or not np.all(np.isfinite(tau)):
+                raise ValueError(f"{controller.name} returned a torque that is not finite with shape ({m},): {tau}")
         except Exception as exc:  # noqa: BLE001 - the last guard: stop cleanly, record why
             stopped, error, used, stop_time = "controller_error", f"{type(exc).__name__}: {exc}", k, float(t)
             faults["controller_error"] += 1
             break
         x_next, info = plant.step(t, x, tau, period)
-        rows["x"][k], rows["y"][k], rows["u"][k] = x, y, tau
+        final = x_next
+        rows["x"][k], rows["y"][k], rows["u"][k] = plant.joint_state(x), plant.joint_state(y), tau[:n]
+        record(k, plant.state_record(x))
+        record(k, out.record)
         rows["q_ref"][k], rows["v_ref"][k] = q_r, v_r
         rows["disturbance"][k] = info.disturbance
         if out.disturbance_mean is not None:
@@ -192,7 +212,10 @@ def run_closed_loop(
         for key, value in out.timings.items():
             timings.setdefault(key, np.full(steps, np.nan))[k] = value
         step_events.extend(out.events)
-        if not np.all(np.isfinite(x_next)) or np.max(np.abs(x_next[n:])) > DIVERGENCE_SPEED:
+        if (
+            not np.all(np.isfinite(x_next))
+            or np.max(np.abs(plant.joint_state(x_next)[n:]), initial=0.0) > DIVERGENCE_SPEED
+        ):
             step_events.append("diverged")
             stopped, used, stop_time = "diverged", k + 1, float(t)
         for name in step_events:
@@ -225,6 +248,7 @@ def run_closed_loop(
         "stopped_at_s": stop_time,
         "error": error,
         "faults": faults,
+        "final_state": np.asarray(final, dtype=float).tolist(),
     }
     return Trajectory(
         t=t_grid[:used],
@@ -234,6 +258,7 @@ def run_closed_loop(
         events=np.asarray(events[:used], dtype=str),
         timings={key: value[:used] for key, value in timings.items()},
         meta=meta,
+        extra={key: value[:used] for key, value in extra.items()},
     )
 
 
