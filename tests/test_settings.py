@@ -14,7 +14,7 @@ from typer.testing import CliRunner
 from hydroarm.cli import app
 from hydroarm.config import ConfigError, _members, dotted_keys
 from hydroarm.sim.experiment import ExperimentConfig, with_overrides
-from hydroarm.studies.settings import experiment_settings, settings_markdown, settings_table
+from hydroarm.studies.settings_table import experiment_settings, settings_markdown, settings_table
 from hydroarm.studies.sweep import plan_sweep, validate_sweep
 from hydroarm.studies.sweep.schema import Mismatch
 

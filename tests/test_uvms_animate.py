@@ -41,7 +41,7 @@ def test_saved_uvms_run_is_a_trajectory_with_the_base_pose(saved):
     traj = Trajectory.load(saved)
     steps = len(traj.t)
     assert steps == 30 and traj.n_joints == 4 and traj.q.shape == (steps, 4)
-    assert traj.meta["vehicle"] == "bluerov2_heavy" and traj.meta["arm"] == "alpha5"
+    assert traj.meta["vehicle"] == "bluerov2-heavy" and traj.meta["arm"] == "alpha5"
     assert traj.extra["base_pose"].shape == (steps, 7)
     assert np.allclose(traj.extra["base_pose"][0], traj.meta["target_pose"])
     assert np.allclose(np.linalg.norm(traj.extra["base_pose"][:, 3:], axis=1), 1.0)
@@ -85,7 +85,7 @@ def test_run_with_vehicle_is_the_python_experiment_and_animates(tmp_path):
     for name in ("metrics.json", "trajectory.npz", "hydroarm-run.json"):
         assert (tmp_path / "a" / name).is_file()
     traj = Trajectory.load(tmp_path / "a" / "trajectory.npz")
-    assert traj.meta["vehicle"] == "bluerov2_heavy" and traj.extra["base_pose"].shape == (20, 7)
+    assert traj.meta["vehicle"] == "bluerov2-heavy" and traj.extra["base_pose"].shape == (20, 7)
     movie = _cli("animate", str(tmp_path / "a" / "trajectory.npz"), "--out", str(tmp_path / "uvms.gif"))
     assert movie.returncode == 0, movie.stderr
     with Image.open(tmp_path / "uvms.gif") as gif:

@@ -98,7 +98,7 @@ def test_viewer_draws_the_arm_and_the_slider_moves_it(tmp_path):
 
     from hydroarm.sim.experiment import ExperimentConfig, run_experiment
     from hydroarm.studies.playback import reach
-    from hydroarm.studies.view import camera_for, cylinder_poses, link_colour
+    from hydroarm.studies.viewer import camera_for, cylinder_poses, link_colour
 
     traj = run_experiment(ExperimentConfig(), "gp-mpc", seed=0)  # 10 s, 1000 steps
     run_file = traj.save(tmp_path / "run.npz")

@@ -74,7 +74,7 @@ def bench_viewer(quick: bool = False) -> dict:
     from hydroarm.model.loading import load_arm
     from hydroarm.sim.experiment import ExperimentConfig, run_experiment
     from hydroarm.studies.playback import reach
-    from hydroarm.studies.view import camera_for, cylinder_poses, link_colour
+    from hydroarm.studies.viewer import camera_for, cylinder_poses, link_colour
 
     folder = Path(tempfile.mkdtemp(prefix="hydroarm-viewer-bench-"))
     traj = run_experiment(ExperimentConfig(), "gp-mpc", seed=0)

@@ -27,7 +27,7 @@ def settings(
     Examples: hydroarm settings --controller gp-mpc;  hydroarm settings --markdown > docs/settings.md
     """
     from hydroarm.control.registry import canonical_name
-    from hydroarm.studies.settings import experiment_settings, settings_json, settings_markdown, settings_text
+    from hydroarm.studies.settings_table import experiment_settings, settings_json, settings_markdown, settings_text
 
     if markdown:
         if controller is not None or as_json:

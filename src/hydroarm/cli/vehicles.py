@@ -30,7 +30,7 @@ def vehicles(as_json: Annotated[bool, typer.Option("--json", help="Machine-reada
         vehicle = load_vehicle(name)
         rows.append(
             {
-                "name": name.replace("_", "-"),
+                "name": name,
                 "mass_kg": vehicle.mass,
                 "thrusters": vehicle.n_thrusters,
                 "arm": vehicle.mount_arm,
@@ -56,7 +56,7 @@ def study_uvms(
 ) -> None:
     """Station keeping in a 0.2 m/s current while the Alpha 5 reaches and returns: blind vs GP
     feed-forward, PID vs MPC, and which arm effects matter."""
-    from hydroarm.studies.uvms import run_uvms_study
+    from hydroarm.studies.vehicle_study import run_uvms_study
 
     _check_out(out)
     try:

@@ -60,7 +60,7 @@ def serve_run(
     try:
         from hydroarm.model.loading import load_arm
         from hydroarm.sim.runner import Trajectory
-        from hydroarm.studies import view
+        from hydroarm.studies import viewer as browser_viewer
 
         try:
             traj = Trajectory.load(run_file)
@@ -68,15 +68,15 @@ def serve_run(
             raise ConfigError(not_a_run) from None
         arm_model = load_arm(arm) if arm else None
         if server is None:
-            view.write_html(traj, out, arm=arm_model)
+            browser_viewer.write_html(traj, out, arm=arm_model)
             console.print(f"wrote {out} (open it in a browser; no server needed)")
             return
-        viewer = view.TrajectoryViewer(traj, arm=arm_model, host=host, port=port, server=server)
+        viewer = browser_viewer.TrajectoryViewer(traj, arm=arm_model, host=host, port=port, server=server)
     except (ConfigError, ValueError) as error:
         if server is not None:
             server.stop()
         _fail(str(error))
-    view.serve_until_interrupted(viewer)
+    browser_viewer.serve_until_interrupted(viewer)
 
 
 @app.command("view")

@@ -1,7 +1,7 @@
 """Gymnasium environments of hydroarm (``pip install hydroarm[gym]``).
 
 Importing this package registers ``hydroarm/UnderwaterArm-v0`` (and ``hydroarm/UVMS-v0``,
-:mod:`hydroarm.envs.uvms`: a vehicle holding station under its working arm) with Gymnasium by a
+:mod:`hydroarm.envs.vehicle`: a vehicle holding station under its working arm) with Gymnasium by a
 string entry point (the environment's module is imported only when an environment is
 made). ``import hydroarm`` does not import it, nor Gymnasium. Gymnasium 1.x has no
 plugin discovery (it reads no package entry points), so name the module in the id to
@@ -29,7 +29,7 @@ from typing import Any
 ENV_ID = "hydroarm/UnderwaterArm-v0"
 ENTRY_POINT = "hydroarm.envs.underwater_arm:UnderwaterArmEnv"
 UVMS_ENV_ID = "hydroarm/UVMS-v0"
-UVMS_ENTRY_POINT = "hydroarm.envs.uvms:UVMSEnv"
+UVMS_ENTRY_POINT = "hydroarm.envs.vehicle:UVMSEnv"
 
 __all__ = ["ENV_ID", "UVMS_ENV_ID", "ControllerPolicy", "UnderwaterArmEnv", "register"]
 

@@ -100,7 +100,7 @@ def build_uvms(
     world): default the arm's (9.81 without an arm).
     """
     if vehicle is None or isinstance(vehicle, str):
-        vehicle = load_vehicle(vehicle or "bluerov2_heavy")
+        vehicle = load_vehicle(vehicle or "bluerov2-heavy")
     if isinstance(arm, str):
         arm = load_arm(vehicle.mount_arm if arm == "mount" else arm)
     mount = vehicle.mount if mount is None else mount

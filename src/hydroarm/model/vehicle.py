@@ -35,7 +35,8 @@ import pydantic
 
 from hydroarm.config import ConfigError, FrozenModel, field_error, load_model
 
-BUILTIN_VEHICLES = ("bluerov2_heavy",)
+BUILTIN_VEHICLES = ("bluerov2-heavy",)
+"""The built-in vehicles' names (``bluerov2_heavy``, with an underscore, names the same one)."""
 MAX_LENGTH = 100.0
 """m: bound on every coordinate in a vehicle file."""
 
@@ -259,13 +260,24 @@ def build_vehicle(spec: VehicleSpec) -> Vehicle:
     )
 
 
+def builtin_vehicle_name(source: str | Path) -> str | None:
+    """The built-in vehicle ``source`` names, in its one spelling (``bluerov2-heavy``; ``_`` and
+    ``-`` and the case alike), or None if it names none."""
+    if not isinstance(source, str):
+        return None
+    key = source.strip().lower().replace("_", "-")
+    return key if key in BUILTIN_VEHICLES else None
+
+
 def builtin_vehicle_path(name: str) -> Path:
-    return Path(str(resources.files("hydroarm") / "vehicles" / f"{name}.toml"))
+    """The file of the built-in vehicle ``name`` (either spelling)."""
+    canonical = builtin_vehicle_name(name) or name
+    return Path(str(resources.files("hydroarm") / "vehicles" / f"{canonical.replace('-', '_')}.toml"))
 
 
-def load_vehicle_spec(source: str | Path = "bluerov2_heavy") -> VehicleSpec:
-    """Read and validate a vehicle file, or a built-in vehicle by name."""
-    if isinstance(source, str) and source in BUILTIN_VEHICLES:
+def load_vehicle_spec(source: str | Path = "bluerov2-heavy") -> VehicleSpec:
+    """Read and validate a vehicle file, or a built-in vehicle by name (either spelling)."""
+    if builtin_vehicle_name(source) is not None:
         return load_model(VehicleSpec, builtin_vehicle_path(source))
     path = Path(source)
     if not str(source) or not path.is_file():
@@ -275,8 +287,8 @@ def load_vehicle_spec(source: str | Path = "bluerov2_heavy") -> VehicleSpec:
     return load_model(VehicleSpec, path)
 
 
-def load_vehicle(source: str | Path = "bluerov2_heavy") -> Vehicle:
-    """Load a vehicle: ``"bluerov2_heavy"`` or a vehicle file (TOML/YAML)."""
+def load_vehicle(source: str | Path = "bluerov2-heavy") -> Vehicle:
+    """Load a vehicle: ``"bluerov2-heavy"`` (or ``"bluerov2_heavy"``) or a vehicle file (TOML/YAML)."""
     return build_vehicle(load_vehicle_spec(source))
 
 

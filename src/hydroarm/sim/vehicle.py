@@ -56,13 +56,12 @@ class VehicleRun(FrozenModel):
     @pydantic.field_validator("name")
     @classmethod
     def _builtin_spelling(cls, value: str | None) -> str | None:
-        """``bluerov2-heavy`` and ``bluerov2_heavy`` both name the built-in vehicle."""
+        """``bluerov2-heavy`` and ``bluerov2_heavy`` both name the built-in vehicle: kept as the first."""
         if value is None:
             return None
-        from hydroarm.model.vehicle import BUILTIN_VEHICLES
+        from hydroarm.model.vehicle import builtin_vehicle_name
 
-        key = value.replace("-", "_").lower()
-        return key if key in BUILTIN_VEHICLES else value
+        return builtin_vehicle_name(value) or value
 
     @pydantic.model_validator(mode="after")
     def _task_fits(self) -> VehicleRun:

@@ -1,5 +1,5 @@
 """What a replay of a saved run needs, whatever draws it (:mod:`hydroarm.studies.animate`'s
-matplotlib frames, :mod:`hydroarm.studies.view`'s browser scene): the trajectory, its arm and
+matplotlib frames, :mod:`hydroarm.studies.viewer`'s browser scene): the trajectory, its arm and
 the arm's reach. No plotting library is imported here, so the browser viewer starts without
 matplotlib."""
 

@@ -28,7 +28,7 @@ from hydroarm.sim.experiment import ExperimentConfig, build_experiment
 from hydroarm.sim.files import atomic_write
 from hydroarm.studies.executor import RunCache, make_executor, run_tasks
 
-VEHICLE = "bluerov2_heavy"
+VEHICLE = "bluerov2-heavy"
 ARM_CONTROLLER = "SMC"
 """The study's vehicle (with the arm its file mounts, the Alpha 5) and the arm's controller."""
 

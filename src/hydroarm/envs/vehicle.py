@@ -58,7 +58,7 @@ class UVMSEnv(gymnasium.Env):
 
     def __init__(
         self,
-        vehicle: str = "bluerov2_heavy",
+        vehicle: str = "bluerov2-heavy",
         arm: str = "mount",
         current: float = 0.2,
         duration: float = 5.0,

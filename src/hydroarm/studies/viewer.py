@@ -17,7 +17,7 @@ from the internet) shows
 client and the recorded scene, played back with its own timeline and play button; the
 time series are in the live viewer only).
 
-    from hydroarm.studies.view import TrajectoryViewer, write_html
+    from hydroarm.studies.viewer import TrajectoryViewer, write_html
     viewer = TrajectoryViewer("run.npz", port=8080)   # http://127.0.0.1:8080
     write_html("run.npz", "run.html")
 """
