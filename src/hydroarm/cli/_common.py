@@ -60,9 +60,24 @@ def _fail(message: str, code: int = 2) -> None:
 
 
 def _check_out(out: Path) -> None:
-    """``--out`` must be a folder or not exist yet (it is created only once the settings are valid)."""
+    """``--out`` must be a folder or not exist yet (it is created only once the settings are
+    valid), and writable: a probe folder is made and removed in it or, if it does not exist
+    yet, in its nearest existing parent (which must be a folder)."""
+    import shutil
+    import tempfile
+
     if out.exists() and not out.is_dir():
         _fail(f"--out '{out}': exists and is not a folder")
+    parent = out.absolute()
+    while not parent.exists():
+        parent = parent.parent
+    if not parent.is_dir():
+        _fail(f"--out '{out}': '{parent}' is not a folder")
+    try:
+        shutil.rmtree(tempfile.mkdtemp(prefix=".hydroarm-probe-", dir=parent))
+    except OSError as error:
+        reason = error.strerror or str(error)
+        _fail(f"--out '{out}': cannot write in '{parent}' ({reason}); choose a writable folder")
 
 
 class Terminated(KeyboardInterrupt):

@@ -8,6 +8,7 @@ The paper's task (eq. 21, first six terms, SPEC section 4):
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 
@@ -25,6 +26,9 @@ class SinusoidReference:
     cos_amp: np.ndarray
     sin_amp: np.ndarray
     omega: np.ndarray
+
+    vectorised: ClassVar[bool] = True
+    """``sample`` accepts an array of times (:class:`~hydroarm.control.interface.Reference`)."""
 
     @property
     def n_joints(self) -> int:

@@ -141,6 +141,11 @@ class ExperimentConfig(FrozenModel):
     @pydantic.model_validator(mode="after")
     def _bounded_step_count(self) -> ExperimentConfig:
         steps = self.duration / self.control_period
+        if self.control_period > self.duration or round(steps) < 1:
+            raise ValueError(
+                f"control_period = {self.control_period!r}: must be <= duration = {self.duration!r} (s); "
+                "a run needs at least one control step"
+            )
         if steps > MAX_CONTROL_STEPS:
             raise ValueError(
                 f"control_period = {self.control_period!r}: duration / control_period = {steps:.3g} control steps; "

@@ -19,9 +19,9 @@ import numpy as np
 import pinocchio as pin
 import pydantic
 
-from hydroarm.config import FrozenModel
+from hydroarm.config import ConfigError, FrozenModel
 from hydroarm.control.gp import GPConfig
-from hydroarm.control.registry import controller_spec
+from hydroarm.control.registry import CONTROLLERS, canonical_name, controller_spec
 from hydroarm.control.uvms_control import UVMSController
 from hydroarm.control.vehicle_control import VehicleControlConfig
 from hydroarm.model.uvms import UVMS, build_uvms
@@ -69,6 +69,24 @@ class UVMSRunConfig(FrozenModel):
     task_period: float = pydantic.Field(6.0, gt=0.5, le=600.0, description="reach-and-return cycle (s)")
     gp_window: int = pydantic.Field(60, ge=5, le=500, description="GP window (samples)")
     plant: FastUVMSConfig = pydantic.Field(FastUVMSConfig(), description="plant path settings")
+
+    @pydantic.model_validator(mode="after")
+    def _at_least_one_step(self) -> UVMSRunConfig:
+        if self.control_period > self.duration:
+            raise ValueError(
+                f"control_period = {self.control_period!r}: must be <= duration = {self.duration!r} (s); "
+                "a run needs at least one control step"
+            )
+        return self
+
+    @pydantic.field_validator("arm_controller")
+    @classmethod
+    def _known_controller(cls, value: str) -> str:
+        try:
+            return canonical_name(value)
+        except ConfigError:
+            allowed = ", ".join(name.lower() for name in CONTROLLERS)
+            raise ValueError(f"must be one of {allowed}") from None
 
 
 @dataclass
