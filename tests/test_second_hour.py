@@ -3,17 +3,21 @@ say what is wrong."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 from typer.testing import CliRunner
 
 from hydroarm.cli import app
 from hydroarm.config import ConfigError
+from hydroarm.model.loading import load_arm
 from hydroarm.studies.experiment import ExperimentConfig, build_experiment, with_overrides
-from hydroarm.studies.runner import run_closed_loop, tracking_metrics
+from hydroarm.studies.runner import Trajectory, run_closed_loop, tracking_metrics
 from hydroarm.studies.uvms_run import UVMSRunConfig
 
 RUNNER = CliRunner()
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def _one_error_line(result) -> str:
@@ -109,3 +113,96 @@ def test_the_inverse_dynamics_mpcs_run_on_the_vehicle(arm_controller, tmp_path):
     )  # fmt: skip
     assert result.exit_code == 0, result.output
     assert (tmp_path / "v" / "metrics.json").is_file()
+
+
+# --- settings files that work from anywhere ---------------------------------------------
+
+
+def test_tune_names_the_arm_relative_to_the_settings_file_and_run_reads_it_from_anywhere(tmp_path, monkeypatch):
+    """What ``hydroarm tune --arm examples/myarm.toml --out DIR/x.toml`` writes must load from
+    DIR and from anywhere else."""
+    from hydroarm.studies.experiment import arm_for_settings_file, load_experiment_config
+    from hydroarm.studies.tune import write_settings
+
+    arms = tmp_path / "arms"
+    arms.mkdir()
+    (arms / "myarm.toml").write_text((ROOT / "src" / "hydroarm" / "arms" / "ur5.toml").read_text())
+    out = tmp_path / "tuned" / "x.toml"
+    out.parent.mkdir()
+    monkeypatch.chdir(tmp_path)
+    written = arm_for_settings_file("arms/myarm.toml", out)
+    assert written == "../arms/myarm.toml"
+    write_settings(out, {"arm": written, "smc.switching_gain": 5.0}, "test")
+    for where in (out.parent, tmp_path / "arms", Path("/")):
+        monkeypatch.chdir(where)
+        config = load_experiment_config(out)
+        assert Path(config.arm).resolve() == (arms / "myarm.toml").resolve()
+        assert load_arm(config.arm).n_joints == 6
+    assert arm_for_settings_file("paper", out) == "paper"
+
+
+def test_run_config_from_the_settings_files_folder(tmp_path, monkeypatch):
+    (tmp_path / "myarm.toml").write_text((ROOT / "src" / "hydroarm" / "arms" / "ur5.toml").read_text())
+    (tmp_path / "sub").mkdir()
+    (tmp_path / "sub" / "x.toml").write_text('arm = "../myarm.toml"\nduration = 0.05\n')
+    monkeypatch.chdir(tmp_path / "sub")
+    result = RUNNER.invoke(app, ["run", "--controller", "smc", "--config", "x.toml", "--out", str(tmp_path / "r")])
+    assert result.exit_code == 0, result.output
+
+
+# --- messages that say what is wrong ---------------------------------------------------
+
+
+def test_a_folder_given_as_a_file_is_called_a_folder(tmp_path):
+    (tmp_path / "d.urdf").mkdir()
+    assert "a folder, not a file" in _one_error_line(RUNNER.invoke(app, ["run", "--config", str(tmp_path)]))
+    line = _one_error_line(RUNNER.invoke(app, ["run", "--arm", str(tmp_path / "d.urdf")]))
+    assert "a folder, not a file" in line and "no such file" not in line
+
+
+def test_an_arm_file_of_an_unknown_type_names_every_arm_file_type(tmp_path):
+    (tmp_path / "x.npz").write_bytes(b"PK")
+    line = _one_error_line(RUNNER.invoke(app, ["run", "--arm", str(tmp_path / "x.npz")]))
+    assert ".urdf" in line and ".toml" in line and ".hydro.toml" in line
+
+
+def test_tuned_with_a_missing_arm_file_says_the_file_is_missing(tmp_path):
+    line = _one_error_line(RUNNER.invoke(app, ["run", "--tuned", "--arm", "./missing.toml"]))
+    assert "nor an existing file" in line and "no tuned settings ship" not in line
+
+
+@pytest.mark.parametrize(
+    ("args", "words"),
+    [
+        (["run", "--noise", "nan"], ["--noise", "nan", "0 <= x <= 10"]),
+        (["run", "--seed", "-1"], ["--seed", "greater than or equal to 0"]),
+        (["run", "--bogus"], ["No such option", "--bogus"]),
+        (["animate"], ["Missing argument"]),
+    ],
+)
+def test_option_parser_errors_are_one_line(args, words):
+    line = _one_error_line(RUNNER.invoke(app, args))
+    assert all(word in line for word in words), line
+    assert "╭" not in line
+
+
+def test_a_plant_mismatch_is_a_run_setting(tmp_path):
+    """``--set mismatch.mass_scale`` as in sweep files: the plant only is lighter, so the torques
+    differ from the nominal run's; the run records it."""
+    runs = {}
+    for label, extra in (("nominal", []), ("light", ["--set", "mismatch.mass_scale=0.8"])):
+        out = tmp_path / label
+        result = RUNNER.invoke(app, ["run", "--controller", "smc", "--set", "duration=0.1", *extra, "--out", str(out)])
+        assert result.exit_code == 0, result.output
+        runs[label] = Trajectory.load(out / "trajectory.npz")
+    assert runs["light"].meta["mismatch"]["mass_scale"] == 0.8
+    assert not np.allclose(runs["light"].u, runs["nominal"].u)
+    line = _one_error_line(RUNNER.invoke(app, ["run", "--set", "mismatch.mass_scal=0.8"]))
+    assert "did you mean 'mass_scale'" in line
+
+
+def test_a_controller_setting_on_a_vehicle_run_says_what_the_vehicle_run_takes():
+    line = _one_error_line(RUNNER.invoke(app, ["run", "--vehicle", "bluerov2-heavy", "--set", "duraton=1"]))
+    assert "did you mean 'duration'" in line
+    line = _one_error_line(RUNNER.invoke(app, ["run", "--vehicle", "bluerov2-heavy", "--set", "mpc.r=0.1"]))
+    assert "a vehicle run's settings are" in line and "arm_controller" in line

@@ -14,7 +14,7 @@ from rich.console import Console
 from rich.markup import escape
 from typer.core import TyperGroup
 
-from hydroarm.config import ConfigError, load_model
+from hydroarm.config import ConfigError
 
 if typing.TYPE_CHECKING:
     import click
@@ -43,6 +43,38 @@ class _Group(TyperGroup):
         if command is not None:
             _flags_without_type(command, ctx)
         return command
+
+    def main(self, args=None, prog_name=None, complete_var=None, standalone_mode=True, **extra):
+        """As Typer's, but a usage error (an option's range, an unknown option, a missing
+        argument) is one line, like every other bad input, not a box: ``error: ...`` naming the
+        option, then where its help is; exit code 2."""
+        import sys
+
+        from typer import Abort
+
+        try:  # Typer 0.2x carries its own copy of click
+            from typer._click.exceptions import ClickException, NoArgsIsHelpError, UsageError
+        except ImportError:  # pragma: no cover - older Typer on click
+            from click.exceptions import ClickException, NoArgsIsHelpError, UsageError
+
+        if not standalone_mode:
+            return super().main(args, prog_name, complete_var, standalone_mode=False, **extra)
+        try:
+            code = super().main(args, prog_name, complete_var, standalone_mode=False, **extra)
+        except NoArgsIsHelpError as error:  # `hydroarm` alone: its help
+            error.show()
+            sys.exit(error.exit_code)
+        except UsageError as error:
+            where = f" (see {error.ctx.command_path} --help)" if error.ctx is not None else ""
+            console.print(f"[bold red]error:[/] {escape(error.format_message() + where)}")
+            sys.exit(error.exit_code)
+        except ClickException as error:
+            console.print(f"[bold red]error:[/] {escape(error.format_message())}")
+            sys.exit(error.exit_code)
+        except Abort:
+            console.print("[yellow]aborted[/]")
+            sys.exit(1)
+        sys.exit(code if isinstance(code, int) else 0)
 
 
 app = typer.Typer(
@@ -127,9 +159,9 @@ def _experiment_config(config_file: Path | None, overrides: list[str], tuned: bo
     then the ``--set`` overrides."""
     from hydroarm.config import read_mapping
     from hydroarm.model.loading import tuned_settings_path
-    from hydroarm.studies.experiment import ExperimentConfig, with_overrides
+    from hydroarm.studies.experiment import ExperimentConfig, load_experiment_config, with_overrides
 
-    config = load_model(ExperimentConfig, config_file) if config_file else ExperimentConfig()
+    config = load_experiment_config(config_file) if config_file else ExperimentConfig()
     if tuned:
         name = arm if arm is not None else config.arm
         config = with_overrides(config, _flat(read_mapping(tuned_settings_path(name))))

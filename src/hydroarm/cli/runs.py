@@ -26,6 +26,13 @@ from hydroarm.cli._common import (
 from hydroarm.config import ConfigError
 
 
+def _noise_in_range(value: float | None) -> float | None:
+    """``--noise``: a finite variance 0 <= x <= 10 (rad^2); NaN is named as such."""
+    if value is not None and not 0.0 <= value <= 10.0:
+        raise typer.BadParameter(f"{value!r}: must be a number 0 <= x <= 10 (rad^2)")
+    return value
+
+
 @app.command()
 def run(
     ctx: typer.Context,
@@ -36,7 +43,9 @@ def run(
     noise: Annotated[
         float | None,
         typer.Option(
-            "--noise", min=0.0, max=10.0, help="Measurement noise variance (default: plant.noise_variance, 0)."
+            "--noise",
+            callback=_noise_in_range,
+            help="Measurement noise variance, 0 <= x <= 10 rad^2 (default: plant.noise_variance, 0).",
         ),
     ] = None,
     seed: Annotated[int, typer.Option("--seed", min=0, help="Noise seed.")] = 0,
@@ -73,9 +82,10 @@ def run(
         return
     from hydroarm.model.loading import load_arm
     from hydroarm.studies import figures
-    from hydroarm.studies.experiment import canonical_name, check_settings_for_arm, run_experiment, with_overrides
+    from hydroarm.studies.experiment import build_experiment, canonical_name, check_settings_for_arm, with_overrides
     from hydroarm.studies.outputs import claim_output, dumps
     from hydroarm.studies.runner import tracking_metrics
+    from hydroarm.studies.sweep.plan import perturbed_arm
 
     try:
         name = canonical_name(controller)
@@ -83,12 +93,15 @@ def run(
         _fail(f"--{error}")
     _check_out(out)
     try:
-        config = _experiment_config(config_file, overrides or [], tuned, arm)
+        settings, mismatch = _split_mismatch(overrides or [])
+        config = _experiment_config(config_file, settings, tuned, arm)
         options = {"arm": arm, "plant.noise_variance": noise}
         config = with_overrides(config, {key: value for key, value in options.items() if value is not None})
         arm_model = load_arm(config.arm)
         check_settings_for_arm(config, arm_model, controllers=(name,))
         what = {"experiment": config.model_dump(mode="json"), "controller": name, "seed": seed}
+        if not mismatch.is_identity:
+            what["mismatch"] = mismatch.model_dump()
         made_by = f"hydroarm run --controller {name.lower()} --seed {seed} --arm {config.arm}"
         claim_output(out, "run", what, description=made_by, overwrite=overwrite)
     except ConfigError as error:
@@ -97,7 +110,9 @@ def run(
         TextColumn(name), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(), console=console
     ) as progress:
         task = progress.add_task(name, total=int(round(config.duration / config.control_period)))
-        traj = run_experiment(config, name, seed, progress=lambda k, total: progress.update(task, completed=k))
+        experiment = build_experiment(config, name, arm=arm_model, plant_arm=perturbed_arm(arm_model, mismatch))
+        traj = experiment.run(seed, progress=lambda k, total: progress.update(task, completed=k))
+        traj.meta["mismatch"] = mismatch.model_dump()
     traj.save(out / "trajectory.npz")
     metrics = tracking_metrics(traj)
     (out / "metrics.json").write_text(dumps(metrics, indent=1))
@@ -116,6 +131,23 @@ def run(
         serve_run(out / "trajectory.npz")
     if traj.diverged:
         raise typer.Exit(1)
+
+
+def _split_mismatch(overrides: list[str]):
+    """``--set`` items into the experiment's and the plant mismatch's (``mismatch.mass_scale``,
+    ``mismatch.payload_kg``: :class:`~hydroarm.studies.sweep.Mismatch`, as in sweep files)."""
+    from hydroarm.cli._common import _parse_value
+    from hydroarm.config import validate
+    from hydroarm.studies.sweep.schema import MISMATCH_PREFIX, Mismatch
+
+    settings, mismatch = [], {}
+    for item in overrides:
+        key = item.split("=", 1)[0].strip()
+        if "=" in item and key.startswith(MISMATCH_PREFIX):
+            mismatch[key.removeprefix(MISMATCH_PREFIX)] = _parse_value(item.split("=", 1)[1].strip())
+        else:
+            settings.append(item)
+    return settings, validate(Mismatch, mismatch, "mismatch")
 
 
 def _run_on_vehicle(

@@ -250,7 +250,12 @@ def tune(
     the best mean E_p wins. Example: hydroarm tune --arm alpha5 --controller smc --out alpha5.toml
     """
     from hydroarm.model.loading import load_arm
-    from hydroarm.studies.experiment import canonical_name, check_settings_for_arm, with_overrides
+    from hydroarm.studies.experiment import (
+        arm_for_settings_file,
+        canonical_name,
+        check_settings_for_arm,
+        with_overrides,
+    )
     from hydroarm.studies.tune import TUNING_GRIDS, write_settings
     from hydroarm.studies.tune import tune as run_tune
 
@@ -285,9 +290,10 @@ def tune(
         f"hydroarm tune --controller {name.lower()} --arm {arm}: tuned on the dry arm (clean + noisy, mean E_p)\n"
         f"grid: {json.dumps(grid)}\nbest score {result.rows[0]['score']:.6g} rad^2"
     )
-    write_settings(out, {"arm": arm, **result.best}, header)
+    written_arm = arm_for_settings_file(arm, out)
+    write_settings(out, {"arm": written_arm, **result.best}, header)
     out.with_name(out.name + ".json").write_text(
-        json.dumps({"controller": name, "arm": arm, "rows": result.rows}, indent=1)
+        json.dumps({"controller": name, "arm": written_arm, "rows": result.rows}, indent=1)
     )
     table = Table(title=f"{name} on {arm}, dry arm: best of {len(result.rows)} points")
     for column in (*(key.split(".")[-1] for key in result.best), "clean", "noisy", "score"):

@@ -14,6 +14,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import ClassVar
 
 import numpy as np
 import pinocchio as pin
@@ -55,6 +56,12 @@ class ReachReturn:
 
 class UVMSRunConfig(FrozenModel):
     """Settings of one UVMS run."""
+
+    settings_hint: ClassVar[str] = (
+        "a vehicle run's settings are vehicle, arm, current, duration, control_period, vehicle_controller, aware, "
+        "arm_controller, home, reach, task_period, gp_window and plant.*; "
+        "its arm controller runs with its default gains"
+    )
 
     vehicle: str = pydantic.Field("bluerov2_heavy", description="built-in vehicle or vehicle file")
     arm: str = pydantic.Field("mount", description="the arm: 'mount' (the vehicle file's), a built-in or a file")
