@@ -206,3 +206,23 @@ def test_a_controller_setting_on_a_vehicle_run_says_what_the_vehicle_run_takes()
     assert "did you mean 'duration'" in line
     line = _one_error_line(RUNNER.invoke(app, ["run", "--vehicle", "bluerov2-heavy", "--set", "mpc.r=0.1"]))
     assert "a vehicle run's settings are" in line and "arm_controller" in line
+
+
+@pytest.mark.parametrize(
+    "args",
+    [["export-urdf", "paper"], ["tune", "--controller", "smc"], ["animate", "RUN"], ["view", "RUN", "--no-browser"]],
+    ids=lambda args: args[0],
+)
+def test_a_file_out_that_cannot_be_written_exits_2_in_one_line(args, tmp_path):
+    run = tmp_path / "run.npz"
+    np.savez(run, x=np.zeros(1))
+    args = [str(run) if a == "RUN" else a for a in args]
+    line = _one_error_line(RUNNER.invoke(app, [*args, "--out", "/proc/hydroarm-cannot/x.out"]))
+    assert "cannot write" in line
+
+
+def test_run_prints_e_p_after_the_start_up_beside_the_whole_run(tmp_path):
+    """The whole run's E_p is decided by the start-up from the task's start; both are printed."""
+    result = RUNNER.invoke(app, ["run", "--controller", "smc", "--set", "duration=2.5", "--out", str(tmp_path / "r")])
+    assert result.exit_code == 0, result.output
+    assert "whole run" in result.output and "after the start-up (t > 2 s)" in result.output

@@ -112,6 +112,25 @@ def _check_out(out: Path) -> None:
         _fail(f"--out '{out}': cannot write in '{parent}' ({reason}); choose a writable folder")
 
 
+def _check_file_out(out: Path, option: str = "--out") -> None:
+    """A file to write: not a folder, and its folder writable (made if missing, as the
+    commands do): the same probe as :func:`_check_out`, on the file's folder."""
+    if out.is_dir():
+        _fail(f"{option} '{out}': a folder, not a file")
+    parent = out.absolute().parent
+    while not parent.exists():
+        parent = parent.parent
+    if not parent.is_dir():
+        _fail(f"{option} '{out}': '{parent}' is not a folder")
+    import shutil
+    import tempfile
+
+    try:
+        shutil.rmtree(tempfile.mkdtemp(prefix=".hydroarm-probe-", dir=parent))
+    except OSError as error:
+        _fail(f"{option} '{out}': cannot write in '{parent}' ({error.strerror or error}); choose a writable folder")
+
+
 class Terminated(KeyboardInterrupt):
     """SIGTERM, raised in the main thread like Ctrl-C so the same cleanup runs."""
 

@@ -17,13 +17,22 @@ from hydroarm.cli._common import (
     OverwriteOption,
     SetOption,
     TunedOption,
+    _check_file_out,
     _check_out,
     _experiment_config,
     _fail,
     app,
     console,
 )
-from hydroarm.config import ConfigError
+from hydroarm.config import ConfigError, not_a_file
+
+STEADY_AFTER = 2.0
+"""s: where ``hydroarm run``'s second E_p line starts (after the start-up from the task's start)."""
+
+
+def _rounded(values: list[float]) -> list[float | None]:
+    """E_p values to 5 decimals for a summary line; NaN (no sample after the start-up) as None."""
+    return [None if x != x else round(x, 5) for x in values]
 
 
 def _noise_in_range(value: float | None) -> float | None:
@@ -114,7 +123,7 @@ def run(
         traj = experiment.run(seed, progress=lambda k, total: progress.update(task, completed=k))
         traj.meta["mismatch"] = mismatch.model_dump()
     traj.save(out / "trajectory.npz")
-    metrics = tracking_metrics(traj)
+    metrics = tracking_metrics(traj, steady_after=STEADY_AFTER)
     (out / "metrics.json").write_text(dumps(metrics, indent=1))
     figures.plot_tracking(traj, out / "position.png", f"{name}: position tracking", "position")
     figures.plot_tracking(traj, out / "velocity.png", f"{name}: velocity tracking", "velocity")
@@ -124,7 +133,11 @@ def run(
     if as_json:
         print(dumps(metrics))
     else:
-        console.print(f"E_p per joint (rad^2): {[round(x, 5) for x in metrics['Ep']]}; files in {out}")
+        console.print(f"E_p per joint (rad^2), whole run: {_rounded(metrics['Ep'])}")
+        console.print(
+            f"E_p per joint (rad^2), after the start-up (t > {STEADY_AFTER:g} s): {_rounded(metrics['Ep_steady'])}"
+        )
+        console.print(f"files in {out}")
     if view:
         from hydroarm.cli.view import serve_run
 
@@ -205,7 +218,8 @@ def animate(
     from hydroarm.studies.runner import Trajectory
 
     if not run_file.is_file():
-        _fail(f"RUN_FILE '{run_file}': no such file")
+        _fail(f"RUN_FILE '{run_file}': {not_a_file(run_file)}")
+    _check_file_out(out)
     try:
         traj = Trajectory.load(run_file)
     except Exception:  # noqa: BLE001 - any unreadable file is bad input; NumPy's own words do not help here
@@ -215,6 +229,7 @@ def animate(
         )
     try:
         arm_model = load_arm(arm) if arm else None
+        out.parent.mkdir(parents=True, exist_ok=True)
         render(traj, out, arm=arm_model, fps=fps, start=start, duration=duration)
     except (ConfigError, ValueError) as error:
         _fail(str(error))
@@ -271,6 +286,8 @@ def export_urdf(
     if out is None:
         sys.stdout.write(text)
     else:
+        _check_file_out(out)
+        out.parent.mkdir(parents=True, exist_ok=True)
         out.write_text(text)
         console.print(f"wrote {out}")
 

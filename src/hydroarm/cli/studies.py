@@ -17,6 +17,7 @@ from hydroarm.cli._common import (
     SetOption,
     Terminated,
     TunedOption,
+    _check_file_out,
     _check_out,
     _experiment_config,
     _fail,
@@ -267,6 +268,7 @@ def tune(
         _fail(str(error))
     if out.exists() and not out.is_file():
         _fail(f"--out '{out}': exists and is not a file")
+    _check_file_out(out)
     grid = TUNING_GRIDS[name]
     with (
         _sigterm_as_interrupt(),
