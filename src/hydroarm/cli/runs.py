@@ -211,7 +211,7 @@ def animate(
 ) -> None:
     """Render the arm following a saved trajectory, the reference ghosted, the error in a corner.
 
-    Example: hydroarm animate results/runs/clean__GP-MPC__seed0.npz --out arm.gif
+    Example: hydroarm animate results/runs/clean__gp-mpc__seed0.npz --out arm.gif
     """
     from hydroarm.model.loading import load_arm
     from hydroarm.studies.animate import animate as render

@@ -138,7 +138,7 @@ def sweep(
     ray: Annotated[
         bool,
         typer.Option(
-            "--ray", help="Run on Ray: a local Ray instance with --workers CPUs (pip install 'hydroarm[ray]')."
+            "--ray", help=r"Run on Ray: a local Ray instance with --workers CPUs (pip install 'hydroarm\[ray]')."
         ),
     ] = False,
     ray_address: Annotated[

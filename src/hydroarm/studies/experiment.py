@@ -111,7 +111,7 @@ class InitialState(FrozenModel):
 
 
 class ExperimentConfig(FrozenModel):
-    """Everything that defines one closed-loop run (SPEC defaults).
+    """Everything that defines one closed-loop run (the defaults of docs/paper-reading.md).
 
     ``initial_state``: a seeded random start around the task's start (default:
     the task's start exactly, see :class:`InitialState`). Every key, its default, unit and
