@@ -44,7 +44,7 @@ def test_builtin_arms_load():
 
 
 def test_buoyancy_column_is_the_cylinder_volume():
-    """SPEC section 1: rho pi/4 D^2 L reproduces Table A1's buoyancy to four digits."""
+    """paper reading, section 1: rho pi/4 D^2 L reproduces Table A1's buoyancy to four digits."""
     table = _paper_table()
     for link in table["links"]:
         length = math.hypot(link["a"], link["d"])

@@ -356,7 +356,7 @@ def test_timings_and_interface(arm):
 
 
 def test_hard_terminal_set_falls_back_to_soft_at_start_up(arm):
-    """From rest at q = 0 the set x_N' P x_N <= 0.001 is out of reach (SPEC: ~1.4e4)."""
+    """From rest at q = 0 the set x_N' P x_N <= 0.001 is out of reach (an early trial: ~1.4e4)."""
     mpc = LinearMPC(arm, MPCConfig(terminal_set="hard"))
     out = mpc.compute(0.0, np.zeros(12), paper_reference())
     assert out.status == "terminal_soft_fallback"

@@ -117,7 +117,7 @@ def test_the_paper_arm_report_keeps_the_paper_beside_ours(quick_run):
 
 def test_gp_mpc_beats_mpc_in_both_tables(quick_run):
     """On the mean E_p, even on the 3 s quick task. (MPC vs SMC: see report.md; with the
-    paper's MPC weights a fairly tuned SMC beats the MPC, as SPEC's trial found.)"""
+    paper's MPC weights a fairly tuned SMC beats the MPC, as an early trial found.)"""
     metrics = json.loads((quick_run / "metrics.json").read_text())
     for case in ("clean", "noisy"):
         means = {name: np.mean(metrics[case][name]["Ep"]) for name in ("SMC", "MPC", "GP-MPC")}

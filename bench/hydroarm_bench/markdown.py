@@ -53,7 +53,7 @@ EXPLANATIONS = {
         "which ~2.5 us is numba's dispatch of its 36 arguments); the plant is ~45 % of the "
         "wall time, the GP-MPC step ~45 %, the loop's own bookkeeping the rest. Moving it "
         "further would need the rigid-body algorithms compiled next to the water (one call "
-        "per control period instead of 40), or a larger inner step (not the SPEC's 1 ms)."
+        "per control period instead of 40), or a larger inner step (not the paper reading's 1 ms)."
     ),
     "mpc_peers": (
         "Measured per problem: do-mpc's make_step (IPOPT on the CasADi NLP) and cvxpy's "

@@ -5,7 +5,7 @@ Quick tour::
     import hydroarm
     arm = hydroarm.load_arm("paper")               # Liu et al. 2023's arm; also "ur5", "alpha5" or a file
     plant = hydroarm.UnderwaterPlant(arm, hydroarm.Water())
-    config = hydroarm.ExperimentConfig()           # validated settings (SPEC defaults)
+    config = hydroarm.ExperimentConfig()           # validated settings (the defaults of docs/paper-reading.md)
     traj = hydroarm.run_experiment(config, "gp-mpc", seed=0)
     hydroarm.tracking_metrics(traj)["Ep"]          # E_p per joint (rad^2)
 

@@ -306,6 +306,11 @@ def validate(model: type[ModelT], data: Any, source: str) -> ModelT:
         raise ConfigError(format_validation_error(error, source, data, model)) from None
 
 
+def not_a_file(path: str | Path) -> str:
+    """Why ``path`` cannot be read as a file, in a few words: a folder, or no such file."""
+    return "a folder, not a file" if Path(path).is_dir() else "no such file"
+
+
 def read_mapping(path: str | Path) -> dict[str, Any]:
     """Read a TOML (``.toml``) or YAML (``.yaml``/``.yml``) file into a dict.
 
@@ -314,7 +319,7 @@ def read_mapping(path: str | Path) -> dict[str, Any]:
     """
     path = Path(path)
     if not path.is_file():
-        raise ConfigError(f"{path}: no such file")
+        raise ConfigError(f"{path}: {not_a_file(path)}")
     suffix = path.suffix.lower()
     if suffix == ".toml":
         try:

@@ -14,7 +14,7 @@ from rich.console import Console
 from rich.markup import escape
 from typer.core import TyperGroup
 
-from hydroarm.config import ConfigError, load_model
+from hydroarm.config import ConfigError
 
 if typing.TYPE_CHECKING:
     import click
@@ -44,6 +44,38 @@ class _Group(TyperGroup):
             _flags_without_type(command, ctx)
         return command
 
+    def main(self, args=None, prog_name=None, complete_var=None, standalone_mode=True, **extra):
+        """As Typer's, but a usage error (an option's range, an unknown option, a missing
+        argument) is one line, like every other bad input, not a box: ``error: ...`` naming the
+        option, then where its help is; exit code 2."""
+        import sys
+
+        from typer import Abort
+
+        try:  # Typer 0.2x carries its own copy of click
+            from typer._click.exceptions import ClickException, NoArgsIsHelpError, UsageError
+        except ImportError:  # pragma: no cover - older Typer on click
+            from click.exceptions import ClickException, NoArgsIsHelpError, UsageError
+
+        if not standalone_mode:
+            return super().main(args, prog_name, complete_var, standalone_mode=False, **extra)
+        try:
+            code = super().main(args, prog_name, complete_var, standalone_mode=False, **extra)
+        except NoArgsIsHelpError as error:  # `hydroarm` alone: its help
+            error.show()
+            sys.exit(error.exit_code)
+        except UsageError as error:
+            where = f" (see {error.ctx.command_path} --help)" if error.ctx is not None else ""
+            console.print(f"[bold red]error:[/] {escape(error.format_message() + where)}")
+            sys.exit(error.exit_code)
+        except ClickException as error:
+            console.print(f"[bold red]error:[/] {escape(error.format_message())}")
+            sys.exit(error.exit_code)
+        except Abort:
+            console.print("[yellow]aborted[/]")
+            sys.exit(1)
+        sys.exit(code if isinstance(code, int) else 0)
+
 
 app = typer.Typer(
     cls=_Group,
@@ -60,9 +92,43 @@ def _fail(message: str, code: int = 2) -> None:
 
 
 def _check_out(out: Path) -> None:
-    """``--out`` must be a folder or not exist yet (it is created only once the settings are valid)."""
+    """``--out`` must be a folder or not exist yet (it is created only once the settings are
+    valid), and writable: a probe folder is made and removed in it or, if it does not exist
+    yet, in its nearest existing parent (which must be a folder)."""
+    import shutil
+    import tempfile
+
     if out.exists() and not out.is_dir():
         _fail(f"--out '{out}': exists and is not a folder")
+    parent = out.absolute()
+    while not parent.exists():
+        parent = parent.parent
+    if not parent.is_dir():
+        _fail(f"--out '{out}': '{parent}' is not a folder")
+    try:
+        shutil.rmtree(tempfile.mkdtemp(prefix=".hydroarm-probe-", dir=parent))
+    except OSError as error:
+        reason = error.strerror or str(error)
+        _fail(f"--out '{out}': cannot write in '{parent}' ({reason}); choose a writable folder")
+
+
+def _check_file_out(out: Path, option: str = "--out") -> None:
+    """A file to write: not a folder, and its folder writable (made if missing, as the
+    commands do): the same probe as :func:`_check_out`, on the file's folder."""
+    if out.is_dir():
+        _fail(f"{option} '{out}': a folder, not a file")
+    parent = out.absolute().parent
+    while not parent.exists():
+        parent = parent.parent
+    if not parent.is_dir():
+        _fail(f"{option} '{out}': '{parent}' is not a folder")
+    import shutil
+    import tempfile
+
+    try:
+        shutil.rmtree(tempfile.mkdtemp(prefix=".hydroarm-probe-", dir=parent))
+    except OSError as error:
+        _fail(f"{option} '{out}': cannot write in '{parent}' ({error.strerror or error}); choose a writable folder")
 
 
 class Terminated(KeyboardInterrupt):
@@ -112,9 +178,9 @@ def _experiment_config(config_file: Path | None, overrides: list[str], tuned: bo
     then the ``--set`` overrides."""
     from hydroarm.config import read_mapping
     from hydroarm.model.loading import tuned_settings_path
-    from hydroarm.sim.experiment import ExperimentConfig, with_overrides
+    from hydroarm.sim.experiment import ExperimentConfig, load_experiment_config, with_overrides
 
-    config = load_model(ExperimentConfig, config_file) if config_file else ExperimentConfig()
+    config = load_experiment_config(config_file) if config_file else ExperimentConfig()
     if tuned:
         name = arm if arm is not None else config.arm
         config = with_overrides(config, _flat(read_mapping(tuned_settings_path(name))))

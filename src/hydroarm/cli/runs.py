@@ -17,13 +17,29 @@ from hydroarm.cli._common import (
     OverwriteOption,
     SetOption,
     TunedOption,
+    _check_file_out,
     _check_out,
     _experiment_config,
     _fail,
     app,
     console,
 )
-from hydroarm.config import ConfigError
+from hydroarm.config import ConfigError, not_a_file
+
+STEADY_AFTER = 2.0
+"""s: where ``hydroarm run``'s second E_p line starts (after the start-up from the task's start)."""
+
+
+def _rounded(values: list[float]) -> list[float | None]:
+    """E_p values to 5 decimals for a summary line; NaN (no sample after the start-up) as None."""
+    return [None if x != x else round(x, 5) for x in values]
+
+
+def _noise_in_range(value: float | None) -> float | None:
+    """``--noise``: a finite variance 0 <= x <= 10 (rad^2); NaN is named as such."""
+    if value is not None and not 0.0 <= value <= 10.0:
+        raise typer.BadParameter(f"{value!r}: must be a number 0 <= x <= 10 (rad^2)")
+    return value
 
 
 @app.command()
@@ -44,7 +60,9 @@ def run(
     noise: Annotated[
         float | None,
         typer.Option(
-            "--noise", min=0.0, max=10.0, help="Measurement noise variance (default: plant.noise_variance, 0)."
+            "--noise",
+            callback=_noise_in_range,
+            help="Measurement noise variance, 0 <= x <= 10 rad^2 (default: plant.noise_variance, 0).",
         ),
     ] = None,
     seed: Annotated[int, typer.Option("--seed", min=0, help="Noise seed.")] = 0,
@@ -78,14 +96,17 @@ def run(
     """
     import numpy as np
 
+    from hydroarm.model.loading import load_arm
     from hydroarm.sim.experiment import build_experiment, canonical_name, with_overrides
     from hydroarm.sim.runner import tracking_metrics
     from hydroarm.studies import figures
     from hydroarm.studies.outputs import claim_output, dumps
+    from hydroarm.studies.sweep.plan import perturbed_arm
 
     _check_out(out)
     try:
-        config = _experiment_config(config_file, overrides or [], tuned, arm)
+        settings, mismatch = _split_mismatch(overrides or [])
+        config = _experiment_config(config_file, settings, tuned, arm)
         options = {"arm": arm, "plant.noise_variance": noise, "vehicle.name": vehicle}
         config = with_overrides(config, {key: value for key, value in options.items() if value is not None})
         on_vehicle = config.vehicle.name is not None
@@ -94,8 +115,16 @@ def run(
         if on_vehicle and noise is not None:
             raise ConfigError("--noise does not apply on a vehicle: the floating plant gives its true state")
         name = canonical_name(controller if controller is not None else ("smc" if on_vehicle else "gp-mpc"))
-        experiment = build_experiment(config, name)
+        if on_vehicle:
+            if not mismatch.is_identity:
+                raise ConfigError("mismatch.*: not on a vehicle run (the floating plant's arm is the arm file's)")
+            experiment = build_experiment(config, name)
+        else:
+            arm_model = load_arm(config.arm)
+            experiment = build_experiment(config, name, arm=arm_model, plant_arm=perturbed_arm(arm_model, mismatch))
         what = {"experiment": config.model_dump(mode="json"), "controller": name, "seed": seed}
+        if not mismatch.is_identity:
+            what["mismatch"] = mismatch.model_dump()
         made_by = f"hydroarm run --controller {name.lower()} --seed {seed} --arm {config.arm}"
         if on_vehicle:
             made_by += f" --vehicle {config.vehicle.name}"
@@ -108,8 +137,9 @@ def run(
     ) as progress:
         task = progress.add_task(label, total=int(round(config.duration / config.control_period)))
         traj = experiment.run(seed, progress=lambda k, total: progress.update(task, completed=k))
+        traj.meta["mismatch"] = mismatch.model_dump()
     traj.save(out / "trajectory.npz")
-    metrics = tracking_metrics(traj)
+    metrics = tracking_metrics(traj, steady_after=STEADY_AFTER)
     if on_vehicle:
         metrics["station_keeping"] = traj.meta["metrics"]
     (out / "metrics.json").write_text(dumps(metrics, indent=1))
@@ -121,19 +151,40 @@ def run(
     if as_json:
         print(dumps(metrics))
     else:
-        console.print(f"E_p per joint (rad^2): {[round(x, 5) for x in metrics['Ep']]}; files in {out}")
+        console.print(f"E_p per joint (rad^2), whole run: {_rounded(metrics['Ep'])}")
+        console.print(
+            f"E_p per joint (rad^2), after the start-up (t > {STEADY_AFTER:g} s): {_rounded(metrics['Ep_steady'])}"
+        )
         if on_vehicle:
             kept = metrics["station_keeping"]
             console.print(
                 f"station keeping: drift RMS {kept['drift_rms_m'] * 1e3:.2f} mm, "
                 f"attitude RMS {kept['attitude_rms_deg']:.3f} deg"
             )
+        console.print(f"files in {out}")
     if view:
         from hydroarm.cli.view import serve_run
 
         serve_run(out / "trajectory.npz")
     if traj.diverged:
         raise typer.Exit(1)
+
+
+def _split_mismatch(overrides: list[str]):
+    """``--set`` items into the experiment's and the plant mismatch's (``mismatch.mass_scale``,
+    ``mismatch.payload_kg``: :class:`~hydroarm.studies.sweep.Mismatch`, as in sweep files)."""
+    from hydroarm.cli._common import _parse_value
+    from hydroarm.config import validate
+    from hydroarm.studies.sweep.schema import MISMATCH_PREFIX, Mismatch
+
+    settings, mismatch = [], {}
+    for item in overrides:
+        key = item.split("=", 1)[0].strip()
+        if "=" in item and key.startswith(MISMATCH_PREFIX):
+            mismatch[key.removeprefix(MISMATCH_PREFIX)] = _parse_value(item.split("=", 1)[1].strip())
+        else:
+            settings.append(item)
+    return settings, validate(Mismatch, mismatch, "mismatch")
 
 
 @app.command()
@@ -149,14 +200,15 @@ def animate(
 ) -> None:
     """Render the arm following a saved trajectory, the reference ghosted, the error in a corner.
 
-    Example: hydroarm animate results/runs/clean__GP-MPC__seed0.npz --out arm.gif
+    Example: hydroarm animate results/runs/clean__gp-mpc__seed0.npz --out arm.gif
     """
     from hydroarm.model.loading import load_arm
     from hydroarm.sim.runner import Trajectory
     from hydroarm.studies.animate import animate as render
 
     if not run_file.is_file():
-        _fail(f"RUN_FILE '{run_file}': no such file")
+        _fail(f"RUN_FILE '{run_file}': {not_a_file(run_file)}")
+    _check_file_out(out)
     try:
         traj = Trajectory.load(run_file)
     except Exception:  # noqa: BLE001 - any unreadable file is bad input; NumPy's own words do not help here
@@ -166,6 +218,7 @@ def animate(
         )
     try:
         arm_model = load_arm(arm) if arm else None
+        out.parent.mkdir(parents=True, exist_ok=True)
         render(traj, out, arm=arm_model, fps=fps, start=start, duration=duration)
     except (ConfigError, ValueError) as error:
         _fail(str(error))
@@ -253,6 +306,8 @@ def export_urdf(
     if out is None:
         sys.stdout.write(text)
     else:
+        _check_file_out(out)
+        out.parent.mkdir(parents=True, exist_ok=True)
         out.write_text(text)
         console.print(f"wrote {out}")
 

@@ -17,6 +17,7 @@ from hydroarm.cli._common import (
     SetOption,
     Terminated,
     TunedOption,
+    _check_file_out,
     _check_out,
     _experiment_config,
     _fail,
@@ -137,7 +138,7 @@ def sweep(
     ray: Annotated[
         bool,
         typer.Option(
-            "--ray", help="Run on Ray: a local Ray instance with --workers CPUs (pip install 'hydroarm[ray]')."
+            "--ray", help=r"Run on Ray: a local Ray instance with --workers CPUs (pip install 'hydroarm\[ray]')."
         ),
     ] = False,
     ray_address: Annotated[
@@ -243,7 +244,12 @@ def tune(
     the best mean E_p wins. Example: hydroarm tune --arm alpha5 --controller smc --out alpha5.toml
     """
     from hydroarm.model.loading import load_arm
-    from hydroarm.sim.experiment import canonical_name, check_settings_for_arm, with_overrides
+    from hydroarm.sim.experiment import (
+        arm_for_settings_file,
+        canonical_name,
+        check_settings_for_arm,
+        with_overrides,
+    )
     from hydroarm.studies.tune import tune as run_tune
     from hydroarm.studies.tune import tuning_grid, write_settings
 
@@ -255,6 +261,7 @@ def tune(
         _fail(str(error))
     if out.exists() and not out.is_file():
         _fail(f"--out '{out}': exists and is not a file")
+    _check_file_out(out)
     grid = tuning_grid(name)
     with (
         _sigterm_as_interrupt(),
@@ -278,9 +285,10 @@ def tune(
         f"hydroarm tune --controller {name.lower()} --arm {arm}: tuned on the dry arm (clean + noisy, mean E_p)\n"
         f"grid: {json.dumps(grid)}\nbest score {result.rows[0]['score']:.6g} rad^2"
     )
-    write_settings(out, {"arm": arm, **result.best}, header)
+    written_arm = arm_for_settings_file(arm, out)
+    write_settings(out, {"arm": written_arm, **result.best}, header)
     out.with_name(out.name + ".json").write_text(
-        json.dumps({"controller": name, "arm": arm, "rows": result.rows}, indent=1)
+        json.dumps({"controller": name, "arm": written_arm, "rows": result.rows}, indent=1)
     )
     table = Table(title=f"{name} on {arm}, dry arm: best of {len(result.rows)} points")
     for column in (*(key.split(".")[-1] for key in result.best), "clean", "noisy", "score"):

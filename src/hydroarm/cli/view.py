@@ -7,8 +7,8 @@ from typing import Annotated
 
 import typer
 
-from hydroarm.cli._common import _fail, app, console
-from hydroarm.config import ConfigError
+from hydroarm.cli._common import _check_file_out, _fail, app, console
+from hydroarm.config import ConfigError, not_a_file
 
 INSTALL_HINT = "the viewer needs the viewer extra: pip install 'hydroarm[viewer]'"
 
@@ -41,7 +41,10 @@ def serve_run(
     except ImportError:
         _fail(INSTALL_HINT)
     if not run_file.is_file():
-        _fail(f"RUN_FILE '{run_file}': no such file")
+        _fail(f"RUN_FILE '{run_file}': {not_a_file(run_file)}")
+    if out is not None:
+        _check_file_out(out)
+        out.parent.mkdir(parents=True, exist_ok=True)
     not_a_run = f"RUN_FILE '{run_file}': not a hydroarm trajectory (a .npz from run, reproduce or sweep --trajectories)"
     if not _looks_like_a_trajectory(run_file):
         _fail(not_a_run)

@@ -70,7 +70,7 @@ import scipy.linalg
 from hydroarm.config import FrozenModel, per_joint
 from hydroarm.control.gp import GPConfig, SlidingWindowGP
 from hydroarm.control.idmpc_limits import HorizonQP, allocate  # noqa: F401 (allocate: public here too)
-from hydroarm.control.interface import DEFAULT_CONTROL_PERIOD, ControlOutput, Reference, require_period
+from hydroarm.control.interface import DEFAULT_CONTROL_PERIOD, ControlOutput, Reference, require_period, sample_times
 from hydroarm.model.arm import Arm
 from hydroarm.model.nominal import NominalModel
 
@@ -246,7 +246,7 @@ class InverseDynamicsMPC:
     def planned_acceleration(self, t: float, y: np.ndarray, reference: Reference) -> np.ndarray:
         """The outer MPC's first acceleration a_0 (n,) rad/s^2 at measured state y (2n,)."""
         n, period = self.n, self.control_period
-        q_r, v_r, a_r = reference.sample(t + self._offsets)  # (N + 1, n) each
+        q_r, v_r, a_r = sample_times(reference, t + self._offsets)  # (N + 1, n) each
         e0 = np.stack([y[:n] - q_r[0], y[n:] - v_r[0]], axis=1)
         c = np.empty((self.config.horizon, n, 2))
         c[:, :, 0] = q_r[1:] - q_r[:-1] - period * v_r[:-1] - 0.5 * period * period * a_r[:-1]

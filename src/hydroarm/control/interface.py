@@ -16,9 +16,34 @@ import numpy as np
 
 
 class Reference(Protocol):
-    """A reference trajectory: ``sample(t) -> (q, v, a)``, each shape (n,)."""
+    """A reference trajectory: what every controller and the runner ask of one.
+
+    It must provide ``sample(t) -> (q, v, a)``: the joint positions (rad), velocities (rad/s)
+    and accelerations (rad/s^2) at time ``t`` (s, a Python float), each a shape (n,) array
+    (n = the arm's joints). ``a`` must be the derivative of ``v`` and ``v`` of ``q`` (the MPCs
+    linearise about the reference and the computed-torque controllers feed ``a`` forward).
+    Times are the control instants ``k * control_period`` and, for the predictive controllers,
+    up to one horizon beyond the run's end.
+
+    Optionally, a reference that also accepts an array of times (shape (m,)) and then returns
+    (m, n) arrays declares it with a class attribute ``vectorised = True``
+    (:class:`~hydroarm.model.task.SinusoidReference` does): controllers that need a whole
+    horizon then sample it in one call. Without it, :func:`sample_times` calls ``sample`` once
+    per time.
+    """
 
     def sample(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]: ...
+
+
+def sample_times(reference: Reference, times: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(q, v, a)`` of ``reference`` at each of ``times`` (m,) s: (m, n) arrays each; one
+    vectorised call if the reference declares ``vectorised = True``, else one call per time."""
+    times = np.asarray(times, dtype=float)
+    if getattr(reference, "vectorised", False):
+        q, v, a = reference.sample(times)
+        return np.asarray(q, dtype=float), np.asarray(v, dtype=float), np.asarray(a, dtype=float)
+    rows = [reference.sample(float(t)) for t in times]
+    return tuple(np.array([np.asarray(row[i], dtype=float) for row in rows]) for i in range(3))
 
 
 @dataclass

@@ -12,7 +12,7 @@ ranges of arms with limits) and the start state (the task's, moved by the settin
 ``arm``: a built-in arm (``"paper"``, ``"ur5"``, ``"alpha5"``), a DH arm file or a URDF
 (``.urdf`` with its ``<stem>.hydro.toml`` beside it, or the ``.hydro.toml`` itself);
 default: the settings' ``arm`` (``"paper"``). ``config``: an
-:class:`~hydroarm.sim.experiment.ExperimentConfig` (default: the SPEC settings);
+:class:`~hydroarm.sim.experiment.ExperimentConfig` (default: the paper reading's settings);
 ``noise_variance`` and ``duration`` override ``plant.noise_variance`` and ``duration``.
 With n the arm's joint count:
 

@@ -3,7 +3,7 @@ model, the MuJoCo cross-check).
 
 * ``paper``: eq. (22) of Liu et al. 2023: joint-velocity kicks d(t) (deg/s) applied as
   the joint acceleration ``d(t) / T_ref`` (rad/s^2) inside the plant's integration
-  (``SPEC.md`` section 2). Not a water force.
+  (docs/paper-reading.md, section 2). Not a water force.
 * ``uniform``: a world-frame water velocity
   ``V_c(t) = mean + amplitude sin(2 pi f t + phase)`` (m/s); the drag acts on the
   velocity relative to it.

@@ -5,7 +5,7 @@ from __future__ import annotations
 from importlib import resources
 from pathlib import Path
 
-from hydroarm.config import ConfigError, load_model
+from hydroarm.config import ConfigError, load_model, not_a_file
 from hydroarm.model.arm import Arm, ArmSpec, build_arm
 from hydroarm.model.urdf_import import hydro_file_for, load_hydro_spec, load_urdf_arm
 
@@ -15,6 +15,11 @@ BUILTIN_URDF_ARMS = ("alpha5",)
 
 URDF_SUFFIXES = (".urdf", ".hydro.toml", ".hydro.yaml", ".hydro.yml")
 """File names that :func:`load_arm` hands to :mod:`hydroarm.model.urdf_import`."""
+
+DH_SUFFIXES = (".toml", ".yaml", ".yml")
+"""File names of DH arm files (:class:`~hydroarm.model.arm.ArmSpec`)."""
+
+ARM_FILES = "an arm file is a DH arm file (.toml, .yaml, .yml), a URDF (.urdf) or a hydrodynamics file (.hydro.toml)"
 
 
 def builtin_arm_path(name: str) -> Path:
@@ -38,10 +43,14 @@ def load_arm_spec(source: str | Path) -> ArmSpec:
     if isinstance(source, str) and source in BUILTIN_ARMS:
         return load_model(ArmSpec, builtin_arm_path(source))
     path = Path(source)
-    if not str(source) or not path.is_file():
+    if not str(source) or not path.exists():
         raise ConfigError(
             f"arm {str(source)!r}: neither a built-in arm ({', '.join(BUILTIN_ARMS)}) nor an existing file"
         )
+    if path.is_dir():
+        raise ConfigError(f"arm {str(source)!r}: {not_a_file(path)}")
+    if not path.name.lower().endswith(DH_SUFFIXES):
+        raise ConfigError(f"arm {str(source)!r}: unknown arm file type; {ARM_FILES}")
     return load_model(ArmSpec, path)
 
 
@@ -78,6 +87,11 @@ def tuned_settings_path(arm: str) -> Path:
     """The settings file of gains tuned for built-in ``arm`` (``arms/tuned/<arm>.toml``: the SMC's
     and the MPC's, by ``hydroarm tune`` on the dry arm); :class:`ConfigError` for other arms."""
     path = Path(str(resources.files("hydroarm") / "arms" / "tuned" / f"{arm}.toml"))
+    if isinstance(arm, str) and arm not in BUILTIN_ARMS and not Path(arm).exists():
+        raise ConfigError(
+            f"arm {arm!r}: neither a built-in arm ({', '.join(BUILTIN_ARMS)}) nor an existing file "
+            f"(relative paths are relative to the working directory, {Path.cwd()})"
+        )
     if not isinstance(arm, str) or not path.is_file():
         raise ConfigError(
             f"--tuned: no tuned settings ship for arm {str(arm)!r} (built-in: {', '.join(BUILTIN_ARMS)}); "

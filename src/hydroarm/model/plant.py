@@ -41,7 +41,7 @@ class PlantConfig(FrozenModel):
 
     ``inner_step`` (s, in [1e-5, 0.1]): the RK4 step (the control period is divided into equal
     steps no longer than this); ``friction`` (N m s/rad): joint viscous friction,
-    0 = off (SPEC default); it must also be soft enough for explicit RK4 on the
+    0 = off (the paper reading's default); it must also be soft enough for explicit RK4 on the
     arm (:class:`UnderwaterPlant` checks ``friction * inner_step`` against the
     arm's smallest joint-space inertia); ``noise_variance`` (rad^2 and (rad/s)^2): variance of
     the zero-mean Gaussian measurement noise on q and v (0.001 in the paper's

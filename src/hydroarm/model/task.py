@@ -1,7 +1,7 @@
 """Reference trajectories: sums of sinusoids with analytic derivatives, and the vehicle
 study's reach-and-return cycle (:class:`ReachReturn`).
 
-The paper's task (eq. 21, first six terms, SPEC section 4):
+The paper's task (eq. 21, first six terms, paper reading, section 4):
 ``q_r(t) = [3 cos t + 2 sin 2t, sin 2t, 2 cos t, 2 cos 2t, sin t, 3 cos t + 2 sin 2t]`` rad,
 10 s, starting from rest at q = 0 (so the tracking error starts at q_r(0)).
 """
@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 
@@ -27,6 +28,9 @@ class SinusoidReference:
     cos_amp: np.ndarray
     sin_amp: np.ndarray
     omega: np.ndarray
+
+    vectorised: ClassVar[bool] = True
+    """``sample`` accepts an array of times (:class:`~hydroarm.control.interface.Reference`)."""
 
     @property
     def n_joints(self) -> int:
@@ -60,7 +64,7 @@ class SinusoidReference:
 
 
 def paper_reference() -> SinusoidReference:
-    """Eq. (21) of Liu et al. 2023, first six terms (SPEC section 4)."""
+    """Eq. (21) of Liu et al. 2023, first six terms (paper reading, section 4)."""
     cos_amp = np.array([[3.0, 0.0], [0.0, 0.0], [2.0, 0.0], [0.0, 2.0], [0.0, 0.0], [3.0, 0.0]])
     sin_amp = np.array([[0.0, 2.0], [0.0, 1.0], [0.0, 0.0], [0.0, 0.0], [1.0, 0.0], [0.0, 2.0]])
     omega = np.array([[1.0, 2.0]] * 6)

@@ -52,7 +52,7 @@ from typing import Any
 import numpy as np
 import pinocchio as pin
 
-from hydroarm.config import ConfigError, read_mapping, shown, validate
+from hydroarm.config import ConfigError, not_a_file, read_mapping, shown, validate
 from hydroarm.model.arm import Arm, WettedCylinder
 from hydroarm.model.hydro_spec import HYDRO_SUFFIXES, REVOLUTE_JOINTS, HydroSpec, LinkHydroSpec
 
@@ -328,7 +328,7 @@ def load_urdf_arm(source: str | Path, hydro: HydroSpec | dict | str | Path | Non
     """
     path = Path(source)
     if not path.is_file():
-        raise ConfigError(f"arm {str(source)!r}: no such file")
+        raise ConfigError(f"arm {str(source)!r}: {not_a_file(path)}")
     name = path.name.lower()
     hydro_source = str(path)
     if name.endswith(HYDRO_SUFFIXES):

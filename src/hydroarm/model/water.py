@@ -20,7 +20,7 @@ Currents (``Water.current``):
 
 * ``paper`` (default): the joint-velocity disturbance d(t) of the paper's eq. (22),
   applied as a joint acceleration d(t) / T_ref inside the plant's integration
-  (``SPEC.md`` section 2). It is not a water force: see :func:`paper_current_acceleration`.
+  (docs/paper-reading.md, section 2). It is not a water force: see :func:`paper_current_acceleration`.
 * ``uniform``: a world-frame water velocity ``V_c(t) = mean + amplitude sin(2 pi f t + phase)``
   (m/s); drag acts on the velocity relative to it.
 * ``none``: still water.

@@ -12,8 +12,10 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
@@ -24,6 +26,7 @@ from hydroarm.config import (
     FrozenModel,
     check_joint_counts,
     dotted_keys,
+    read_mapping,
     shown,
     unknown_key_message,
     validate,
@@ -38,7 +41,7 @@ from hydroarm.control.mpc import MPCConfig
 from hydroarm.control.registry import CONTROLLERS, canonical_name, controller_sections, controller_spec
 from hydroarm.control.smc import SMCConfig
 from hydroarm.model.arm import Arm
-from hydroarm.model.loading import load_arm
+from hydroarm.model.loading import BUILTIN_ARMS, load_arm
 from hydroarm.model.plant import PlantConfig, UnderwaterPlant
 from hydroarm.model.task import SinusoidReference, task_for_arm
 from hydroarm.model.water import Water
@@ -56,8 +59,10 @@ __all__ = [
     "InitialState",
     "build_controller",
     "build_experiment",
+    "arm_for_settings_file",
     "canonical_name",
     "check_settings_for_arm",
+    "load_experiment_config",
     "run_experiment",
     "start_for_arm",
     "with_overrides",
@@ -102,7 +107,7 @@ class InitialState(FrozenModel):
 
 
 class ExperimentConfig(FrozenModel):
-    """Everything that defines one closed-loop run (SPEC defaults).
+    """Everything that defines one closed-loop run (the defaults of docs/paper-reading.md).
 
     ``initial_state``: a seeded random start around the task's start (default:
     the task's start exactly, see :class:`InitialState`). Every key, its default, unit and
@@ -143,6 +148,11 @@ class ExperimentConfig(FrozenModel):
     @pydantic.model_validator(mode="after")
     def _bounded_step_count(self) -> ExperimentConfig:
         steps = self.duration / self.control_period
+        if self.control_period > self.duration or round(steps) < 1:
+            raise ValueError(
+                f"control_period = {self.control_period!r}: must be <= duration = {self.duration!r} (s); "
+                "a run needs at least one control step"
+            )
         if steps > MAX_CONTROL_STEPS:
             raise ValueError(
                 f"control_period = {self.control_period!r}: duration / control_period = {steps:.3g} control steps; "
@@ -154,6 +164,33 @@ class ExperimentConfig(FrozenModel):
         """A short hash of the settings (to tell a finished run of these settings from others)."""
         text = json.dumps(self.model_dump(mode="json"), sort_keys=True)
         return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def _is_arm_file(arm: Any) -> bool:
+    return isinstance(arm, str) and arm not in BUILTIN_ARMS and bool(arm)
+
+
+def load_experiment_config(path: str | Path) -> ExperimentConfig:
+    """The settings of file ``path`` (TOML/YAML), validated. A relative ``arm`` file in it is
+    read relative to the settings file's folder (as ``hydroarm tune`` writes it), so the file
+    works from any working directory; if no such file is there, relative to the working
+    directory (as older settings files meant it)."""
+    path = Path(path)
+    data = read_mapping(path)
+    arm = data.get("arm")
+    if _is_arm_file(arm) and not Path(arm).is_absolute():
+        beside = path.parent / arm
+        if beside.exists():
+            data = {**data, "arm": str(beside)}
+    return validate(ExperimentConfig, data, str(path))
+
+
+def arm_for_settings_file(arm: str, settings_file: str | Path) -> str:
+    """``arm`` as a settings file at ``settings_file`` should name it: a built-in name as is, an
+    arm file relative to the settings file's folder (what :func:`load_experiment_config` reads)."""
+    if not _is_arm_file(arm) or not Path(arm).exists():
+        return arm
+    return os.path.relpath(Path(arm).resolve(), Path(settings_file).resolve().parent)
 
 
 def with_overrides(config: ExperimentConfig, overrides: dict[str, Any]) -> ExperimentConfig:

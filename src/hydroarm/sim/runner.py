@@ -279,7 +279,7 @@ def stop_reason(traj: Trajectory) -> str | None:
 
 
 def tracking_metrics(traj: Trajectory, steady_after: float = 2.0, band: float = 0.05) -> dict:
-    """SPEC section 4 metrics, per joint, on the true q.
+    """paper reading, section 4 metrics, per joint, on the true q.
 
     ``Ep``: mean over control samples of (q_r - q)^2 (rad^2) — Tables 1-2;
     ``Ep_steady``: the same over t > ``steady_after`` s; ``rms``/``max`` error

@@ -8,7 +8,7 @@ transparent). A corner shows the time and the tracking error ``|q_r - q|``
 reach, so the camera never moves. Matplotlib 3-D on the Agg backend, frames
 written with Pillow (GIF) or ffmpeg (MP4, when installed): no display needed.
 
-A vehicle-manipulator run (``hydroarm run-uvms``/``run --vehicle``:
+A vehicle-manipulator run (``hydroarm run --vehicle``:
 ``meta["vehicle"]`` and ``extra["base_pose"]``) is drawn with the vehicle: its
 hull box (the vehicle file's ``[hull]``) at the base pose of each sample, the
 arm mounted under it; the axes are centred on the station-keeping target

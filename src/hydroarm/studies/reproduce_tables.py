@@ -2,7 +2,7 @@
 
 Rows: the paper's controllers on the raw measurement (:data:`PAPER_CONTROLLERS`), then
 :data:`EXTRA_ROWS` (hydroarm's best and the paper's controllers behind the same Kalman
-filter). The paper's own numbers (:data:`PAPER_EP`, SPEC section 6) are printed beside ours.
+filter). The paper's own numbers (:data:`PAPER_EP`, paper reading, section 7) are printed beside ours.
 """
 
 from __future__ import annotations

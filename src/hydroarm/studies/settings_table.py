@@ -277,10 +277,11 @@ def settings_markdown() -> str:
             )
         lines.append("")
     lines += [
-        "## Sweep files only: `mismatch`",
+        "## Plant mismatch: `mismatch`",
         "",
-        "A sweep file's `[mismatch]` (or swept `mismatch.*` keys) changes the true plant's rigid body",
-        "only; the controllers keep the arm file.",
+        "`hydroarm run --set mismatch.mass_scale=0.8` and a sweep file's `[mismatch]` (or swept",
+        "`mismatch.*` keys) change the true plant's rigid body only; the controllers keep the arm file.",
+        "(Not a key of `--config` settings files: a run's settings describe the arm the controllers know.)",
         "",
         "| key | default | allowed | description |",
         "|---|---|---|---|",

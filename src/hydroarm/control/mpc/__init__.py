@@ -1,4 +1,4 @@
-"""Linear time-varying MPC about the reference (paper Section 3.2, eqs. 13-18; SPEC section 5).
+"""Linear time-varying MPC about the reference (paper Section 3.2, eqs. 13-18; paper reading, section 5).
 
 Modules: :mod:`~hydroarm.control.mpc.config` (:class:`MPCConfig`),
 :mod:`~hydroarm.control.mpc.riccati` (the terminal weight),

@@ -25,8 +25,8 @@ class MPCConfig(FrozenModel):
 
     Defaults are the paper's (Section 4) where it gives them: Q = diag(300 x n,
     0.01 x n), R = 0.1 I, |u| <= 500 N m (the paper arm's limit, read from the
-    arm file when ``torque_limit`` is None); N = 10 is SPEC's choice (the paper
-    gives none). The control period T (SPEC: 10 ms) is not a field: it is
+    arm file when ``torque_limit`` is None); N = 10 is our reading's choice (the paper
+    gives none). The control period T (paper reading: 10 ms) is not a field: it is
     ``LinearMPC``'s ``control_period`` argument. ``discretisation`` departs from the
     paper's Euler step by default: in the second-order Taylor step the held torque
     also moves the position within the step, which keeps the light wrist stable

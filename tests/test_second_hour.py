@@ -1,0 +1,223 @@
+"""A newcomer's second hour (issue 24): no traceback on the inputs that gave one, messages that
+say what is wrong."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from hydroarm.cli import app
+from hydroarm.config import ConfigError
+from hydroarm.model.loading import load_arm
+from hydroarm.sim.experiment import ExperimentConfig, build_experiment, with_overrides
+from hydroarm.sim.runner import Trajectory, run_closed_loop, tracking_metrics
+
+RUNNER = CliRunner()
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _one_error_line(result) -> str:
+    assert result.exit_code == 2, result.output
+    assert "Traceback" not in result.output
+    lines = [line for line in result.output.splitlines() if line.strip()]
+    assert len(lines) == 1 and lines[0].startswith("error:"), result.output
+    return lines[0]
+
+
+class ScalarReference:
+    """A reference whose ``sample`` takes one time only (math, not NumPy), as a user writes one."""
+
+    def __init__(self, inner):
+        self.inner = inner
+
+    def sample(self, t: float):
+        assert isinstance(t, float), type(t)
+        return self.inner.sample(t)
+
+
+@pytest.mark.parametrize("controller", ["SMC", "MPC", "GP-MPC", "IDMPC", "GP-IDMPC"])
+def test_a_scalar_reference_runs_every_controller_as_the_vectorised_one(controller):
+    """The same run from the task's vectorised reference and from one that takes a scalar time:
+    the controllers must ask the scalar one one time at a time and get the same torques."""
+    config = ExperimentConfig(duration=0.05)
+    experiment = build_experiment(config, controller)
+    expected = run_closed_loop(experiment.plant, experiment.controller, experiment.reference, 0.05, 0, x0=experiment.x0)
+    experiment = build_experiment(config, controller)
+    scalar = ScalarReference(experiment.reference)
+    got = run_closed_loop(experiment.plant, experiment.controller, scalar, 0.05, 0, x0=experiment.x0)
+    np.testing.assert_array_equal(got.u, expected.u)
+
+
+@pytest.mark.parametrize(
+    ("settings", "field"),
+    [({"control_period": 0.5, "duration": 0.1}, "control_period"), ({"control_period": 0.01, "duration": 0.004}, "")],
+)
+def test_a_run_without_a_control_step_is_refused_at_validation(settings, field):
+    with pytest.raises(ConfigError, match="control_period .*must be <= duration|at least one control step"):
+        with_overrides(ExperimentConfig(), settings)
+
+
+def test_the_shortest_valid_run_has_metrics():
+    """What passes validation must not fail later (docs/reliability.md): one control step."""
+    config = with_overrides(ExperimentConfig(), {"control_period": 0.1, "duration": 0.1})
+    metrics = tracking_metrics(build_experiment(config, "SMC").run())
+    assert len(metrics["Ep"]) == 6 and all(np.isfinite(metrics["Ep"]))
+
+
+def test_run_with_a_control_period_beyond_the_duration_exits_2_and_writes_nothing(tmp_path):
+    out = tmp_path / "cp"
+    result = RUNNER.invoke(app, ["run", "--set", "control_period=0.5", "--set", "duration=0.1", "--out", str(out)])
+    line = _one_error_line(result)
+    assert "control_period" in line and "duration" in line
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("command", [["run"], ["reproduce", "--quick"], ["run", "--vehicle", "bluerov2-heavy"]])
+def test_an_out_folder_that_cannot_be_made_exits_2_in_one_line(command):
+    result = RUNNER.invoke(app, [*command, "--out", "/proc/hydroarm-cannot-be-here"])
+    line = _one_error_line(result)
+    assert "--out '/proc/hydroarm-cannot-be-here'" in line and "cannot write" in line
+
+
+def test_an_out_folder_under_a_file_exits_2(tmp_path):
+    (tmp_path / "file").write_text("x")
+    line = _one_error_line(RUNNER.invoke(app, ["run", "--out", str(tmp_path / "file" / "run")]))
+    assert "is not a folder" in line
+
+
+def test_an_unknown_arm_controller_on_a_vehicle_exits_2_naming_the_allowed():
+    line = _one_error_line(RUNNER.invoke(app, ["run", "--vehicle", "bluerov2-heavy", "--controller", "foo"]))
+    assert "controller = 'foo'" in line and "gp-idmpc" in line
+
+
+def test_the_vehicle_run_settings_refuse_a_run_without_a_step():
+    with pytest.raises(ConfigError, match="control_period"):
+        with_overrides(ExperimentConfig(), {"vehicle.name": "bluerov2-heavy", "duration": 0.005})
+
+
+@pytest.mark.parametrize("arm_controller", ["idmpc", "gp-idmpc"])
+def test_the_inverse_dynamics_mpcs_run_on_the_vehicle(arm_controller, tmp_path):
+    """They sample the reach-and-return reference (scalar times only) over their horizon."""
+    result = RUNNER.invoke(
+        app,
+        ["run", "--vehicle", "bluerov2-heavy", "--controller", arm_controller,
+         "--set", "duration=1.2", "--out", str(tmp_path / "v")],
+    )  # fmt: skip
+    assert result.exit_code == 0, result.output
+    assert (tmp_path / "v" / "metrics.json").is_file()
+
+
+# --- settings files that work from anywhere ---------------------------------------------
+
+
+def test_tune_names_the_arm_relative_to_the_settings_file_and_run_reads_it_from_anywhere(tmp_path, monkeypatch):
+    """What ``hydroarm tune --arm examples/myarm.toml --out DIR/x.toml`` writes must load from
+    DIR and from anywhere else."""
+    from hydroarm.sim.experiment import arm_for_settings_file, load_experiment_config
+    from hydroarm.studies.tune import write_settings
+
+    arms = tmp_path / "arms"
+    arms.mkdir()
+    (arms / "myarm.toml").write_text((ROOT / "src" / "hydroarm" / "arms" / "ur5.toml").read_text())
+    out = tmp_path / "tuned" / "x.toml"
+    out.parent.mkdir()
+    monkeypatch.chdir(tmp_path)
+    written = arm_for_settings_file("arms/myarm.toml", out)
+    assert written == "../arms/myarm.toml"
+    write_settings(out, {"arm": written, "smc.switching_gain": 5.0}, "test")
+    for where in (out.parent, tmp_path / "arms", Path("/")):
+        monkeypatch.chdir(where)
+        config = load_experiment_config(out)
+        assert Path(config.arm).resolve() == (arms / "myarm.toml").resolve()
+        assert load_arm(config.arm).n_joints == 6
+    assert arm_for_settings_file("paper", out) == "paper"
+
+
+def test_run_config_from_the_settings_files_folder(tmp_path, monkeypatch):
+    (tmp_path / "myarm.toml").write_text((ROOT / "src" / "hydroarm" / "arms" / "ur5.toml").read_text())
+    (tmp_path / "sub").mkdir()
+    (tmp_path / "sub" / "x.toml").write_text('arm = "../myarm.toml"\nduration = 0.05\n')
+    monkeypatch.chdir(tmp_path / "sub")
+    result = RUNNER.invoke(app, ["run", "--controller", "smc", "--config", "x.toml", "--out", str(tmp_path / "r")])
+    assert result.exit_code == 0, result.output
+
+
+# --- messages that say what is wrong ---------------------------------------------------
+
+
+def test_a_folder_given_as_a_file_is_called_a_folder(tmp_path):
+    (tmp_path / "d.urdf").mkdir()
+    assert "a folder, not a file" in _one_error_line(RUNNER.invoke(app, ["run", "--config", str(tmp_path)]))
+    line = _one_error_line(RUNNER.invoke(app, ["run", "--arm", str(tmp_path / "d.urdf")]))
+    assert "a folder, not a file" in line and "no such file" not in line
+
+
+def test_an_arm_file_of_an_unknown_type_names_every_arm_file_type(tmp_path):
+    (tmp_path / "x.npz").write_bytes(b"PK")
+    line = _one_error_line(RUNNER.invoke(app, ["run", "--arm", str(tmp_path / "x.npz")]))
+    assert ".urdf" in line and ".toml" in line and ".hydro.toml" in line
+
+
+def test_tuned_with_a_missing_arm_file_says_the_file_is_missing(tmp_path):
+    line = _one_error_line(RUNNER.invoke(app, ["run", "--tuned", "--arm", "./missing.toml"]))
+    assert "nor an existing file" in line and "no tuned settings ship" not in line
+
+
+@pytest.mark.parametrize(
+    ("args", "words"),
+    [
+        (["run", "--noise", "nan"], ["--noise", "nan", "0 <= x <= 10"]),
+        (["run", "--seed", "-1"], ["--seed", "greater than or equal to 0"]),
+        (["run", "--bogus"], ["No such option", "--bogus"]),
+        (["animate"], ["Missing argument"]),
+    ],
+)
+def test_option_parser_errors_are_one_line(args, words):
+    line = _one_error_line(RUNNER.invoke(app, args))
+    assert all(word in line for word in words), line
+    assert "╭" not in line
+
+
+def test_a_plant_mismatch_is_a_run_setting(tmp_path):
+    """``--set mismatch.mass_scale`` as in sweep files: the plant only is lighter, so the torques
+    differ from the nominal run's; the run records it."""
+    runs = {}
+    for label, extra in (("nominal", []), ("light", ["--set", "mismatch.mass_scale=0.8"])):
+        out = tmp_path / label
+        result = RUNNER.invoke(app, ["run", "--controller", "smc", "--set", "duration=0.1", *extra, "--out", str(out)])
+        assert result.exit_code == 0, result.output
+        runs[label] = Trajectory.load(out / "trajectory.npz")
+    assert runs["light"].meta["mismatch"]["mass_scale"] == 0.8
+    assert not np.allclose(runs["light"].u, runs["nominal"].u)
+    line = _one_error_line(RUNNER.invoke(app, ["run", "--set", "mismatch.mass_scal=0.8"]))
+    assert "did you mean 'mass_scale'" in line
+
+
+def test_a_controller_setting_on_a_vehicle_run_says_what_the_vehicle_run_takes():
+    line = _one_error_line(RUNNER.invoke(app, ["run", "--vehicle", "bluerov2-heavy", "--set", "duraton=1"]))
+    assert "did you mean 'duration'" in line
+    line = _one_error_line(RUNNER.invoke(app, ["run", "--vehicle", "bluerov2-heavy", "--set", "vehicle.awar=true"]))
+    assert "did you mean 'vehicle.aware'" in line  # the vehicle's settings are a section of the one settings
+
+
+@pytest.mark.parametrize(
+    "args",
+    [["export-urdf", "paper"], ["tune", "--controller", "smc"], ["animate", "RUN"], ["view", "RUN", "--no-browser"]],
+    ids=lambda args: args[0],
+)
+def test_a_file_out_that_cannot_be_written_exits_2_in_one_line(args, tmp_path):
+    run = tmp_path / "run.npz"
+    np.savez(run, x=np.zeros(1))
+    args = [str(run) if a == "RUN" else a for a in args]
+    line = _one_error_line(RUNNER.invoke(app, [*args, "--out", "/proc/hydroarm-cannot/x.out"]))
+    assert "cannot write" in line
+
+
+def test_run_prints_e_p_after_the_start_up_beside_the_whole_run(tmp_path):
+    """The whole run's E_p is decided by the start-up from the task's start; both are printed."""
+    result = RUNNER.invoke(app, ["run", "--controller", "smc", "--set", "duration=2.5", "--out", str(tmp_path / "r")])
+    assert result.exit_code == 0, result.output
+    assert "whole run" in result.output and "after the start-up (t > 2 s)" in result.output
