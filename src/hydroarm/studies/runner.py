@@ -3,7 +3,12 @@
 One control step k (period T): the plant's true state x_k is measured as
 y_k (seeded noise), the controller returns u_k, the plant integrates to
 x_{k+1} under u_k held constant, y_{k+1} is measured and the controller
-observes (y_k, u_k, y_{k+1}).
+observes (y_k, u_k, y_{k+1}). The plant's sensor and drives
+(:mod:`hydroarm.model.sensing`: quantisation, encoder-only velocity, delays, dropout, torque
+rate and bandwidth limits) sit in between: y_k is what the sensor delivers, the plant
+integrates under the torque the drives apply (``Trajectory.u``; the command is
+``extra["u_command"]`` when the drives are not ideal), and the controller observes its own
+command u_k.
 
 Faults are caught where they happen and counted, never hidden
 (:data:`hydroarm.control.interface.FAULT_EVENTS`; ``Trajectory.meta["faults"]``):
@@ -155,10 +160,13 @@ def run_closed_loop(
     faults = dict.fromkeys(FAULT_EVENTS, 0)
     controller.reset()
     last_valid = x.copy()  # before any valid measurement: the known initial state
+    sensor = None if plant.sensor.ideal else plant.new_sensor(period, rng, seed)
+    actuator = None if plant.actuator.ideal else plant.new_actuator(period)
+    commands = None if actuator is None else np.full((steps, n), np.nan)
 
     def measure(state: np.ndarray) -> tuple[np.ndarray, bool]:
         nonlocal last_valid
-        measured = plant.measure(state, rng)
+        measured = plant.measure(state, rng) if sensor is None else sensor.sample(state)
         if np.all(np.isfinite(measured)):
             last_valid = measured
             return measured, True
@@ -179,8 +187,11 @@ def run_closed_loop(
             stopped, error, used, stop_time = "controller_error", f"{type(exc).__name__}: {exc}", k, float(t)
             faults["controller_error"] += 1
             break
-        x_next, info = plant.step(t, x, tau, period)
-        rows["x"][k], rows["y"][k], rows["u"][k] = x, y, tau
+        applied = tau if actuator is None else actuator.apply(tau)
+        x_next, info = plant.step(t, x, applied, period)
+        rows["x"][k], rows["y"][k], rows["u"][k] = x, y, applied
+        if commands is not None:
+            commands[k] = tau
         rows["q_ref"][k], rows["v_ref"][k] = q_r, v_r
         rows["disturbance"][k] = info.disturbance
         if out.disturbance_mean is not None:
@@ -226,6 +237,9 @@ def run_closed_loop(
         "error": error,
         "faults": faults,
     }
+    if sensor is not None:
+        meta["sensor"] = {"samples": sensor.samples, "dropped": sensor.dropped}
+    extra = {} if commands is None else {"u_command": commands[:used]}
     return Trajectory(
         t=t_grid[:used],
         **{name: value[:used] for name, value in rows.items()},
@@ -234,6 +248,7 @@ def run_closed_loop(
         events=np.asarray(events[:used], dtype=str),
         timings={key: value[:used] for key, value in timings.items()},
         meta=meta,
+        extra=extra,
     )
 
 

@@ -23,7 +23,9 @@ from pydantic.fields import FieldInfo
 from hydroarm.control.registry import controller_spec
 from hydroarm.studies.experiment import ExperimentConfig
 
-GENERAL_SECTIONS: tuple[str, ...] = ("", "water", "water.current", "plant", "initial_state")
+GENERAL_SECTIONS: tuple[str, ...] = (
+    "", "water", "water.current", "plant", "sensor", "actuator", "friction", "initial_state",
+)  # fmt: skip
 """The sections every run reads, whatever its controller ("": the top-level keys)."""
 
 SECTION_TITLES: dict[str, str] = {"": "the run"}
@@ -259,7 +261,12 @@ def settings_markdown() -> str:
     ]
     for name, spec in REGISTRY.items():
         lines.append(f"| {name} (`{name.lower()}`) | {', '.join(f'`{s}`' for s in (*spec.sections, 'estimator'))} |")
-    lines += ["", "Every run also reads the top-level keys and `water`, `plant` and `initial_state`.", ""]
+    lines += [
+        "",
+        "Every run also reads the top-level keys and `water`, `plant`, `sensor`, `actuator`, `friction` and "
+        "`initial_state`.",
+        "",
+    ]
     for section, members in _sections(settings_table()).items():
         lines += [f"## `{section}`: {titles.get(section, '')}" if section else "## Top level: the run", ""]
         lines += ["| key | default | allowed | description |", "|---|---|---|---|"]
