@@ -9,8 +9,9 @@ velocity ``v_s``; ``tanh(v / w)`` replaces ``sign(v)`` with a stated width w (ra
 force is smooth (C-infinity) and classic RK4 can integrate it; it acts like a viscous term of
 slope ``F_s / w`` near v = 0, for which :class:`~hydroarm.model.plant.UnderwaterPlant` shortens
 its RK4 step as far as classic RK4's stability needs (on the paper arm, whose wrist inertia is
-1.2e-4 kg m^2, the published values need steps of about 0.23 ms, 0.12 ms at twice them). A viscous term ``F_v v`` (``friction.viscous``, per joint) adds to it, and
-to the paper SPEC's uniform viscous option ``plant.friction``. A torque below ``F_s`` holds a joint nearly still: it
+1.2e-4 kg m^2, the published values need steps of about 0.23 ms, 0.12 ms at twice them). A
+viscous term ``F_v v`` (``friction.viscous``, per joint) adds to it, and to the paper SPEC's
+uniform viscous option ``plant.friction``. A torque below ``F_s`` holds a joint nearly still: it
 creeps at about ``w atanh(tau / F_s)`` (rad/s), the price of the regularisation.
 
 Published defaults (:data:`PUBLISHED_COULOMB`, :data:`PUBLISHED_WIDTH`): the joint friction of
