@@ -68,6 +68,9 @@ CONTROLS: dict[str, dict] = {
 }
 """Flagship-only controls on the target world: what the predictor and the filter's tuning are worth."""
 
+SENSITIVITY_VARIANCE = 0.01
+"""sigma_a^2 of the sensitivity group: the flagship's dropout-with-friction worlds with a slower filter."""
+
 
 def ideal_base(target: ExperimentConfig) -> ExperimentConfig:
     """The ideal loop with the target's filter: every real-loop setting at its default."""
@@ -125,6 +128,13 @@ def tasks() -> list[tuple]:
         out += [("target+", world, name, target_json, overrides, 0) for name in CONTROLLERS]
     for world, overrides in CONTROLS.items():
         out.append(("control", world, FLAGSHIP, target_json, overrides, 0))
+    for row in plan.rows:
+        if row.controller == FLAGSHIP and row.params["sensor.dropout"] > 0 and row.params["friction.scale"] > 0:
+            world = ", ".join(f"{k.split('.')[-1]}={v:g}" for k, v in row.params.items())
+            overrides = {**row.params, "estimator.acceleration_variance": SENSITIVITY_VARIANCE}
+            out.append(
+                ("sensitivity", f"{world}, sigma_a^2={SENSITIVITY_VARIANCE:g}", FLAGSHIP, target_json, overrides, 0)
+            )
     return out
 
 
@@ -142,7 +152,7 @@ def table(results: list[dict]) -> str:
             f"{sum(r['within_band'] for r in rows)} | {mean:.4f} | {mean / ideal[name]:.2f} |"
         )
     lines += ["", "| world | " + " | ".join(CONTROLLERS) + " |", "|---|" + "---|" * len(CONTROLLERS)]
-    for group in ("alone", "grid-target", "target+", "control"):
+    for group in ("alone", "grid-target", "target+", "control", "sensitivity"):
         worlds: dict[str, dict[str, dict]] = {}
         for r in results:
             is_target = r["group"] == "grid" and r["overrides"] == {
@@ -172,8 +182,11 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--out", type=Path, default=Path("docs/data/real_loop.json"))
     parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument(
+        "--groups", nargs="*", default=None, help="run only these groups and merge them into --out (grid, alone, ...)"
+    )
     args = parser.parse_args()
-    todo = tasks()
+    todo = tasks() if args.groups is None else [t for t in tasks() if t[0] in args.groups]
     start = time.perf_counter()
     results = []
     with ProcessPoolExecutor(args.workers) as pool:
@@ -182,6 +195,14 @@ def main() -> None:
             print(f"[{k}/{len(todo)}] {result['group']} {result['world']} {result['controller']}: "
                   f"Ep={result['Ep']} within={result['within_band']}", flush=True)  # fmt: skip
     wall = time.perf_counter() - start
+    if args.groups is not None:  # merge: keep the other groups' runs and the first wall time
+        previous = json.loads(args.out.read_text())
+        kept = [r for r in previous["runs"] if r["group"] not in args.groups]
+        previous["runs"] = kept + results
+        previous.setdefault("extra_wall_time_s", {})[",".join(args.groups)] = wall
+        args.out.write_text(json.dumps(previous, indent=1) + "\n")
+        print(table(previous["runs"]))
+        return
     payload = {
         "sweep_file": "examples/real_loop.toml",
         "band_rad": BAND,
