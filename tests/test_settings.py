@@ -71,7 +71,10 @@ def test_cli_settings_of_one_controller_shows_only_the_sections_it_reads():
     result = RUNNER.invoke(app, ["settings", "--controller", "gp-mpc", "--json"])
     assert result.exit_code == 0, result.output
     sections = {row["section"].split(".")[0] for row in json.loads(result.output)}
-    assert sections == {"", "water", "plant", "initial_state", "vehicle", "mpc", "gp", "gpmpc", "estimator"}
+    assert sections == {
+        "", "water", "plant", "sensor", "actuator", "friction", "initial_state", "vehicle", "mpc", "gp", "gpmpc",
+        "estimator",
+    }  # fmt: skip
     every = RUNNER.invoke(app, ["settings", "--json"])
     assert [row["key"] for row in json.loads(every.output)] == [row.key for row in experiment_settings()]
     text = RUNNER.invoke(app, ["settings", "--controller", "smc"]).output

@@ -26,11 +26,33 @@ measurement passed through unchanged. Each step::
 measurement before ``compute`` and ``observe``, and drives the filter with the
 controller's commanded acceleration (``ControlOutput.acceleration`` when the controller
 states it, else the dry model's ``ABA(q_hat, v_hat, tau)``).
+
+The real loop (issue 23, :mod:`hydroarm.model.sensing`):
+
+* **encoder-only sensing** (``sensor.velocity = "differenced"``; ``estimator.measures``): the
+  filter measures the position alone, ``y = C z + noise`` with C = [1, 0] and the variance of
+  the position noise plus the quantisation's ``resolution^2 / 12``; the velocity is estimated,
+  the sensor's differenced velocity is not used. The Riccati equation and gain
+  ``L = Sigma C^T (C Sigma C^T + R)^-1`` (2 x 1) are the general ones
+  (:func:`riccati_covariance`).
+* **loop delay** (``sensor.delay + actuator.delay`` = d periods; ``estimator.delay``): the
+  measurement at step k is of x_{k - d_s} and the command of step k acts from step k + d_a. The
+  filter runs d_s periods behind, each predict driven by the command that was acting then, and
+  the controller is given a Smith-predictor-style forward prediction: the filtered state
+  stepped d periods on the filter's nominal model (the double integrator above) under the d
+  commanded accelerations still in flight. A learning controller observes the filtered
+  transition with the torque that acted during it, not the one just commanded.
+* **dropout**: a measurement equal to the previous one in every channel (the sensor repeated a
+  lost sample) is not corrected with (``estimator.repeated = "skip"``): the filter predicts only.
+
+With the defaults on the idealised loop (state measured, no delay) every number is as before.
 """
 
 from __future__ import annotations
 
 import time
+from collections import deque
+from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
@@ -39,6 +61,7 @@ import pydantic
 from hydroarm.config import ConfigError, FrozenModel
 from hydroarm.control.interface import Controller, ControlOutput, Reference
 from hydroarm.model.nominal import NominalModel
+from hydroarm.model.sensing import SensorConfig
 
 EstimatorKind = Literal["auto", "none", "kalman"]
 
@@ -63,6 +86,32 @@ class EstimatorConfig(FrozenModel):
     acceleration_variance: float = pydantic.Field(
         1e2, gt=0.0, le=1e8, description="sigma_a^2: variance of the acceleration the command misses ((rad/s^2)^2)"
     )
+    measures: Literal["plant", "state", "position"] = pydantic.Field(
+        "plant",
+        description=(
+            "what the filter corrects with: state (q and v), position (q alone, the velocity estimated), "
+            "plant = position when sensor.velocity = 'differenced', else state"
+        ),
+    )
+    delay: int | Literal["plant"] = pydantic.Field(
+        "plant",
+        description=(
+            "loop delay the filter predicts across, 0 <= x <= 1000 (periods); plant = sensor.delay + actuator.delay"
+        ),
+    )
+    repeated: Literal["skip", "use"] = pydantic.Field(
+        "skip",
+        description="a measurement equal to the previous one in every channel (a lost sample): skip = predict only",
+    )
+
+    @pydantic.field_validator("delay", mode="before")
+    @classmethod
+    def _delay_in_range(cls, value):
+        if value == "plant":
+            return value
+        if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= 1000:
+            raise ValueError(f"must be 'plant' or a whole number of periods 0 <= x <= 1000, got {value!r}")
+        return value
 
     @pydantic.field_validator("measurement_variance", mode="before")
     @classmethod
@@ -77,12 +126,79 @@ class EstimatorConfig(FrozenModel):
             raise ValueError(f"must be 'plant' or a variance 0 <= x <= 10 (rad^2), got {value!r}")
         return variance
 
+    def design(
+        self, noise_variance: float | None, sensor: SensorConfig | None = None, loop_delay: int | None = None
+    ) -> FilterDesign:
+        """The :class:`FilterDesign` for a plant with ``noise_variance`` (``plant.noise_variance``,
+        rad^2), ``sensor`` (None: the paper's, q and v measured) and a loop delay of
+        ``loop_delay`` periods (``sensor.delay + actuator.delay``; None: the sensor's delay)."""
+        sensor = sensor if sensor is not None else SensorConfig()
+        loop_delay = sensor.delay if loop_delay is None else loop_delay
+        position_only = self.measures == "position" or (self.measures == "plant" and sensor.velocity == "differenced")
+        if self.measurement_variance == "plant":
+            if noise_variance is None:
+                raise ConfigError(
+                    "estimator.measurement_variance = 'plant' needs the plant's noise variance: "
+                    "give a variance 0 <= x <= 10 (rad^2)"
+                )
+            position = sensor.position_variance(noise_variance)
+            velocity = sensor.variances(noise_variance)[1]
+        else:
+            position = velocity = float(self.measurement_variance)
+        delay = loop_delay if self.delay == "plant" else int(self.delay)
+        return FilterDesign(position_only, position, velocity, delay, min(sensor.delay, delay))
+
     def for_sensor(self, noise_variance: float) -> EstimatorConfig:
         """This config with ``measurement_variance = "plant"`` resolved to the sensor's
         ``noise_variance`` (rad^2); a numeric setting is kept."""
         if self.measurement_variance != "plant":
             return self
         return self.model_copy(update={"measurement_variance": float(noise_variance)})
+
+
+@dataclass(frozen=True)
+class FilterDesign:
+    """What a :class:`JointKalmanFilter` is designed for: ``position_only`` (C = [1, 0]) or the
+    state measured (C = I); the measurement-noise variances ``position_variance`` (rad^2) and
+    ``velocity_variance`` ((rad/s)^2); the loop ``delay`` it predicts across (periods), of which
+    ``sensor_delay`` periods are the sensor's (the first sample is delivered until then, so the
+    filter starts predicting after them)."""
+
+    position_only: bool = False
+    position_variance: float = 0.0
+    velocity_variance: float = 0.0
+    delay: int = 0
+    sensor_delay: int = 0
+
+
+VARIANCE_FLOOR = 1e-12
+"""Smallest measurement variance (rad^2) of the general Riccati equation (a noise-free
+position-only sensor: the filter is then all but deadbeat)."""
+
+
+def riccati_covariance(
+    period: float, measurement: np.ndarray, noise: np.ndarray, acceleration_variance: float,
+    tolerance: float = 1e-13, max_iterations: int = 1_000_000,
+) -> np.ndarray:  # fmt: skip
+    """The steady-state prior covariance Sigma (2, 2) for the measurement matrix C
+    (``measurement``, (m, 2)) and noise covariance R (``noise``, (m, m)), by fixed-point
+    iteration of ``Sigma = A (Sigma - Sigma C^T (C Sigma C^T + R)^-1 C Sigma) A^T + Q_w``.
+    Raises :class:`ConfigError` if it does not converge."""
+    a_mat, b_vec = double_integrator(period)
+    process = acceleration_variance * np.outer(b_vec, b_vec)
+    c_mat = np.atleast_2d(measurement)
+    sigma = process.copy()
+    for _ in range(max_iterations):
+        gain = sigma @ c_mat.T @ np.linalg.inv(c_mat @ sigma @ c_mat.T + noise)
+        posterior = (np.eye(2) - gain @ c_mat) @ sigma
+        updated = a_mat @ posterior @ a_mat.T + process
+        if np.all(np.abs(updated - sigma) <= tolerance * np.abs(updated)):
+            return 0.5 * (updated + updated.T)
+        sigma = updated
+    raise ConfigError(
+        f"estimator: the Kalman covariance did not converge in {max_iterations} iterations "
+        f"(R = {np.asarray(noise).tolist()!r}, acceleration_variance = {acceleration_variance!r})"
+    )
 
 
 def double_integrator(period: float) -> tuple[np.ndarray, np.ndarray]:
@@ -117,42 +233,70 @@ def steady_state_covariance(
 
 
 class JointKalmanFilter:
-    """Steady-state Kalman filters, one per joint, on the measured state [q, v] (2n,).
+    """Steady-state Kalman filters, one per joint, on the measured state [q, v] (2n,), or on
+    the measured position alone (``design.position_only``; module docstring).
 
-    ``gain`` (2, 2): the same for every joint (same model and variances); ``covariance``:
-    the steady-state prior Sigma. :meth:`update` returns the filtered state (2n,).
+    ``gain`` (2, 2) on the state, (2, 1) on the position alone: the same for every joint (same
+    model and variances); ``covariance``: the steady-state prior Sigma. :meth:`update` returns
+    the filtered state (2n,). ``design``: what the filter is for (default: the state measured
+    with ``config.measurement_variance`` on q and v, no delay).
     """
 
-    def __init__(self, n_joints: int, period: float, config: EstimatorConfig):
-        if config.measurement_variance == "plant":
-            raise ConfigError(
-                "estimator.measurement_variance = 'plant' needs the plant's noise variance: "
-                "resolve it with EstimatorConfig.for_sensor(noise_variance), or give a variance 0 <= x <= 10 (rad^2)"
-            )
+    def __init__(self, n_joints: int, period: float, config: EstimatorConfig, design: FilterDesign | None = None):
+        if design is None:
+            if config.measurement_variance == "plant":
+                raise ConfigError(
+                    "estimator.measurement_variance = 'plant' needs the plant's noise variance: resolve it with "
+                    "EstimatorConfig.for_sensor(noise_variance), or give a variance 0 <= x <= 10 (rad^2)"
+                )
+            variance = float(config.measurement_variance)
+            design = FilterDesign(False, variance, variance, 0 if config.delay == "plant" else int(config.delay))
         self.n = n_joints
         self.period = float(period)
         self.config = config
-        variance = float(config.measurement_variance)
+        self.design = design
+        self.position_only = design.position_only
+        self.delay = int(design.delay)
+        self._skip_repeated = config.repeated == "skip"
         self._a, self._b = double_integrator(period)
-        self._exact = variance == 0.0  # L = I: the estimate is the measurement, bit for bit
+        same = design.position_variance == design.velocity_variance
+        variance = float(design.position_variance)
+        self._exact = not design.position_only and same and variance == 0.0  # L = I: the measurement, bit for bit
         if self._exact:  # the prior is the process noise alone
             self.covariance = config.acceleration_variance * np.outer(self._b, self._b)
             self.gain = np.eye(2)
-        else:
+        elif not design.position_only and same:  # the paper's sensor: one variance on q and v
             self.covariance = steady_state_covariance(period, variance, config.acceleration_variance)
             self.gain = self.covariance @ np.linalg.inv(self.covariance + variance * np.eye(2))
+        else:
+            if design.position_only:
+                measurement = np.array([[1.0, 0.0]])
+                noise = np.array([[max(design.position_variance, VARIANCE_FLOOR)]])
+            else:
+                measurement = np.eye(2)
+                noise = np.diag([max(design.position_variance, VARIANCE_FLOOR),
+                                 max(design.velocity_variance, VARIANCE_FLOOR)])  # fmt: skip
+            self.covariance = riccati_covariance(period, measurement, noise, config.acceleration_variance)
+            self.gain = (
+                self.covariance @ measurement.T @ np.linalg.inv(measurement @ self.covariance @ measurement.T + noise)
+            )
+            self._measurement = measurement
         self.reset()
 
     @property
     def posterior_covariance(self) -> np.ndarray:
-        """``(I - L) Sigma`` (2, 2): the steady-state covariance of the estimate's error after a
+        """``(I - L C) Sigma`` (2, 2): the steady-state covariance of the estimate's error after a
         correction, per joint (rad^2, rad^2/s, (rad/s)^2); zero on an exact sensor."""
+        if self.position_only:
+            return (np.eye(2) - self.gain @ self._measurement) @ self.covariance
         return (np.eye(2) - self.gain) @ self.covariance
 
     def reset(self) -> None:
         """Forget the estimate: the next measurement is taken as it is."""
         self._q: np.ndarray | None = None
         self._v: np.ndarray | None = None
+        self._last: np.ndarray | None = None
+        self.skipped = 0
 
     def predict(self, acceleration: np.ndarray) -> None:
         """Advance the estimate by one period under the commanded ``acceleration`` (n,) rad/s^2."""
@@ -163,12 +307,25 @@ class JointKalmanFilter:
         self._v = self._v + period * acceleration
 
     def update(self, y: np.ndarray) -> np.ndarray:
-        """Correct with the measurement ``y = [q, v]`` (2n,); return the estimate (2n,)."""
+        """Correct with the measurement ``y = [q, v]`` (2n,; v unused when ``position_only``);
+        return the estimate (2n,). A repeat of the previous measurement is skipped
+        (``estimator.repeated``): the prediction is returned."""
         n = self.n
         q_meas, v_meas = y[:n], y[n:]
-        if self._q is None or self._exact:
+        if self._q is None and self.position_only:
+            self._q, self._v = q_meas.copy(), np.zeros(n)
+            self._last = np.array(y, dtype=float)
+        elif self._q is None or self._exact:
             self._q, self._v = q_meas.copy(), v_meas.copy()
+        elif self._skip_repeated and self._last is not None and np.array_equal(y, self._last):
+            self.skipped += 1
+        elif self.position_only:
+            self._last = np.array(y, dtype=float)
+            dq = q_meas - self._q
+            self._q = self._q + self.gain[0, 0] * dq
+            self._v = self._v + self.gain[1, 0] * dq
         else:
+            self._last = np.array(y, dtype=float)
             dq, dv = q_meas - self._q, v_meas - self._v
             gain = self.gain
             self._q = self._q + gain[0, 0] * dq + gain[0, 1] * dv
@@ -185,7 +342,9 @@ class FilteredController:
     """Any controller behind a :class:`JointKalmanFilter` (see the module docstring).
 
     Same interface as the controller it wraps; ``name`` is the wrapped one's with ``+KF``.
-    ``timings["estimator"]`` (s) is the filter's share of each step.
+    ``timings["estimator"]`` (s) is the filter's share of each step. With a loop delay of d
+    periods (``kalman.delay``) the wrapped controller is given the filtered state predicted d
+    periods ahead (:meth:`predicted`).
     """
 
     def __init__(self, controller: Controller, kalman: JointKalmanFilter, nominal: NominalModel):
@@ -194,28 +353,74 @@ class FilteredController:
         self.nominal = nominal
         self.name = f"{controller.name}+KF"
         self.control_period = controller.control_period
+        self.delay = kalman.delay
+        self.sensor_delay = kalman.design.sensor_delay
+        self._steps = 0
         self._filtered: np.ndarray | None = None
         self._next: np.ndarray | None = None
+        self._accelerations: deque[np.ndarray] = deque(maxlen=self.delay + 1)
+        self._torques: deque[np.ndarray] = deque(maxlen=self.delay + 1)
 
     def reset(self) -> None:
         self.controller.reset()
         self.kalman.reset()
         self._filtered = None
         self._next = None
+        self._accelerations.clear()
+        self._torques.clear()
+        self._steps = 0
+
+    def _unforced(self, state: np.ndarray) -> np.ndarray:
+        """The dry model's acceleration (n,) at ``state`` with no torque: before the first
+        commands arrive, the drives apply none."""
+        n = self.kalman.n
+        return self.nominal.forward_dynamics(state[:n], state[n:], np.zeros(n))
+
+    def predicted(self, filtered: np.ndarray) -> np.ndarray:
+        """The filtered state (2n,) stepped ``delay`` periods on the double integrator under the
+        commanded accelerations still in flight (``filtered`` itself when there is no delay)."""
+        d = self.delay
+        if d == 0:
+            return filtered
+        n, period = self.kalman.n, self.period_
+        q, v = filtered[:n].copy(), filtered[n:].copy()
+        flight = list(self._accelerations)[-d:] if self._accelerations else []
+        missing = d - len(flight)
+        for k in range(d):
+            if k < missing:
+                acceleration = self._unforced(np.concatenate([q, v]))
+            else:
+                acceleration = flight[k - missing]
+            q = q + period * v + 0.5 * period * period * acceleration
+            v = v + period * acceleration
+        return np.concatenate([q, v])
+
+    @property
+    def period_(self) -> float:
+        return self.kalman.period
 
     def compute(self, t: float, y: np.ndarray, reference: Reference) -> ControlOutput:
         start = time.perf_counter()
         filtered = self._next if self._next is not None else self.kalman.update(np.asarray(y, dtype=float))
         self._next = None
+        state = self.predicted(filtered)
         elapsed = time.perf_counter() - start
-        out = self.controller.compute(t, filtered, reference)
+        out = self.controller.compute(t, state, reference)
         start = time.perf_counter()
         n = self.kalman.n
         if out.acceleration is not None:
             acceleration = np.asarray(out.acceleration, dtype=float)
         else:
-            acceleration = self.nominal.forward_dynamics(filtered[:n], filtered[n:], out.tau)
-        self.kalman.predict(acceleration)
+            acceleration = self.nominal.forward_dynamics(state[:n], state[n:], out.tau)
+        if self.delay == 0:
+            self.kalman.predict(acceleration)
+        else:
+            self._accelerations.append(acceleration)
+            self._torques.append(np.asarray(out.tau, dtype=float))
+            full = len(self._accelerations) == self.delay + 1
+            if self._steps >= self.sensor_delay:  # before: the first sample is held, the filter waits at t = 0
+                self.kalman.predict(self._accelerations[0] if full else self._unforced(filtered))
+        self._steps += 1
         self._filtered = filtered
         out.timings["estimator"] = elapsed + time.perf_counter() - start
         out.timings["total"] = out.timings.get("total", 0.0) + out.timings["estimator"]
@@ -223,8 +428,12 @@ class FilteredController:
 
     def observe(self, t: float, y: np.ndarray, u: np.ndarray, y_next: np.ndarray) -> None:
         """Filter ``y_next`` (it is the next step's measurement too) and pass the filtered
-        transition to the wrapped controller."""
+        transition to the wrapped controller, with the torque that acted during it (with a
+        loop delay of d periods: the command of d steps ago; none before the first arrives)."""
         filtered_next = self.kalman.update(np.asarray(y_next, dtype=float))
         self._next = filtered_next
         previous = self._filtered if self._filtered is not None else np.asarray(y, dtype=float)
-        self.controller.observe(t, previous, u, filtered_next)
+        if self.delay == 0:
+            self.controller.observe(t, previous, u, filtered_next)
+        elif len(self._torques) == self.delay + 1:
+            self.controller.observe(t - self.delay * self.period_, previous, self._torques[0], filtered_next)

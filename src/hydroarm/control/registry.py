@@ -25,6 +25,7 @@ from hydroarm.control.mpc import LinearMPC
 from hydroarm.control.smc import SlidingModeController
 from hydroarm.model.arm import Arm
 from hydroarm.model.nominal import NominalModel
+from hydroarm.model.sensing import SensorConfig
 
 
 @dataclass(frozen=True)
@@ -196,13 +197,17 @@ def build_controller(
     sections: Mapping[str, Any],
     control_period: float,
     sensor_variance: float | None = None,
+    sensor: SensorConfig | None = None,
+    loop_delay: int = 0,
 ) -> Controller:
     """Controller ``name`` on ``arm`` from its config ``sections`` (section name -> config
     model, e.g. ``{"mpc": MPCConfig()}``) with the control period (s), behind the state
     estimator of ``sections["estimator"]`` (an :class:`EstimatorConfig`; absent = ``auto``).
 
     ``sensor_variance``: the measurement-noise variance of the plant it will run on (rad^2),
-    what ``estimator.measurement_variance = "plant"`` stands for; needed only then."""
+    what ``estimator.measurement_variance = "plant"`` stands for; needed only then. ``sensor``:
+    the plant's sensor (None: q and v measured) and ``loop_delay`` (periods, ``sensor.delay +
+    actuator.delay``): what ``estimator.measures`` and ``estimator.delay = "plant"`` stand for."""
     spec = controller_spec(name)
     controller = spec.build(arm, sections, control_period)
     estimator = sections.get("estimator")
@@ -210,6 +215,7 @@ def build_controller(
         config = estimator if estimator is not None else EstimatorConfig()
         if sensor_variance is not None:
             config = config.for_sensor(sensor_variance)
-        kalman = JointKalmanFilter(arm.n_joints, control_period, config)
+        design = config.design(sensor_variance, sensor, loop_delay)
+        kalman = JointKalmanFilter(arm.n_joints, control_period, config, design)
         controller = FilteredController(controller, kalman, NominalModel(arm, inner_step=None))
     return controller

@@ -13,6 +13,12 @@ one compiled kernel; :meth:`UnderwaterPlant.step_numpy` is its plain-NumPy twin
 same operations in the same order (bit-identical; a test compares them; the speed
 ratio is in ``bench/results``). ``StepInfo.disturbance`` is the generalised force
 the dry model lacks, ``M(q) q'' + C v + G - tau``.
+
+The real loop (issue 23) is held by the plant too: the joint friction of a geared arm
+(:class:`~hydroarm.model.friction.FrictionConfig`, Coulomb + Stribeck + viscous, inside the
+RK4 stages), and, per run, the sensor and the drives (:meth:`UnderwaterPlant.new_sensor`,
+:meth:`UnderwaterPlant.new_actuator`; :mod:`hydroarm.model.sensing`). With their defaults
+(all off) every number is the idealised loop's, bit for bit.
 """
 
 from __future__ import annotations
@@ -23,11 +29,14 @@ import numba
 import numpy as np
 import pinocchio as pin
 import pydantic
+import scipy.linalg
 
-from hydroarm.config import ConfigError, FrozenModel
+from hydroarm.config import ConfigError, FrozenModel, per_joint
 from hydroarm.model.arm import Arm
 from hydroarm.model.current import current_at
+from hydroarm.model.friction import FrictionConfig, friction_torque
 from hydroarm.model.integrator import rk4_second_order_stage, rk4_step
+from hydroarm.model.sensing import Actuator, ActuatorConfig, Sensor, SensorConfig
 from hydroarm.model.strips import underwater_dynamics_kernel
 from hydroarm.model.water import Water, WaterModel, added_mass_matrix
 
@@ -102,27 +111,63 @@ class UnderwaterPlant:
     """The true plant (see the module docstring). Owns its Pinocchio workspace and its
     :class:`~hydroarm.model.water.WaterModel`: one plant per thread."""
 
-    def __init__(self, arm: Arm, water: Water | None = None, config: PlantConfig | None = None):
+    def __init__(
+        self,
+        arm: Arm,
+        water: Water | None = None,
+        config: PlantConfig | None = None,
+        friction: FrictionConfig | None = None,
+        sensor: SensorConfig | None = None,
+        actuator: ActuatorConfig | None = None,
+    ):
         self.arm = arm
         self.water = water if water is not None else Water()
         self.config = config if config is not None else PlantConfig()
+        self.friction = friction if friction is not None else FrictionConfig()
+        self.sensor = sensor if sensor is not None else SensorConfig()
+        self.actuator = actuator if actuator is not None else ActuatorConfig()
         self.water_model = WaterModel(arm, self.water)
         self.inner_step = self.config.inner_step
         self.n = arm.n_joints
         self.data = arm.create_data()
         self._views = _live_views(arm.model, self.data)
+        self.joint_friction = self.friction.active
+        if self.joint_friction:
+            self._friction_arrays = self.friction.arrays(self.n)
+        else:
+            zero = np.zeros(self.n)
+            self._friction_arrays = (zero, zero, zero, np.ones(self.n), np.ones(self.n))
+        for name, values in (("actuator.torque_limit", self.actuator.torque_limit),
+                             ("actuator.rate_limit", self.actuator.rate_limit),
+                             ("actuator.bandwidth", self.actuator.bandwidth)):  # fmt: skip
+            if values is not None:
+                per_joint(values, self.n, name)
         self._check_friction()
 
-    def _check_friction(self) -> None:
-        """Raise :class:`ConfigError` if the joint friction is too stiff for RK4 at ``inner_step``:
-        ``friction * inner_step / lambda_min(M(0) + M_A(0)) <= STIFFNESS_LIMIT``."""
-        friction = self.config.friction
-        if friction == 0.0:
-            return
+    def _inertia(self) -> np.ndarray:
         q = pin.neutral(self.arm.model)
         inertia = self.arm.mass_matrix(q, data=self.data)
         if self.water.added_mass:
             inertia = inertia + added_mass_matrix(self.arm, self.water, q)
+        return inertia
+
+    def _check_friction(self) -> None:
+        """Raise :class:`ConfigError` if the joint friction is too stiff for RK4 at ``inner_step``:
+        ``friction * inner_step / lambda_min(M(0) + M_A(0)) <= STIFFNESS_LIMIT`` for the uniform
+        viscous ``plant.friction``; with the joint friction model, ``inner_step *
+        lambda_max(M^-1 D) <= STIFFNESS_LIMIT`` where D = diag(plant.friction + the model's largest
+        slope per joint, F_s / w + F_v) and M = M(0) + M_A(0): there the plant shortens its RK4
+        step (``self.inner_step``) to meet the bound instead (the friction model is stiff by
+        design near v = 0; ``plant.inner_step`` stays the longest step)."""
+        if self.joint_friction:
+            slopes = self.config.friction + self.friction.max_slope(self.n)
+            rate = float(scipy.linalg.eigh(np.diag(slopes), self._inertia(), eigvals_only=True)[-1])
+            self.inner_step = min(self.inner_step, STIFFNESS_LIMIT / rate)
+            return
+        friction = self.config.friction
+        if friction == 0.0:
+            return
+        inertia = self._inertia()
         smallest = float(np.linalg.eigvalsh(inertia)[0])
         limit = STIFFNESS_LIMIT * smallest / self.inner_step
         if friction > limit:
@@ -133,13 +178,29 @@ class UnderwaterPlant:
             )
 
     # --- the dynamics at one instant ------------------------------------------------------
+    def friction_torque(self, v: np.ndarray) -> np.ndarray:
+        """The joint friction model's torque (N m, (n,)) at joint velocities v (rad/s, (n,)):
+        :func:`~hydroarm.model.friction.friction_torque` (zeros when it is off); ``plant.friction``
+        not included."""
+        if not self.joint_friction:
+            return np.zeros(self.n)
+        return friction_torque(np.asarray(v, dtype=float), *self._friction_arrays)
+
+    def dynamics(self, t: float, q: np.ndarray, v: np.ndarray, tau: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """True ``(q'' (rad/s^2), disturbance (N m))`` at (t, q, v, tau), each (n,)."""
+        if not self.joint_friction:
+            return self.water_model.dynamics(q, v, tau, t, self.config.friction)
+        friction = self.friction_torque(v)
+        acc, disturbance = self.water_model.dynamics(q, v, tau - friction, t, self.config.friction)
+        return acc, disturbance - friction
+
     def acceleration(self, t: float, q: np.ndarray, v: np.ndarray, tau: np.ndarray) -> np.ndarray:
         """True q'' (rad/s^2), shape (n,)."""
-        return self.water_model.dynamics(q, v, tau, t, self.config.friction)[0]
+        return self.dynamics(t, q, v, tau)[0]
 
     def disturbance(self, t: float, q: np.ndarray, v: np.ndarray, tau: np.ndarray) -> np.ndarray:
         """Generalised force (N m) beyond the dry model at (t, q, v, tau), shape (n,)."""
-        return self.water_model.dynamics(q, v, tau, t, self.config.friction)[1]
+        return self.dynamics(t, q, v, tau)[1]
 
     # --- integration ------------------------------------------------------------------
     def step(self, t: float, x: np.ndarray, tau: np.ndarray, dt: float) -> tuple[np.ndarray, StepInfo]:
@@ -167,6 +228,7 @@ class UnderwaterPlant:
         constants = wm.kernel_constants
         current_joint, current_world = wm.current.joint, wm.current.world
         friction = float(self.config.friction)
+        joint_friction, joint_arrays = self.joint_friction, self._friction_arrays
         drag, added_mass, buoyancy = water.drag, water.added_mass, water.buoyancy
         live = self._views
         time = t
@@ -182,6 +244,7 @@ class UnderwaterPlant:
                         stage, stage_time, h, state, stage_state, derivatives, disturbances, average, tau,
                         friction, mass, nonlinear, jac, djac,
                         current_joint, current_world, *constants, drag, added_mass, buoyancy,
+                        joint_friction, *joint_arrays,
                     )  # fmt: skip
                 except np.linalg.LinAlgError:  # the solve met an infinite force: diverged
                     stage_state[:] = np.nan
@@ -207,7 +270,7 @@ class UnderwaterPlant:
         stages: list[np.ndarray] = []
 
         def f(s: float, y: np.ndarray) -> np.ndarray:
-            acc, dist = self.water_model.dynamics(y[:n], y[n:], tau, s, self.config.friction)
+            acc, dist = self.dynamics(s, y[:n], y[n:], tau)
             stages.append(dist)
             return np.concatenate([y[n:], acc])
 
@@ -221,7 +284,7 @@ class UnderwaterPlant:
         average /= 6.0 * steps
         return x, StepInfo(disturbance=average, disturbance_start=start)
 
-    # --- sensing ----------------------------------------------------------------------
+    # --- the plant protocol (hydroarm.sim.plant.Plant), sensing and actuation ----------------
     @property
     def n_inputs(self) -> int:
         """Length of the input ``tau`` of :meth:`step` (the joint torques)."""
@@ -240,8 +303,24 @@ class UnderwaterPlant:
         """What a trajectory records of a state beyond the joints: nothing on a fixed base."""
         return {}
 
+    def new_sensor(self, period: float, rng: np.random.Generator, seed: int) -> Sensor | None:
+        """A fresh :class:`~hydroarm.model.sensing.Sensor` for one run with control period T (s):
+        its noise from ``rng`` (the run's), its dropout from the run ``seed``; None for the ideal
+        sensor (``sensor`` at its defaults: :meth:`measure` is the sensor)."""
+        if self.sensor.ideal:
+            return None
+        return Sensor(self.sensor, self.n, period, self.config.noise_variance, rng, seed)
+
+    def new_actuator(self, period: float) -> Actuator | None:
+        """Fresh :class:`~hydroarm.model.sensing.Actuator` drives for one run (period T, s); None
+        for ideal drives (``actuator`` at its defaults: the torque acts as commanded, at once)."""
+        if self.actuator.ideal:
+            return None
+        return Actuator(self.actuator, self.n, period)
+
     def measure(self, x: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-        """Measured state: x plus N(0, noise_variance) on every entry (q and v)."""
+        """The paper's sensor: x plus N(0, noise_variance) on every entry (q and v)
+        (``plant.sensor`` is applied by :meth:`new_sensor`'s sensor, not here)."""
         variance = self.config.noise_variance
         if variance == 0.0:
             return np.array(x, dtype=float)
@@ -260,6 +339,7 @@ def rk4_stage_kernel(
     parents, placement_rotation, placement_translation, axes, idx_v,
     joint_ids, start, axis, length, support, drag_per_length, mass_per_length, buoyancy_force,
     nodes, weights, use_drag, use_added_mass, use_buoyancy,
+    use_joint_friction, coulomb, breakaway, viscous, stribeck_velocity, width,
 ):  # fmt: skip  # pragma: no cover - compiled
     """One stage of a classic RK4 step of the true plant, everything but Pinocchio compiled.
 
@@ -273,17 +353,27 @@ def rk4_stage_kernel(
     ``average`` gets ``d1 + 2 d2 + 2 d3 + d4``. Same operations, in the same order,
     as :meth:`UnderwaterPlant.step_numpy` (a test compares them bit for bit).
     ``current_joint``, ``current_world``: :class:`~hydroarm.model.current.CurrentField`'s arrays.
+    ``use_joint_friction`` and the five (n,) arrays after it: the joint friction model
+    (:func:`~hydroarm.model.friction.friction_torque`), subtracted from tau; the disturbance
+    then includes it.
     """
     n = tau.shape[0]
     joint_acceleration = np.empty(n)
     water_velocity = np.empty(3)
     current_at(t, current_joint, current_world, joint_acceleration, water_velocity)
+    applied = tau
+    joint_friction = tau  # a placeholder of the same type, replaced when the friction model is on
+    if use_joint_friction:
+        joint_friction = friction_torque(xs[n:], coulomb, breakaway, viscous, stribeck_velocity, width)
+        applied = tau - joint_friction
     acc, disturbance = underwater_dynamics_kernel(
-        xs[:n], xs[n:], tau, water_velocity, joint_acceleration, friction, mass_upper, nonlinear, jac, djac,
+        xs[:n], xs[n:], applied, water_velocity, joint_acceleration, friction, mass_upper, nonlinear, jac, djac,
         parents, placement_rotation, placement_translation, axes, idx_v,
         joint_ids, start, axis, length, support, drag_per_length, mass_per_length, buoyancy_force,
         nodes, weights, use_drag, use_added_mass, use_buoyancy,
     )  # fmt: skip
+    if use_joint_friction:
+        disturbance = disturbance - joint_friction
     for i in range(n):
         dists[stage, i] = disturbance[i]
     rk4_second_order_stage(stage, h, x, xs, ks, acc)

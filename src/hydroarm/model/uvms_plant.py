@@ -86,6 +86,14 @@ class UVMSPlant:
         is not drawn from)."""
         return np.array(x, dtype=float)
 
+    def new_sensor(self, period: float, rng: np.random.Generator, seed: int) -> None:
+        """None: the floating system's sensor is :meth:`measure` (the true state)."""
+        return None
+
+    def new_actuator(self, period: float) -> None:
+        """None: the arm's torques act as commanded; the thrusters' lag is in the plant's state."""
+        return None
+
     def initial_state(self, q: np.ndarray | None = None, v: np.ndarray | None = None) -> np.ndarray:
         """``[q, v, f = 0]`` (default: the neutral configuration at rest)."""
         q = self.uvms.neutral() if q is None else np.asarray(q, dtype=float)

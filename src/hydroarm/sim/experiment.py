@@ -41,8 +41,10 @@ from hydroarm.control.mpc import MPCConfig
 from hydroarm.control.registry import CONTROLLERS, canonical_name, controller_sections, controller_spec
 from hydroarm.control.smc import SMCConfig
 from hydroarm.model.arm import Arm
+from hydroarm.model.friction import FrictionConfig
 from hydroarm.model.loading import BUILTIN_ARMS, load_arm
 from hydroarm.model.plant import PlantConfig, UnderwaterPlant
+from hydroarm.model.sensing import ActuatorConfig, SensorConfig
 from hydroarm.model.task import SinusoidReference, task_for_arm
 from hydroarm.model.water import Water
 from hydroarm.sim.plant import Plant
@@ -73,6 +75,18 @@ SETTINGS_HINT = "`hydroarm settings` lists the allowed settings"
 
 MAX_CONTROL_STEPS = 1_000_000
 """Most control steps of one run (duration / control_period): every step's row is stored."""
+
+REAL_LOOP_SECTIONS: tuple[str, ...] = ("sensor", "actuator", "friction")
+"""The sections of the real loop (issue 23). At their defaults (the idealised loop) they are
+left out of :meth:`ExperimentConfig.canonical` (digests, run ids), so results made before they
+existed still match."""
+
+OPTIONAL_SECTIONS: tuple[str, ...] = (*REAL_LOOP_SECTIONS, "vehicle")
+"""The sections left out of :meth:`ExperimentConfig.canonical` at their defaults: the real loop's
+and the vehicle's (off unless ``vehicle.name`` is set)."""
+
+REAL_LOOP_ESTIMATOR_KEYS: tuple[str, ...] = ("measures", "delay", "repeated")
+"""The estimator's real-loop settings, left out of :meth:`ExperimentConfig.canonical` at their defaults."""
 
 
 class InitialState(FrozenModel):
@@ -128,6 +142,15 @@ class ExperimentConfig(FrozenModel):
     )
     water: Water = pydantic.Field(Water(), description="the water of the true plant (section)")
     plant: PlantConfig = pydantic.Field(PlantConfig(), description="the true plant's integration and sensing (section)")
+    sensor: SensorConfig = pydantic.Field(
+        SensorConfig(), description="the real loop's sensor: encoder-only, quantisation, delay, dropout (section)"
+    )
+    actuator: ActuatorConfig = pydantic.Field(
+        ActuatorConfig(), description="the real loop's drives: delay, torque, rate and bandwidth limits (section)"
+    )
+    friction: FrictionConfig = pydantic.Field(
+        FrictionConfig(), description="the true plant's Coulomb, Stribeck and viscous joint friction (section)"
+    )
     smc: SMCConfig = pydantic.Field(SMCConfig(), description="the sliding-mode controller (section)")
     mpc: MPCConfig = pydantic.Field(MPCConfig(), description="the paper's linear MPC, also inside GP-MPC (section)")
     gp: GPConfig = pydantic.Field(GPConfig(), description="the sliding-window GP of GP-MPC and GP-IDMPC (section)")
@@ -160,9 +183,23 @@ class ExperimentConfig(FrozenModel):
             )
         return self
 
+    def canonical(self) -> dict[str, Any]:
+        """The settings as JSON data, the optional sections (:data:`OPTIONAL_SECTIONS`: the real
+        loop's and the vehicle's) and estimator keys (:data:`REAL_LOOP_ESTIMATOR_KEYS`) left out
+        where they are at their defaults (what digests, run ids and summaries hold)."""
+        data = self.model_dump(mode="json")
+        for section in OPTIONAL_SECTIONS:
+            if getattr(self, section) == type(getattr(self, section))():
+                data.pop(section)
+        defaults = EstimatorConfig()
+        for key in REAL_LOOP_ESTIMATOR_KEYS:
+            if getattr(self.estimator, key) == getattr(defaults, key):
+                data["estimator"].pop(key)
+        return data
+
     def digest(self) -> str:
         """A short hash of the settings (to tell a finished run of these settings from others)."""
-        text = json.dumps(self.model_dump(mode="json"), sort_keys=True)
+        text = json.dumps(self.canonical(), sort_keys=True)
         return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
@@ -237,15 +274,17 @@ def check_settings_for_arm(
     Every per-joint list (``smc.*``, ``mpc.*``) must have one value per joint; the GP's
     ``theta0`` (d + 2 values), ``input_scale`` (d) and ``output_scale`` (1 or n) must fit
     the d GP inputs (:func:`gp_inputs`) of each GP controller among ``controllers`` (default:
-    every registered controller; the section is shared) on the arm's n joints; ``plant.friction`` must
-    suit the RK4 step on this arm (:class:`~hydroarm.model.plant.UnderwaterPlant` checks it).
-    Nothing is run (with friction, the plant is built: about a millisecond).
+    every registered controller; the section is shared) on the arm's n joints; ``plant.friction`` and
+    the joint friction model (``friction``) must suit the RK4 step on this arm
+    (:class:`~hydroarm.model.plant.UnderwaterPlant` checks it). Nothing is run (with friction or
+    a real-loop setting, the plant is built: about a millisecond).
     """
     n = arm.n_joints
     try:
         check_joint_counts(config, n)
-        if config.plant.friction > 0.0:
-            UnderwaterPlant(arm, config.water, config.plant)
+        real_loop = any(getattr(config, s) != type(getattr(config, s))() for s in REAL_LOOP_SECTIONS)
+        if config.plant.friction > 0.0 or real_loop:
+            make_plant(arm, config)
     except ConfigError as error:
         raise ConfigError(f"{source}: {error}") from None
     gp = config.gp
@@ -267,12 +306,25 @@ def check_settings_for_arm(
                 )
 
 
+def make_plant(arm: Arm, config: ExperimentConfig) -> UnderwaterPlant:
+    """The true plant of ``config`` on ``arm``: water, integration, friction, sensor and drives."""
+    return UnderwaterPlant(arm, config.water, config.plant, config.friction, config.sensor, config.actuator)
+
+
 def build_controller(name: str, arm: Arm, config: ExperimentConfig) -> Controller:
     """The controller ``name`` (any spelling of :data:`~hydroarm.control.registry.CONTROLLERS`)
-    on ``arm`` with the experiment's settings and its one control period."""
+    on ``arm`` with the experiment's settings and its one control period; its state estimator is
+    told the plant's sensor (encoder-only or not, its noise and quantum) and the loop delay
+    (``sensor.delay + actuator.delay`` periods)."""
     sections = controller_settings(config)
     return registry.build_controller(
-        name, arm, sections, config.control_period, sensor_variance=config.plant.noise_variance
+        name,
+        arm,
+        sections,
+        config.control_period,
+        sensor_variance=config.plant.noise_variance,
+        sensor=config.sensor,
+        loop_delay=config.sensor.delay + config.actuator.delay,
     )
 
 
@@ -314,7 +366,7 @@ class Experiment:
         traj = run_closed_loop(
             self.plant, self.controller, self.reference, self.config.duration, seed, x0=self.x0, progress=progress
         )
-        traj.meta["settings"] = self.config.model_dump(mode="json")
+        traj.meta["settings"] = self.config.canonical()
         traj.meta["digest"] = self.config.digest()
         traj.meta["arm"] = self.config.arm
         if self.uvms is not None:
@@ -352,7 +404,7 @@ def build_experiment(
         return _build_vehicle_experiment(config, controller, arm)
     arm = load_arm(config.arm) if arm is None else arm
     check_settings_for_arm(config, arm, controllers=() if controller is None else (controller,))
-    plant = UnderwaterPlant(arm if plant_arm is None else plant_arm, config.water, config.plant)
+    plant = make_plant(arm if plant_arm is None else plant_arm, config)
     reference, x0 = start_for_arm(arm, config)
     built = None if controller is None else build_controller(controller, arm, config)
     return Experiment(config, arm, plant, built, reference, x0)

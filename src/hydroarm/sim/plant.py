@@ -11,7 +11,7 @@ records the joints of every plant the same way (``Trajectory.x``, ``y``, ``u`` h
 
 from __future__ import annotations
 
-from typing import Protocol, runtime_checkable
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -32,6 +32,9 @@ class Plant(Protocol):
     * ``step(t, x, u, dt) -> (x_next, info)``: integrate over ``dt`` s from state ``x`` under
       the input ``u`` (n_inputs,) held constant; ``info`` a :class:`StepResult`;
     * ``measure(x, rng) -> y``: what the sensors give of ``x`` (seeded by ``rng``);
+    * ``new_sensor(period, rng, seed)``, ``new_actuator(period)``: a run's own sensor (its
+      ``sample(x)`` replaces ``measure``: delays, dropout, quantisation) and drives (their
+      ``apply(tau)`` gives the torque that acts), or None for the ideal ones;
     * ``joint_state(x) -> (2n,)``: the arm's [q, v] of a state;
     * ``state_record(x) -> {name: array}``: what else of a state a trajectory keeps.
     """
@@ -43,6 +46,10 @@ class Plant(Protocol):
     def step(self, t: float, x: np.ndarray, u: np.ndarray, dt: float) -> tuple[np.ndarray, StepResult]: ...
 
     def measure(self, x: np.ndarray, rng: np.random.Generator) -> np.ndarray: ...
+
+    def new_sensor(self, period: float, rng: np.random.Generator, seed: int) -> Any | None: ...
+
+    def new_actuator(self, period: float) -> Any | None: ...
 
     def joint_state(self, x: np.ndarray) -> np.ndarray: ...
 

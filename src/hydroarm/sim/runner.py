@@ -3,7 +3,12 @@
 One control step k (period T): the plant's true state x_k is measured as
 y_k (seeded noise), the controller returns u_k, the plant integrates to
 x_{k+1} under u_k held constant, y_{k+1} is measured and the controller
-observes (y_k, u_k, y_{k+1}).
+observes (y_k, u_k, y_{k+1}). The plant's sensor and drives
+(:mod:`hydroarm.model.sensing`: quantisation, encoder-only velocity, delays, dropout, torque
+rate and bandwidth limits) sit in between: y_k is what the sensor delivers, the plant
+integrates under the torque the drives apply (``Trajectory.u``; the command is
+``extra["u_command"]`` when the drives are not ideal), and the controller observes its own
+command u_k.
 
 Faults are caught where they happen and counted, never hidden
 (:data:`hydroarm.control.interface.FAULT_EVENTS`; ``Trajectory.meta["faults"]``):
@@ -171,10 +176,13 @@ def run_closed_loop(
 
     controller.reset()
     last_valid = x.copy()  # before any valid measurement: the known initial state
+    sensor = plant.new_sensor(period, rng, seed)  # None: the plant's own measure (the ideal sensor)
+    actuator = plant.new_actuator(period)  # None: the torque acts as commanded, at once
+    commands = None if actuator is None else np.full((steps, n), np.nan)
 
     def measure(state: np.ndarray) -> tuple[np.ndarray, bool]:
         nonlocal last_valid
-        measured = plant.measure(state, rng)
+        measured = plant.measure(state, rng) if sensor is None else sensor.sample(state)
         if np.all(np.isfinite(measured)):
             last_valid = measured
             return measured, True
@@ -196,9 +204,12 @@ def run_closed_loop(
             stopped, error, used, stop_time = "controller_error", f"{type(exc).__name__}: {exc}", k, float(t)
             faults["controller_error"] += 1
             break
-        x_next, info = plant.step(t, x, tau, period)
+        applied = tau if actuator is None else actuator.apply(tau)
+        x_next, info = plant.step(t, x, applied, period)
         final = x_next
-        rows["x"][k], rows["y"][k], rows["u"][k] = plant.joint_state(x), plant.joint_state(y), tau[:n]
+        rows["x"][k], rows["y"][k], rows["u"][k] = plant.joint_state(x), plant.joint_state(y), applied[:n]
+        if commands is not None:
+            commands[k] = tau[:n]
         record(k, plant.state_record(x))
         record(k, out.record)
         rows["q_ref"][k], rows["v_ref"][k] = q_r, v_r
@@ -250,6 +261,11 @@ def run_closed_loop(
         "faults": faults,
         "final_state": np.asarray(final, dtype=float).tolist(),
     }
+    if sensor is not None:
+        meta["sensor"] = {"samples": sensor.samples, "dropped": sensor.dropped}
+    extra = {key: value[:used] for key, value in extra.items()}
+    if commands is not None:
+        extra["u_command"] = commands[:used]
     return Trajectory(
         t=t_grid[:used],
         **{name: value[:used] for name, value in rows.items()},
@@ -258,7 +274,7 @@ def run_closed_loop(
         events=np.asarray(events[:used], dtype=str),
         timings={key: value[:used] for key, value in timings.items()},
         meta=meta,
-        extra={key: value[:used] for key, value in extra.items()},
+        extra=extra,
     )
 
 

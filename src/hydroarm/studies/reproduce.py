@@ -265,7 +265,7 @@ class Study:
     def settings(self) -> dict:
         """The settings that determine the results (the output folder's manifest)."""
         return {
-            "experiment": self.base.model_dump(mode="json"),
+            "experiment": self.base.canonical(),
             "noisy_seeds": self.noisy_seeds,
             "ablation": self.ablation,
             "quick": self.quick,
@@ -351,7 +351,7 @@ def reproduce(
     run_wall = time.perf_counter() - start
     metrics = summarise(runs, results, paper_arm=paper)
     metrics["settings"] = {
-        "experiment": base.model_dump(mode="json"),
+        "experiment": base.canonical(),
         "noise_variance": NOISE_VARIANCE,
         "noisy_seeds": seeds,
         "quick": quick,

@@ -24,7 +24,8 @@ from hydroarm.control.registry import controller_spec
 from hydroarm.sim.experiment import ExperimentConfig
 
 GENERAL_SECTIONS: tuple[str, ...] = (
-    "", "water", "water.current", "plant", "initial_state", "vehicle", "vehicle.control", "vehicle.gp", "vehicle.plant",
+    "", "water", "water.current", "plant", "sensor", "actuator", "friction", "initial_state",
+    "vehicle", "vehicle.control", "vehicle.gp", "vehicle.plant",
 )  # fmt: skip
 """The sections every run reads, whatever its controller ("": the top-level keys)."""
 
@@ -263,8 +264,8 @@ def settings_markdown() -> str:
         lines.append(f"| {name} (`{name.lower()}`) | {', '.join(f'`{s}`' for s in (*spec.sections, 'estimator'))} |")
     lines += [
         "",
-        "Every run also reads the top-level keys and `water`, `plant` and `initial_state`; a run on a",
-        "vehicle (`vehicle.name` set) reads `vehicle` too.",
+        "Every run also reads the top-level keys and `water`, `plant`, `sensor`, `actuator`, `friction` and "
+        "`initial_state`; a run on a vehicle (`vehicle.name` set) reads `vehicle` too.",
         "",
     ]
     for section, members in _sections(settings_table()).items():

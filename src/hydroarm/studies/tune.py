@@ -77,7 +77,7 @@ def plan_tuning(base: ExperimentConfig, controller: str, grid: Mapping[str, list
         point = tuple(zip(keys, values))
         for noisy in (False, True):
             overrides = {**DRY, **dict(point), "plant.noise_variance": NOISE_VARIANCE if noisy else 0.0}
-            settings = with_overrides(base, overrides).model_dump(mode="json")
+            settings = with_overrides(base, overrides).canonical()
             label = f"{name} " + " ".join(f"{k}={v:g}" for k, v in point) + (" noisy" if noisy else " clean")
             tasks.append(TuneTask(_task_id(name, settings), label, name, point, noisy, settings))
     return tasks

@@ -115,7 +115,7 @@ def run_id(config: ExperimentConfig, controller: str, seed: int, mismatch: Misma
     (:func:`~hydroarm.studies.outputs.slug`), then a hash of the arm's content, the settings
     ``controller`` reads, the mismatch, the controller and the seed:
     ``gp-mpc__seed0__3f2a9c0d1e4b5a67``."""
-    settings = config.model_dump(mode="json")
+    settings = config.canonical()
     settings["arm"] = arm_key
     read = settings_read_by(controller)
     for section in controller_sections():
