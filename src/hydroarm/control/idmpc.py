@@ -290,7 +290,12 @@ class InverseDynamicsMPC:
         return np.concatenate([y, acceleration / self.config.acceleration_scale])
 
     # --- the controller interface ---------------------------------------------------------
-    def compute(self, t: float, y: np.ndarray, reference: Reference) -> ControlOutput:
+    def compute(
+        self, t: float, y: np.ndarray, reference: Reference, feedforward_torque: np.ndarray | None = None
+    ) -> ControlOutput:
+        """The torque (n,) N m at measured state y (2n,). ``feedforward_torque`` (n,) N m: an
+        outside disturbance estimate (an observer's, :mod:`hydroarm.control.observers`) added to
+        the GP's (zero without a GP) in the torque map and the torque rows."""
         start = time.perf_counter()
         n = self.n
         y = np.asarray(y, dtype=float)
@@ -308,6 +313,8 @@ class InverseDynamicsMPC:
                 if not np.all(np.isfinite(mean)):
                     self._pending_events.append("gp_nonfinite_prediction")
                     mean = np.where(np.isfinite(mean), mean, 0.0)
+        if feedforward_torque is not None:
+            mean = mean + feedforward_torque
         t_gp = time.perf_counter()
         tau, realised, saturated = self.torque_map(y[:n], y[n:], acceleration, mean)
         self.saturated_steps += bool(saturated.any())

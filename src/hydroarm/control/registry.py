@@ -22,6 +22,7 @@ from hydroarm.control.gpmpc import GPMPC
 from hydroarm.control.idmpc import InverseDynamicsMPC
 from hydroarm.control.interface import Controller
 from hydroarm.control.mpc import LinearMPC
+from hydroarm.control.observers import DisturbanceObserver, ObservedController
 from hydroarm.control.smc import SlidingModeController
 from hydroarm.model.arm import Arm
 from hydroarm.model.nominal import NominalModel
@@ -32,13 +33,16 @@ class ControllerSpec:
     """A controller of the registry: its canonical ``name``, the config ``sections`` it reads
     (keys of the ``sections`` mapping :func:`build_controller` takes; every controller also
     reads ``estimator``), a one-line ``description``, its ``build(arm, sections,
-    control_period)`` and the state estimator it uses when ``estimator.kind = "auto"``."""
+    control_period)`` and the state estimator it uses when ``estimator.kind = "auto"``;
+    ``observer``: it can run over a disturbance observer (reads the ``observer`` section,
+    :mod:`hydroarm.control.observers`)."""
 
     name: str
     sections: tuple[str, ...]
     description: str
     build: Callable[[Arm, Mapping[str, Any], float], Controller]
     default_estimator: str = "none"
+    observer: bool = False
 
 
 def _smc(arm: Arm, sections: Mapping[str, Any], period: float) -> Controller:
@@ -64,17 +68,30 @@ def _gp_idmpc(arm: Arm, sections: Mapping[str, Any], period: float) -> Controlle
 REGISTRY: dict[str, ControllerSpec] = {
     spec.name: spec
     for spec in (
-        ControllerSpec("SMC", ("smc",), "boundary-layer sliding-mode computed torque on the dry model", _smc),
-        ControllerSpec("MPC", ("mpc",), "linear time-varying MPC about the reference (the paper's)", _mpc),
+        ControllerSpec(
+            "SMC",
+            ("smc", "observer"),
+            "boundary-layer sliding-mode computed torque on the dry model",
+            _smc,
+            observer=True,
+        ),
+        ControllerSpec(
+            "MPC",
+            ("mpc", "observer"),
+            "linear time-varying MPC about the reference (the paper's)",
+            _mpc,
+            observer=True,
+        ),
         ControllerSpec(
             "GP-MPC", ("mpc", "gp", "gpmpc"), "the paper's MPC with a sliding-window GP disturbance model", _gpmpc
         ),
         ControllerSpec(
             "IDMPC",
-            ("idmpc",),
+            ("idmpc", "observer"),
             "hydroarm's inverse-dynamics MPC (acceleration-space MPC + computed torque)",
             _idmpc,
             default_estimator="kalman",
+            observer=True,
         ),
         ControllerSpec(
             "GP-IDMPC",
@@ -132,10 +149,23 @@ def build_controller(
     model, e.g. ``{"mpc": MPCConfig()}``) with the control period (s), behind the state
     estimator of ``sections["estimator"]`` (an :class:`EstimatorConfig`; absent = ``auto``).
 
+    With ``sections["observer"]`` (an :class:`~hydroarm.control.observers.ObserverConfig`) of
+    a kind other than ``"none"``, the controller runs over that disturbance observer
+    (:class:`ObservedController`), inside the estimator: the observer sees the filtered state.
+
     ``sensor_variance``: the measurement-noise variance of the plant it will run on (rad^2),
     what ``estimator.measurement_variance = "plant"`` stands for; needed only then."""
     spec = controller_spec(name)
     controller = spec.build(arm, sections, control_period)
+    observer = sections.get("observer")
+    if observer is not None and observer.kind != "none":
+        if not spec.observer:
+            takes = ", ".join(c for c, s in REGISTRY.items() if s.observer)
+            raise ConfigError(
+                f"observer.kind = {observer.kind!r}: {spec.name} learns the disturbance itself; "
+                f"an observer runs under {takes} (or set observer.kind = 'none')"
+            )
+        controller = ObservedController(controller, DisturbanceObserver(arm, control_period, observer))
     estimator = sections.get("estimator")
     if estimator_kind(spec.name, estimator) == "kalman":
         config = estimator if estimator is not None else EstimatorConfig()

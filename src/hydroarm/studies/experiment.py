@@ -35,6 +35,7 @@ from hydroarm.control.gpmpc import GPMPCConfig, feature_size
 from hydroarm.control.idmpc import IDMPCConfig, gp_input_size
 from hydroarm.control.interface import Controller
 from hydroarm.control.mpc import MPCConfig
+from hydroarm.control.observers import ObserverConfig
 from hydroarm.control.registry import CONTROLLERS, canonical_name
 from hydroarm.control.smc import SMCConfig
 from hydroarm.model.arm import Arm
@@ -64,7 +65,7 @@ SETTINGS_HINT = "`hydroarm settings` lists the allowed settings"
 MAX_CONTROL_STEPS = 1_000_000
 """Most control steps of one run (duration / control_period): every step's row is stored."""
 
-CONTROLLER_SECTIONS: tuple[str, ...] = ("smc", "mpc", "gp", "gpmpc", "idmpc", "estimator")
+CONTROLLER_SECTIONS: tuple[str, ...] = ("smc", "mpc", "gp", "gpmpc", "idmpc", "observer", "estimator")
 """The sections of :class:`ExperimentConfig` that only controllers read."""
 
 CONTROLLER_SETTINGS: dict[str, tuple[str, ...]] = {
@@ -130,6 +131,9 @@ class ExperimentConfig(FrozenModel):
     gpmpc: GPMPCConfig = pydantic.Field(GPMPCConfig(), description="how the GP is wired into GP-MPC (section)")
     idmpc: IDMPCConfig = pydantic.Field(
         IDMPCConfig(), description="the inverse-dynamics MPC, IDMPC and GP-IDMPC (section)"
+    )
+    observer: ObserverConfig = pydantic.Field(
+        ObserverConfig(), description="the disturbance observer (TDE, NDOB) under SMC, MPC or IDMPC (section)"
     )
     estimator: EstimatorConfig = pydantic.Field(
         EstimatorConfig(), description="the state estimator any controller can run behind (section)"
