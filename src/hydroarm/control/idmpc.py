@@ -261,12 +261,19 @@ class InverseDynamicsMPC:
         e0, c, a_r, q_r, v_r = self._last_problem
         return self.qp.solve(e0, c, q_r, v_r, a_r, mass, bias, w_hat)
 
-    def torque_map(self, q: np.ndarray, v: np.ndarray, acceleration: np.ndarray, w_hat: np.ndarray):
+    def torque_map(
+        self, q: np.ndarray, v: np.ndarray, acceleration: np.ndarray, w_hat: np.ndarray,
+        added_mass: np.ndarray | None = None,
+    ):  # fmt: skip
         """``(tau, a, saturated)``: the torques (n,) realising ``acceleration`` on the dry model
-        minus the estimate ``w_hat`` (n,), within the limits (``config.limits``)."""
+        minus the estimate ``w_hat`` (n,), within the limits (``config.limits``). ``added_mass``
+        (n, n) kg m^2: a model's added-mass inertia, added to M(q) (the estimate is then
+        ``w_hat - M_A a`` at whatever acceleration the limits leave)."""
         model, data = self.arm.model, self.nominal.data
         mass = pin.crba(model, data, q)
         mass = np.triu(mass) + np.triu(mass, 1).T
+        if added_mass is not None:
+            mass = mass + added_mass
         bias = pin.nonLinearEffects(model, data, q, v) - w_hat
         if self.config.limits == "clip":
             tau = mass @ acceleration + bias

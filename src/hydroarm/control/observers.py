@@ -116,6 +116,10 @@ class DisturbanceObserver:
         ``u`` was at its limit (the gate then holds the next feed-forward). A non-finite residual
         is not taken."""
         r = self.residual(np.asarray(y, dtype=float), np.asarray(u, dtype=float), np.asarray(y_next, dtype=float))
+        self.update_residual(r, saturated)
+
+    def update_residual(self, r: np.ndarray, saturated: bool = False) -> None:
+        """Take an already computed residual r (n,) N m (e.g. what a model left of the TDE's)."""
         self._saturated = bool(saturated)
         if not np.all(np.isfinite(r)):
             return

@@ -23,6 +23,7 @@ from hydroarm.control.idmpc import InverseDynamicsMPC
 from hydroarm.control.interface import Controller
 from hydroarm.control.mpc import LinearMPC
 from hydroarm.control.observers import DisturbanceObserver, ObservedController
+from hydroarm.control.pi_idmpc import PhysicsInformedIDMPC
 from hydroarm.control.smc import SlidingModeController
 from hydroarm.model.arm import Arm
 from hydroarm.model.nominal import NominalModel
@@ -65,6 +66,10 @@ def _gp_idmpc(arm: Arm, sections: Mapping[str, Any], period: float) -> Controlle
     return InverseDynamicsMPC(arm, sections["idmpc"], control_period=period, gp_config=sections["gp"])
 
 
+def _pi_idmpc(arm: Arm, sections: Mapping[str, Any], period: float) -> Controller:
+    return PhysicsInformedIDMPC(arm, sections["idmpc"], sections["water_model"], control_period=period)
+
+
 REGISTRY: dict[str, ControllerSpec] = {
     spec.name: spec
     for spec in (
@@ -96,8 +101,15 @@ REGISTRY: dict[str, ControllerSpec] = {
         ControllerSpec(
             "GP-IDMPC",
             ("idmpc", "gp"),
-            "hydroarm's best: the inverse-dynamics MPC with the GP fed forward",
+            "the inverse-dynamics MPC with the sliding-window GP fed forward",
             _gp_idmpc,
+            default_estimator="kalman",
+        ),
+        ControllerSpec(
+            "PI-IDMPC",
+            ("idmpc", "water_model"),
+            "the inverse-dynamics MPC with a physics-informed water model along the horizon + an observer on the rest",
+            _pi_idmpc,
             default_estimator="kalman",
         ),
     )

@@ -38,6 +38,7 @@ from hydroarm.control.mpc import MPCConfig
 from hydroarm.control.observers import ObserverConfig
 from hydroarm.control.registry import CONTROLLERS, canonical_name
 from hydroarm.control.smc import SMCConfig
+from hydroarm.control.water_model import WaterModelConfig
 from hydroarm.model.arm import Arm
 from hydroarm.model.loading import load_arm
 from hydroarm.model.plant import PlantConfig, UnderwaterPlant
@@ -65,7 +66,7 @@ SETTINGS_HINT = "`hydroarm settings` lists the allowed settings"
 MAX_CONTROL_STEPS = 1_000_000
 """Most control steps of one run (duration / control_period): every step's row is stored."""
 
-CONTROLLER_SECTIONS: tuple[str, ...] = ("smc", "mpc", "gp", "gpmpc", "idmpc", "observer", "estimator")
+CONTROLLER_SECTIONS: tuple[str, ...] = ("smc", "mpc", "gp", "gpmpc", "idmpc", "water_model", "observer", "estimator")
 """The sections of :class:`ExperimentConfig` that only controllers read."""
 
 CONTROLLER_SETTINGS: dict[str, tuple[str, ...]] = {
@@ -131,6 +132,9 @@ class ExperimentConfig(FrozenModel):
     gpmpc: GPMPCConfig = pydantic.Field(GPMPCConfig(), description="how the GP is wired into GP-MPC (section)")
     idmpc: IDMPCConfig = pydantic.Field(
         IDMPCConfig(), description="the inverse-dynamics MPC, IDMPC and GP-IDMPC (section)"
+    )
+    water_model: WaterModelConfig = pydantic.Field(
+        WaterModelConfig(), description="PI-IDMPC's physics-informed water model and its remainder observer (section)"
     )
     observer: ObserverConfig = pydantic.Field(
         ObserverConfig(), description="the disturbance observer (TDE, NDOB) under SMC, MPC or IDMPC (section)"

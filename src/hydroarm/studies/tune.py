@@ -54,6 +54,7 @@ TUNING_GRIDS: dict[str, dict[str, list[Any]]] = {
     "GP-MPC": _MPC_GRID,  # on land the GP has nothing to learn: its MPC is tuned as the MPC
     "IDMPC": _IDMPC_GRID,
     "GP-IDMPC": _IDMPC_GRID,
+    "PI-IDMPC": _IDMPC_GRID,  # on land the water model has nothing to learn either
 }
 """The gains each controller is tuned over (dotted keys of :class:`ExperimentConfig`)."""
 
