@@ -49,6 +49,14 @@ def run(
     view: Annotated[
         bool, typer.Option("--view", help="Then open the run in the browser viewer (the viewer extra).")
     ] = False,
+    model: Annotated[
+        Path | None,
+        typer.Option("--model", help="PI-IDMPC: start from the water model saved in this file (JSON)."),
+    ] = None,
+    save_model: Annotated[
+        Path | None,
+        typer.Option("--save-model", help="PI-IDMPC: save the water model learned by the run to this file (JSON)."),
+    ] = None,
     vehicle: Annotated[
         str | None,
         typer.Option(
@@ -73,7 +81,7 @@ def run(
         return
     from hydroarm.model.loading import load_arm
     from hydroarm.studies import figures
-    from hydroarm.studies.experiment import canonical_name, check_settings_for_arm, run_experiment, with_overrides
+    from hydroarm.studies.experiment import build_experiment, canonical_name, check_settings_for_arm, with_overrides
     from hydroarm.studies.outputs import claim_output, dumps
     from hydroarm.studies.runner import tracking_metrics
 
@@ -81,6 +89,10 @@ def run(
         name = canonical_name(controller)
     except ConfigError as error:
         _fail(f"--{error}")
+    if (model is not None or save_model is not None) and name != "PI-IDMPC":
+        _fail(f"--model / --save-model: only PI-IDMPC has a water model to load or save (controller {name})")
+    if model is not None and not model.is_file():
+        _fail(f"--model '{model}': no such file")
     _check_out(out)
     try:
         config = _experiment_config(config_file, overrides or [], tuned, arm)
@@ -97,7 +109,22 @@ def run(
         TextColumn(name), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(), console=console
     ) as progress:
         task = progress.add_task(name, total=int(round(config.duration / config.control_period)))
-        traj = run_experiment(config, name, seed, progress=lambda k, total: progress.update(task, completed=k))
+        experiment = build_experiment(config, name, arm=arm_model)
+        learner = experiment.controller
+        while model is not None or save_model is not None:  # PI-IDMPC, behind its Kalman filter
+            if hasattr(learner, "load_model"):
+                break
+            learner = learner.controller
+        if model is not None:
+            try:
+                learner.load_model(model)
+            except ConfigError as error:
+                progress.stop()
+                _fail(str(error))
+        traj = experiment.run(seed, progress=lambda k, total: progress.update(task, completed=k))
+    if save_model is not None:
+        learner.save_model(save_model)
+        traj.meta["model_saved"] = str(save_model)
     traj.save(out / "trajectory.npz")
     metrics = tracking_metrics(traj)
     (out / "metrics.json").write_text(dumps(metrics, indent=1))
@@ -217,6 +244,30 @@ def arms(as_json: Annotated[bool, typer.Option("--json")] = False) -> None:
             row["name"], str(row["joints"]), row["description"], ", ".join(f"{x:g}" for x in row["torque_limit"])
         )
     Console().print(table)
+
+
+@app.command()
+def controllers(as_json: Annotated[bool, typer.Option("--json")] = False) -> None:
+    """List the registered controllers, their settings sections and the aliases (flagship)."""
+    from hydroarm.control.registry import ALIASES, REGISTRY
+
+    rows = [
+        {"name": spec.name, "sections": list(spec.sections), "estimator": spec.default_estimator,
+         "observer": spec.observer, "description": spec.description}
+        for spec in REGISTRY.values()
+    ]  # fmt: skip
+    if as_json:
+        print(json.dumps({"controllers": rows, "aliases": ALIASES}))
+        return
+    table = Table(title="controllers (--controller takes the name in any case, - or _)")
+    for column in ("name", "settings sections", "estimator", "observer", "description"):
+        table.add_column(column)
+    for row in rows:
+        table.add_row(row["name"], ", ".join(row["sections"]), row["estimator"], "yes" if row["observer"] else "",
+                      row["description"])  # fmt: skip
+    Console().print(table)
+    for alias, target in ALIASES.items():
+        console.print(f"alias [bold]{alias}[/] = {target} (hydroarm's best controller)")
 
 
 @app.command("export-urdf")

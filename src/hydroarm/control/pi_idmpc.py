@@ -87,6 +87,7 @@ class PhysicsInformedIDMPC:
             self.remainder.reset()
         self._saturated = False
         self._rest = np.zeros(self.n)
+        self._commanded: np.ndarray | None = None
 
     # --- the controller interface ---------------------------------------------------
     def _along_plan(self, q: np.ndarray, v: np.ndarray, a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -115,6 +116,7 @@ class PhysicsInformedIDMPC:
         t_model = time.perf_counter()
         tau, realised, saturated = self.mpc.torque_map(q, v, acceleration, w_free, added_mass)
         self._saturated = bool(saturated.any())
+        self._commanded = realised
         w_hat = w_free if added_mass is None else w_free - added_mass @ realised
         end = time.perf_counter()
         return ControlOutput(
@@ -126,10 +128,12 @@ class PhysicsInformedIDMPC:
         )
 
     def observe(self, t: float, y: np.ndarray, u: np.ndarray, y_next: np.ndarray) -> None:
-        """Learn the transition; the remainder observer takes what the model does not predict."""
-        residual = self.model.learn(y, u, y_next, self.control_period)
+        """Learn the transition (the basis's added mass at the commanded acceleration, free of the
+        sensor's noise); the remainder observer takes what the model does not predict."""
+        commanded, self._commanded = self._commanded, None
+        residual = self.model.learn(y, u, y_next, self.control_period, acceleration=commanded)
         if residual is None or self.remainder is None:
             return
-        q_mid, v_mid, a = self.model.transition_features(np.asarray(y, float), np.asarray(y_next, float),
-                                                         self.control_period)  # fmt: skip
+        y, y_next = np.asarray(y, dtype=float), np.asarray(y_next, dtype=float)
+        q_mid, v_mid, a = self.model.transition_features(y, y_next, self.control_period)
         self.remainder.update_residual(residual - self.model.predict(q_mid, v_mid, a), self._saturated)

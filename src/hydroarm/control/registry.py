@@ -122,19 +122,28 @@ PAPER_CONTROLLERS: tuple[str, ...] = ("SMC", "MPC", "GP-MPC")
 """The controllers of Liu et al. 2023's tables (the reproduction's rows)."""
 
 
+ALIASES: dict[str, str] = {"flagship": "PI-IDMPC"}
+"""Stable names for registered controllers: ``flagship`` always means hydroarm's best controller
+(measured: docs/controllers.md, "Learning against the classic observers"), so scripts and papers
+that name it keep working as it improves. :func:`canonical_name` resolves them."""
+
+
 def _key(name: str) -> str:
     return name.strip().upper().replace("_", "-")
 
 
 def canonical_name(name: str) -> str:
-    """The canonical name of controller ``name`` (either spelling); raises :class:`ConfigError`
-    naming the allowed names otherwise."""
+    """The canonical name of controller ``name`` (either spelling, or an alias of :data:`ALIASES`);
+    raises :class:`ConfigError` naming the allowed names otherwise."""
     if isinstance(name, str):
         key = _key(name)
+        for alias, target in ALIASES.items():
+            if _key(alias) == key:
+                return target
         for canonical in REGISTRY:
             if _key(canonical) == key:
                 return canonical
-    allowed = ", ".join(f"{c} ({c.lower()})" for c in CONTROLLERS)
+    allowed = ", ".join([*(f"{c} ({c.lower()})" for c in CONTROLLERS), *(f"{a} (= {t})" for a, t in ALIASES.items())])
     raise ConfigError(f"controller = {name!r}: must be one of {allowed}")
 
 

@@ -64,7 +64,7 @@ class WaterModelConfig(FrozenModel):
         500.0, gt=0.0, le=1e6, description="a transition whose |dv/T| exceeds this is not learned (rad/s^2)"
     )
     remainder: ObserverConfig = pydantic.Field(
-        ObserverConfig(kind="ndob"),
+        ObserverConfig(kind="tde"),
         description="PI-IDMPC: the observer on what the model does not predict (the current, a mismatch) (section)",
     )
 
@@ -157,14 +157,22 @@ class PhysicsInformedModel:
         self.samples += 1
         return True
 
-    def learn(self, y: np.ndarray, u: np.ndarray, y_next: np.ndarray, period: float) -> np.ndarray | None:
+    def learn(
+        self, y: np.ndarray, u: np.ndarray, y_next: np.ndarray, period: float, acceleration: np.ndarray | None = None
+    ) -> np.ndarray | None:
         """Learn the transition ``y -> y_next`` (2n,) under ``u`` (n,) over ``period`` (s); returns
         its residual (n,) N m, or None if the sample was refused (non-finite, or an acceleration
-        beyond ``max_acceleration``: a blown-up or clipped step)."""
+        beyond ``max_acceleration``: a blown-up or clipped step).
+
+        ``acceleration`` (n,) rad/s^2: the acceleration the basis's added-mass columns take (the
+        controller's commanded one: free of the sensor's noise, which in ``(v_next - v) / T``
+        would bias the fit towards zero added mass); None: ``(v_next - v) / T``."""
         y, y_next, u = (np.asarray(x, dtype=float) for x in (y, y_next, u))
         q, v, a = self.transition_features(y, y_next, period)
         if not np.all(np.abs(a) <= self.config.max_acceleration):
             return None
+        if acceleration is not None:
+            a = np.asarray(acceleration, dtype=float)
         r = self.residual(y, u, y_next, period)
         return r if self.update(self.regressor.basis(q, v, a), r) else None
 

@@ -45,6 +45,7 @@ EXTRA_ROWS: dict[str, tuple[str, dict]] = {
     "IDMPC+TDE-gated+KF": ("IDMPC", {"observer.kind": "tde", "observer.gate": True}),
     "IDMPC+NDOB+KF": ("IDMPC", {"observer.kind": "ndob"}),
     "IDMPC+NDOB-gated+KF": ("IDMPC", {"observer.kind": "ndob", "observer.gate": True}),
+    "PI-IDMPC+KF": ("PI-IDMPC", {"estimator.kind": "auto"}),
 }
 """Rows beyond the paper's: row name -> (registered controller, settings). Each row's name is
 what its controller reports (``Trajectory.meta["controller"]``). The IDMPC rows are the fair
