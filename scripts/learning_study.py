@@ -85,10 +85,10 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--duration", type=float, default=10.0)
     parser.add_argument("--out", type=Path, default=Path("docs/data/learning_study"))
-    parser.add_argument("--cases", default=",".join(CASES))
+    parser.add_argument("--cases", default="|".join(CASES), help="cases to run, separated by |")
     args = parser.parse_args()
     results: dict = {}
-    for case in args.cases.split(","):
+    for case in args.cases.split("|"):
         base = with_overrides(ExperimentConfig(), {**CASES[case], "duration": args.duration})
         results[case] = {}
         for row, (controller, extra) in ROWS.items():

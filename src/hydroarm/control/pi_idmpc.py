@@ -92,14 +92,17 @@ class PhysicsInformedIDMPC:
     # --- the controller interface ---------------------------------------------------
     def _along_plan(self, q: np.ndarray, v: np.ndarray, a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(w (N, n), M_A (N, n, n))`` at the planned states and accelerations (N, n) each:
-        the model's force (+ the remainder's estimate) and its added-mass inertia."""
+        the model's force (+ the remainder's estimate), clipped to the torque limits, and its
+        added-mass inertia."""
         horizon, n = q.shape
         w = np.empty((horizon, n))
         added = np.empty((horizon, n, n))
         for k in range(horizon):
             added[k], rest = self.model.terms(q[k], v[k])
             w[k] = rest - added[k] @ a[k] + self._rest
-        return w, added
+        # a plan far from feasible (light joints, long horizons) reaches speeds where |v| v drag
+        # explodes; a force beyond the torque limit cannot be compensated anyway: hold it there
+        return np.clip(w, -self.torque_limit, self.torque_limit), added
 
     def compute(self, t: float, y: np.ndarray, reference: Reference) -> ControlOutput:
         start = time.perf_counter()
