@@ -124,3 +124,15 @@ def test_tde_under_every_controller_lowers_the_tracking_error(controller, name):
     assert error < 0.5 * error_plain
     assert np.all(np.isfinite(traj.disturbance_estimate[after]))
     assert np.isfinite(tracking_metrics(traj)["Ep"]).all()
+
+
+def test_tune_takes_the_ndob_gain_into_the_grid_of_a_controller_under_an_ndob():
+    from hydroarm.studies.tune import NDOB_GAINS, TUNING_GRIDS, plan_tuning, tuning_grid
+
+    under_ndob = with_overrides(ExperimentConfig(), {"observer.kind": "ndob"})
+    assert tuning_grid(under_ndob, "idmpc")["observer.gain"] == NDOB_GAINS
+    assert tuning_grid(ExperimentConfig(), "idmpc") == TUNING_GRIDS["IDMPC"]
+    tasks = plan_tuning(under_ndob, "IDMPC")
+    assert len(tasks) == 2 * len(NDOB_GAINS) * 9  # 3 x 3 IDMPC gains x 4 L x {clean, noisy}
+    assert {dict(t.point)["observer.gain"] for t in tasks} == set(NDOB_GAINS)
+    assert all(t.settings["observer"]["kind"] == "ndob" for t in tasks)

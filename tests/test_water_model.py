@@ -105,3 +105,10 @@ def test_pi_idmpc_beats_the_gated_tde_after_the_start_up():
     error_pi = np.mean((pi.q - pi.q_ref)[late] ** 2)
     error_tde = np.mean((tde.q - tde.q_ref)[late] ** 2)
     assert error_pi < 0.5 * error_tde
+
+
+def test_pi_idmpc_counts_its_learning_in_the_step_time():
+    experiment = build_experiment(ExperimentConfig(duration=0.2), "PI-IDMPC")
+    traj = experiment.run()
+    assert np.all(traj.timings["learn"][1:] > 0.0)
+    np.testing.assert_array_less(traj.timings["learn"], traj.timings["total"])

@@ -251,8 +251,8 @@ def tune(
     """
     from hydroarm.model.loading import load_arm
     from hydroarm.studies.experiment import canonical_name, check_settings_for_arm, with_overrides
-    from hydroarm.studies.tune import TUNING_GRIDS, write_settings
     from hydroarm.studies.tune import tune as run_tune
+    from hydroarm.studies.tune import tuning_grid, write_settings
 
     try:
         name = canonical_name(controller)
@@ -262,7 +262,7 @@ def tune(
         _fail(str(error))
     if out.exists() and not out.is_file():
         _fail(f"--out '{out}': exists and is not a file")
-    grid = TUNING_GRIDS[name]
+    grid = tuning_grid(config, name)
     with (
         _sigterm_as_interrupt(),
         Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),

@@ -88,6 +88,7 @@ class PhysicsInformedIDMPC:
         self._saturated = False
         self._rest = np.zeros(self.n)
         self._commanded: np.ndarray | None = None
+        self._learn_time = 0.0
 
     # --- the controller interface ---------------------------------------------------
     def _along_plan(self, q: np.ndarray, v: np.ndarray, a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -105,6 +106,9 @@ class PhysicsInformedIDMPC:
         return np.clip(w, -self.torque_limit, self.torque_limit), added
 
     def compute(self, t: float, y: np.ndarray, reference: Reference) -> ControlOutput:
+        """The torque at state y (2n,); ``timings["learn"]`` (s) is the last ``observe``'s learning
+        (basis, RLS step, remainder), counted in this step's ``"total"``: one control period's work."""
+        learn_time, self._learn_time = self._learn_time, 0.0
         start = time.perf_counter()
         n = self.n
         y = np.asarray(y, dtype=float)
@@ -125,7 +129,13 @@ class PhysicsInformedIDMPC:
         return ControlOutput(
             tau=tau,
             status="saturated" if self._saturated else "ok",
-            timings={"plan": t_plan - start, "model": t_model - t_plan, "torque": end - t_model, "total": end - start},
+            timings={
+                "plan": t_plan - start,
+                "model": t_model - t_plan,
+                "torque": end - t_model,
+                "learn": learn_time,
+                "total": end - start + learn_time,
+            },  # fmt: skip
             disturbance_mean=w_hat,
             acceleration=realised,
         )
@@ -133,10 +143,11 @@ class PhysicsInformedIDMPC:
     def observe(self, t: float, y: np.ndarray, u: np.ndarray, y_next: np.ndarray) -> None:
         """Learn the transition (the basis's added mass at the commanded acceleration, free of the
         sensor's noise); the remainder observer takes what the model does not predict."""
+        start = time.perf_counter()
         commanded, self._commanded = self._commanded, None
         residual = self.model.learn(y, u, y_next, self.control_period, acceleration=commanded)
-        if residual is None or self.remainder is None:
-            return
-        y, y_next = np.asarray(y, dtype=float), np.asarray(y_next, dtype=float)
-        q_mid, v_mid, a = self.model.transition_features(y, y_next, self.control_period)
-        self.remainder.update_residual(residual - self.model.predict(q_mid, v_mid, a), self._saturated)
+        if residual is not None and self.remainder is not None:
+            y, y_next = np.asarray(y, dtype=float), np.asarray(y_next, dtype=float)
+            q_mid, v_mid, a = self.model.transition_features(y, y_next, self.control_period)
+            self.remainder.update_residual(residual - self.model.predict(q_mid, v_mid, a), self._saturated)
+        self._learn_time = time.perf_counter() - start

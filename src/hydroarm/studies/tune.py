@@ -58,6 +58,12 @@ TUNING_GRIDS: dict[str, dict[str, list[Any]]] = {
 }
 """The gains each controller is tuned over (dotted keys of :class:`ExperimentConfig`)."""
 
+OBSERVER_CONTROLLERS = ("SMC", "MPC", "IDMPC")
+NDOB_GAINS = [0.05, 0.1, 0.3, 1.0]
+"""With ``observer.kind = "ndob"`` in the settings, the NDOB's gain L joins the grid of SMC, MPC
+and IDMPC (a TDE has no gain: the controller's grid alone; on the dry arm's noisy run the
+observer's noise amplification is what the score sees)."""
+
 
 @dataclass(frozen=True)
 class TuneTask:
@@ -77,11 +83,21 @@ def _task_id(controller: str, settings: dict) -> str:
     return f"{controller}-{hashlib.sha256(text.encode()).hexdigest()[:16]}"
 
 
+def tuning_grid(base: ExperimentConfig, controller: str) -> dict[str, list[Any]]:
+    """The grid ``controller`` is tuned over from the settings ``base``: :data:`TUNING_GRIDS`'s,
+    plus the NDOB's gain (:data:`NDOB_GAINS`) when ``base`` runs it under an NDOB."""
+    name = canonical_name(controller)
+    grid = dict(TUNING_GRIDS[name])
+    if name in OBSERVER_CONTROLLERS and base.observer.kind == "ndob":
+        grid["observer.gain"] = NDOB_GAINS
+    return grid
+
+
 def plan_tuning(base: ExperimentConfig, controller: str, grid: Mapping[str, list[Any]] | None = None) -> list[TuneTask]:
     """The runs of tuning ``controller`` (any spelling) from the settings ``base`` (its arm,
     duration, control period): every grid point x {clean, noisy}, on the dry arm."""
     name = canonical_name(controller)
-    grid = TUNING_GRIDS[name] if grid is None else grid
+    grid = tuning_grid(base, name) if grid is None else grid
     keys = sorted(grid)
     tasks = []
     for values in itertools.product(*(grid[key] for key in keys)):
