@@ -112,3 +112,16 @@ def test_pi_idmpc_counts_its_learning_in_the_step_time():
     traj = experiment.run()
     assert np.all(traj.timings["learn"][1:] > 0.0)
     np.testing.assert_array_less(traj.timings["learn"], traj.timings["total"])
+
+
+def test_the_estimate_stays_in_the_physical_box():
+    """A sample that would pull theta negative or beyond max_ratio x textbook is projected back."""
+    arm = load_arm("paper")
+    model = PhysicsInformedModel(arm, WaterModelConfig(max_ratio=2.0))
+    rng = np.random.default_rng(5)
+    for _ in range(20):
+        q, v, a = rng.normal(size=(3, 6))
+        phi = model.regressor.basis(q, v, a)
+        model.update(phi, -50.0 * (phi @ model.textbook))  # a water pulling the other way, hard
+    assert np.all(model.theta >= 0.0)
+    assert np.all(model.theta <= 2.0 * np.maximum(model.textbook, 1e-6 * model.textbook.max()) * (1 + 1e-12))

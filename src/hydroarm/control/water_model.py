@@ -11,6 +11,10 @@ forgetting, i.e. Bayesian linear regression whose old evidence fades by lambda p
     S   = lambda sigma^2 I + Phi P Phi^T,   K = P Phi^T S^-1
     theta_hat += K (r - Phi theta_hat),     P = (P - K Phi P) / lambda
 
+then theta_hat is projected onto the box ``0 <= theta <= max_ratio x textbook`` (no negative
+drag, added mass or volume, none beyond a bound: an estimate far outside it, fed through the
+added-mass inertia into a loop with a time-delay estimate, breaks that loop's stability condition
+``M_hat < 2 M_true``; measured: C_m = 16 fitted on a weakly exciting trajectory diverged).
 ``sigma^2`` ((N m)^2) is the residual's noise variance the learner assumes; ``P`` stays the
 posterior covariance of theta (times the fading): :meth:`PhysicsInformedModel.variance` gives
 the predicted force's variance. Forgetting is applied only in the directions the sample
@@ -63,6 +67,12 @@ class WaterModelConfig(FrozenModel):
     max_acceleration: float = pydantic.Field(
         500.0, gt=0.0, le=1e6, description="a transition whose |dv/T| exceeds this is not learned (rad/s^2)"
     )
+    max_ratio: float = pydantic.Field(
+        3.0,
+        ge=1.0,
+        le=1e3,
+        description="each coefficient is kept within [0, max_ratio x its textbook value] (projection) (-)",
+    )
     remainder: ObserverConfig = pydantic.Field(
         ObserverConfig(kind="tde"),
         description="PI-IDMPC: the observer on what the model does not predict (the current, a mismatch) (section)",
@@ -99,6 +109,7 @@ class PhysicsInformedModel:
         self._prior_mean = textbook.copy() if self.config.prior == "textbook" else np.zeros_like(textbook)
         scale = np.maximum(textbook, 1e-6 * max(float(textbook.max()), 1.0))
         self._prior_covariance = np.diag((self.config.prior_std * scale) ** 2)
+        self._upper = self.config.max_ratio * scale
         self.reset()
 
     def reset(self) -> None:
@@ -149,7 +160,7 @@ class PhysicsInformedModel:
         p_phi = p @ phi.T
         innovation_cov = lam * self.config.noise_std**2 * np.eye(self.n) + phi @ p_phi
         gain = np.linalg.solve(innovation_cov, p_phi.T).T
-        self.theta = self.theta + gain @ (target - phi @ self.theta)
+        self.theta = np.clip(self.theta + gain @ (target - phi @ self.theta), 0.0, self._upper)
         p = p - gain @ p_phi.T
         if lam < 1.0:  # fade only the excited directions: P += (1/lam - 1) K S K^T
             p = p + (1.0 / lam - 1.0) * gain @ innovation_cov @ gain.T

@@ -42,7 +42,8 @@ from hydroarm.control.water_model import WaterModelConfig
 from hydroarm.model.arm import Arm
 from hydroarm.model.loading import load_arm
 from hydroarm.model.plant import PlantConfig, UnderwaterPlant
-from hydroarm.model.task import SinusoidReference, task_for_arm
+from hydroarm.model.task import SinusoidReference
+from hydroarm.model.task_file import SplineReference, TaskConfig, reference_for
 from hydroarm.model.water import Water
 from hydroarm.studies.runner import Trajectory, run_closed_loop
 
@@ -142,6 +143,9 @@ class ExperimentConfig(FrozenModel):
     estimator: EstimatorConfig = pydantic.Field(
         EstimatorConfig(), description="the state estimator any controller can run behind (section)"
     )
+    task: TaskConfig = pydantic.Field(
+        TaskConfig(), description="the reference: the arm's task, sinusoids or a file, and the start (section)"
+    )
     initial_state: InitialState = pydantic.Field(
         InitialState(), description="a seeded random start around the task's start (section)"
     )
@@ -200,12 +204,15 @@ def check_settings_for_arm(
     ``theta0`` (d + 2 values), ``input_scale`` (d) and ``output_scale`` (1 or n) must fit
     the d GP inputs (:func:`gp_inputs`) of each GP controller among ``controllers`` (default:
     every registered controller; the section is shared) on the arm's n joints; ``plant.friction`` must
-    suit the RK4 step on this arm (:class:`~hydroarm.model.plant.UnderwaterPlant` checks it).
+    suit the RK4 step on this arm (:class:`~hydroarm.model.plant.UnderwaterPlant` checks it); a
+    task from settings or a file must be readable and have the arm's joint count.
     Nothing is run (with friction, the plant is built: about a millisecond).
     """
     n = arm.n_joints
     try:
         check_joint_counts(config, n)
+        if config.task.kind != "arm":  # the task's joint count, its file
+            reference_for(config.task, arm)
         if config.plant.friction > 0.0:
             UnderwaterPlant(arm, config.water, config.plant)
     except ConfigError as error:
@@ -238,10 +245,12 @@ def build_controller(name: str, arm: Arm, config: ExperimentConfig) -> Controlle
     )
 
 
-def start_for_arm(arm: Arm, config: ExperimentConfig) -> tuple[SinusoidReference, np.ndarray]:
-    """The reference and the start state (2n,) of a run of ``config`` on ``arm``:
-    :func:`task_for_arm`'s, moved by ``config.initial_state`` (:class:`InitialState`)."""
-    reference, x0 = task_for_arm(arm)
+def start_for_arm(arm: Arm, config: ExperimentConfig) -> tuple[SinusoidReference | SplineReference, np.ndarray]:
+    """The reference and the start state (2n,) of a run of ``config`` on ``arm``: the task of
+    ``config.task`` (:func:`~hydroarm.model.task_file.reference_for`; default the arm's,
+    :func:`~hydroarm.model.task.task_for_arm`), moved by ``config.initial_state``
+    (:class:`InitialState`)."""
+    reference, x0 = reference_for(config.task, arm)
     return reference, config.initial_state.apply(x0)
 
 
@@ -259,7 +268,7 @@ class Experiment:
     arm: Arm
     plant: UnderwaterPlant
     controller: Controller | None
-    reference: SinusoidReference
+    reference: SinusoidReference | SplineReference
     x0: np.ndarray
 
     @property
