@@ -1,13 +1,15 @@
 """Does learning earn its place? PI-IDMPC against the inverse-dynamics MPC with every classic observer.
 
-For each case (the paper task, the paper arm with the UR5's torque limits, ur5, alpha5 and the
-7-joint arm of examples/urdf/iiwa14.urdf) every row runs clean (seed 0) and noisy (variance 1e-3,
+For each case (the paper task, the paper arm with the UR5's torque limits, ur5, alpha5, the
+7-joint arm of examples/urdf/iiwa14.urdf, and the paper task in a water whose drag coefficient
+follows the Reynolds number along every strip, which the learner's constant-C_d basis does not
+share) every row runs clean (seed 0) and noisy (variance 1e-3,
 seeds 1-3, behind the Kalman filter), 10 s: the same IDMPC gains (the defaults) in every row, so
 only the disturbance estimate differs. Recorded per run: mean E_p over joints for the whole run
 and after 2 s, and, over the first second, the RMS of the estimate's error and of the disturbance
 on each joint. Results: docs/data/learning_study.json (and .md), written after every case.
 
-    python scripts/learning_study.py [--duration 10] [--out docs/data/learning_study]
+    python scripts/learning_study.py [--duration 10] [--out docs/data/learning_study] [--cases "paper|ur5"]
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ CASES = {
     "ur5": {"arm": "ur5"},
     "alpha5": {"arm": "alpha5"},
     "iiwa14 (7 joints)": {"arm": "examples/urdf/iiwa14.urdf"},
+    "paper, Reynolds water": {"arm": "paper", "water.drag_model": "reynolds"},
 }
 ROWS = {  # row -> (controller, overrides)
     "IDMPC": ("IDMPC", {}),
