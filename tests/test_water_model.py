@@ -37,6 +37,19 @@ def test_the_basis_times_the_plant_coefficients_is_the_plant_water():
     np.testing.assert_allclose(physical["volume"], [c.displaced_volume for c in arm.cylinders])
 
 
+@pytest.mark.parametrize("name", ["paper", "ur5", "alpha5"])
+def test_the_compiled_basis_is_its_per_cylinder_twin(name):
+    arm = load_arm(name)
+    regressor = WaterRegressor(arm, STILL)
+    rng = np.random.default_rng(2)
+    for _ in range(5):
+        q, v, a = rng.normal(size=(3, arm.n_joints))
+        reference = regressor.basis_reference(q, v, a)
+        np.testing.assert_allclose(
+            regressor.basis(q, v, a), reference, rtol=1e-12, atol=1e-12 * np.abs(reference).max()
+        )
+
+
 def plant_samples(arm, water, count, seed=0):
     """(q, v, a, w): random states and torques, the plant's exact acceleration, and the water's
     generalised force w = M a + h - tau the plant data imply."""

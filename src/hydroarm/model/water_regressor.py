@@ -22,11 +22,12 @@ of every cylinder, with the water density and gravity the regressor was built wi
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 import pinocchio as pin
 
 from hydroarm.model.arm import Arm
-from hydroarm.model.strips import StripGeometry, water_terms_kernel
+from hydroarm.model.strips import StripGeometry, _apply, _drag_piece, forward_kinematics, water_terms_kernel
 from hydroarm.model.water import Water
 
 BLOCKS = ("drag", "added_mass", "buoyancy")
@@ -101,7 +102,24 @@ class WaterRegressor:
 
     def basis(self, q: np.ndarray, v: np.ndarray, a: np.ndarray) -> np.ndarray:
         """``Phi`` (n, 3C) at joint state q, v (n,) rad, rad/s and acceleration a (n,) rad/s^2:
-        columns ``[drag_1..C, added_mass_1..C, buoyancy_1..C]`` (N m per unit coefficient)."""
+        columns ``[drag_1..C, added_mass_1..C, buoyancy_1..C]`` (N m per unit coefficient), in
+        one compiled pass (:func:`basis_kernel`; :meth:`basis_reference` is its twin through
+        the plant's own kernel, cylinder by cylinder)."""
+        n = self.n
+        q = np.ascontiguousarray(q, dtype=float)
+        v = np.ascontiguousarray(v, dtype=float)
+        data = self.data
+        pin.computeJointJacobiansTimeVariation(self.arm.model, data, q, v)
+        g = self.geometry
+        return basis_kernel(
+            q, v, np.ascontiguousarray(a, dtype=float), data.J.reshape(6, n), data.dJ.reshape(6, n),
+            g.parents, g.placement_rotation, g.placement_translation, g.axes, g.idx_v,
+            g.joint_ids, g.start, g.axis, g.length, g.support, g.nodes, g.weights,
+        )  # fmt: skip
+
+    def basis_reference(self, q: np.ndarray, v: np.ndarray, a: np.ndarray) -> np.ndarray:
+        """:meth:`basis` through :func:`~hydroarm.model.strips.water_terms_kernel`, one cylinder
+        and one effect at a time (slow; the tests compare the two)."""
         n, c = self.n, self.n_cylinders
         q = np.ascontiguousarray(q, dtype=float)
         v = np.ascontiguousarray(v, dtype=float)
@@ -139,3 +157,121 @@ class WaterRegressor:
             "cm": theta[c : 2 * c] / (w.rho * self.areas),
             "volume": volume,
         }
+
+
+@numba.njit(cache=True)
+def basis_kernel(
+    q, v, a, jac, djac, parents, placement_rotation, placement_translation, axes, idx_v,
+    joint_ids, start, axis, length, support, nodes, weights,
+):  # fmt: skip  # pragma: no cover - compiled
+    """``Phi`` (n, 3C) in one pass: per cylinder, the strip integrals of
+    :func:`~hydroarm.model.strips.water_terms_kernel` with unit coefficients, still water (the
+    same operations: drag split at the kink of ``|v_n|``, added mass ``-(M_A,k a + h_A,k)``,
+    buoyancy ``J_p(mid)^T e_z``)."""
+    n = v.shape[0]
+    c_count = joint_ids.shape[0]
+    phi = np.zeros((n, 3 * c_count))
+    rot, pos = forward_kinematics(q, parents, placement_rotation, placement_translation, axes, idx_v)
+    j0 = np.empty((3, n))
+    jr = np.empty((3, n))
+    nj0 = np.empty((3, n))
+    njr = np.empty((3, n))
+    p0 = np.empty(3)
+    e = np.empty(3)
+    zero = np.zeros(3)
+    a_n = np.empty(3)
+    b_n = np.empty(3)
+    bias0 = np.empty(3)
+    bias1 = np.empty(3)
+    column = np.empty(n)
+    for k in range(c_count):
+        j = joint_ids[k]
+        L = length[k]
+        _apply(rot[j], pos[j], start[k], p0)
+        _apply(rot[j], zero, axis[k], e)
+        om0 = om1 = om2 = 0.0
+        dl0 = dl1 = dl2 = 0.0
+        da0 = da1 = da2 = 0.0
+        for c in range(n):
+            if support[k, c] != 0.0:
+                vc = v[c]
+                om0 += jac[3, c] * vc
+                om1 += jac[4, c] * vc
+                om2 += jac[5, c] * vc
+                dl0 += djac[0, c] * vc
+                dl1 += djac[1, c] * vc
+                dl2 += djac[2, c] * vc
+                da0 += djac[3, c] * vc
+                da1 += djac[4, c] * vc
+                da2 += djac[5, c] * vc
+                j0[0, c] = jac[0, c] + jac[4, c] * p0[2] - jac[5, c] * p0[1]
+                j0[1, c] = jac[1, c] + jac[5, c] * p0[0] - jac[3, c] * p0[2]
+                j0[2, c] = jac[2, c] + jac[3, c] * p0[1] - jac[4, c] * p0[0]
+                jr[0, c] = jac[4, c] * e[2] - jac[5, c] * e[1]
+                jr[1, c] = jac[5, c] * e[0] - jac[3, c] * e[2]
+                jr[2, c] = jac[3, c] * e[1] - jac[4, c] * e[0]
+            else:
+                for i in range(3):
+                    j0[i, c] = 0.0
+                    jr[i, c] = 0.0
+        vel0 = np.zeros(3)
+        velr = np.zeros(3)
+        for i in range(3):
+            for c in range(n):
+                vel0[i] += j0[i, c] * v[c]
+                velr[i] += jr[i, c] * v[c]
+        # drag, unit coefficient
+        for i in range(3):
+            a_n[i] = vel0[i]
+        along = a_n[0] * e[0] + a_n[1] * e[1] + a_n[2] * e[2]
+        for i in range(3):
+            a_n[i] -= along * e[i]
+        along = velr[0] * e[0] + velr[1] * e[1] + velr[2] * e[2]
+        for i in range(3):
+            b_n[i] = velr[i] - along * e[i]
+        bb = b_n[0] * b_n[0] + b_n[1] * b_n[1] + b_n[2] * b_n[2]
+        split = -1.0
+        if bb > 0.0:
+            split = -(a_n[0] * b_n[0] + a_n[1] * b_n[1] + a_n[2] * b_n[2]) / bb
+        column[:] = 0.0
+        if 0.0 < split < L:
+            _drag_piece(0.0, split, a_n, b_n, j0, jr, 1.0, nodes, weights, column)
+            _drag_piece(split, L, a_n, b_n, j0, jr, 1.0, nodes, weights, column)
+        else:
+            _drag_piece(0.0, L, a_n, b_n, j0, jr, 1.0, nodes, weights, column)
+        for c in range(n):
+            phi[c, k] = column[c]
+        # added mass, unit coefficient: -(M_A,k a + h_A,k)
+        bias0[0] = dl0 + da1 * p0[2] - da2 * p0[1] + om1 * vel0[2] - om2 * vel0[1]
+        bias0[1] = dl1 + da2 * p0[0] - da0 * p0[2] + om2 * vel0[0] - om0 * vel0[2]
+        bias0[2] = dl2 + da0 * p0[1] - da1 * p0[0] + om0 * vel0[1] - om1 * vel0[0]
+        bias1[0] = da1 * e[2] - da2 * e[1] + om1 * velr[2] - om2 * velr[1]
+        bias1[1] = da2 * e[0] - da0 * e[2] + om2 * velr[0] - om0 * velr[2]
+        bias1[2] = da0 * e[1] - da1 * e[0] + om0 * velr[1] - om1 * velr[0]
+        for c in range(n):
+            along0 = e[0] * j0[0, c] + e[1] * j0[1, c] + e[2] * j0[2, c]
+            alongr = e[0] * jr[0, c] + e[1] * jr[1, c] + e[2] * jr[2, c]
+            for i in range(3):
+                nj0[i, c] = j0[i, c] - e[i] * along0
+                njr[i, c] = jr[i, c] - e[i] * alongr
+        for m in range(nodes.shape[0]):
+            s = L * nodes[m]
+            w = L * weights[m]
+            # normal acceleration at s: sum_b N_b(s) a_b + bias(s)
+            acc0 = bias0[0] + s * bias1[0]
+            acc1 = bias0[1] + s * bias1[1]
+            acc2 = bias0[2] + s * bias1[2]
+            for b in range(n):
+                acc0 += (nj0[0, b] + s * njr[0, b]) * a[b]
+                acc1 += (nj0[1, b] + s * njr[1, b]) * a[b]
+                acc2 += (nj0[2, b] + s * njr[2, b]) * a[b]
+            for c in range(n):
+                phi[c, c_count + k] -= w * (
+                    (nj0[0, c] + s * njr[0, c]) * acc0 + (nj0[1, c] + s * njr[1, c]) * acc1
+                    + (nj0[2, c] + s * njr[2, c]) * acc2
+                )  # fmt: skip
+        # buoyancy, unit coefficient: the midpoint's vertical Jacobian row
+        half = 0.5 * L
+        for c in range(n):
+            phi[c, 2 * c_count + k] = j0[2, c] + half * jr[2, c]
+    return phi
