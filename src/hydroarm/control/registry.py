@@ -122,7 +122,7 @@ PAPER_CONTROLLERS: tuple[str, ...] = ("SMC", "MPC", "GP-MPC")
 """The controllers of Liu et al. 2023's tables (the reproduction's rows)."""
 
 
-ALIASES: dict[str, str] = {"flagship": "PI-IDMPC"}
+ALIASES: dict[str, str] = {"flagship": "GP-IDMPC"}
 """Stable names for registered controllers: ``flagship`` always means hydroarm's best controller
 (measured: docs/controllers.md, "Learning against the classic observers"), so scripts and papers
 that name it keep working as it improves. :func:`canonical_name` resolves them."""
