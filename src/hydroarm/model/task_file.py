@@ -46,12 +46,14 @@ class TaskConfig(FrozenModel):
         None, description="kind = sinusoids: q offsets, one per joint (rad)"
     )
     cos_amp: Amplitudes | None = pydantic.Field(
-        None, description="kind = sinusoids: cosine amplitudes [joint][term] (rad)"
+        None, description="kind = sinusoids: cosine amplitudes, a list per joint (rad)"
     )
     sin_amp: Amplitudes | None = pydantic.Field(
-        None, description="kind = sinusoids: sine amplitudes [joint][term] (rad)"
+        None, description="kind = sinusoids: sine amplitudes, a list per joint (rad)"
     )
-    omega: Amplitudes | None = pydantic.Field(None, description="kind = sinusoids: frequencies [joint][term] (rad/s)")
+    omega: Amplitudes | None = pydantic.Field(
+        None, description="kind = sinusoids: frequencies, a list per joint (rad/s)"
+    )
     start: Literal["task", "on_trajectory"] = pydantic.Field(
         "task", description="task: the task's own start (at rest); on_trajectory: at the reference, no initial error"
     )
