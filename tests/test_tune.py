@@ -19,7 +19,7 @@ def test_every_registered_controller_has_a_grid():
 
     base = ExperimentConfig()
     for name in CONTROLLERS:
-        grid = tuning_grid(name)
+        grid = tuning_grid(base, name)
         assert grid, name
         for key in grid:
             with_overrides(base, {key: grid[key][0]})  # every tuned key is a real setting
@@ -27,7 +27,7 @@ def test_every_registered_controller_has_a_grid():
 
 def test_plan_is_the_grid_clean_and_noisy_on_the_dry_arm():
     tasks = plan_tuning(ExperimentConfig(), "smc")
-    grid = tuning_grid("SMC")
+    grid = tuning_grid(ExperimentConfig(), "SMC")
     assert len(tasks) == 2 * math.prod(len(v) for v in grid.values())
     assert len({t.id for t in tasks}) == len(tasks)
     for task in tasks:

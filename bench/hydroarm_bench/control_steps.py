@@ -14,6 +14,7 @@ from hydroarm_bench.loop import closed_loop
 from hydroarm_bench.stats import stats_ms
 
 PHASES = {
+    "PI-IDMPC": None,  # its phases as it reports them (plus observe: the learning, compute, total)
     "GP-IDMPC": None,  # its phases as it reports them (plus observe, compute, total)
     "GP-MPC": ("observe", "gp", "linearise", "riccati", "qp_update", "qp_solve", "compute", "total"),
     "MPC": ("linearise", "riccati", "qp_update", "qp_solve", "compute", "total"),

@@ -90,6 +90,8 @@ def render_markdown(report: dict) -> str:
         "|---|---:|---:|:---:|",
     ]
     labels = {
+        "pi_idmpc_median_ms": ("PI-IDMPC step median, learning and Kalman filter included (ms)", "<="),
+        "pi_idmpc_p99_ms": ("PI-IDMPC step p99, learning and Kalman filter included (ms)", "<="),
         "gp_idmpc_median_ms": ("GP-IDMPC step median, Kalman filter included (ms)", "<="),
         "gp_idmpc_p99_ms": ("GP-IDMPC step p99, Kalman filter included (ms)", "<="),
         "gp_mpc_median_ms": ("GP-MPC step median (ms)", "<="),

@@ -63,6 +63,7 @@ def assemble(quick, blas_threads, how, load_start, breakdown, throughput, mpc_pe
     report = {
         "schema": SCHEMA,
         "quick": quick,
+        "pi_idmpc_step_ms": _step(breakdown["PI-IDMPC"]["total"]),
         "gp_idmpc_step_ms": _step(breakdown["GP-IDMPC"]["total"]),
         "gp_mpc_step_ms": _step(breakdown["GP-MPC"]["total"]),
         "mpc_step_ms": _step(breakdown["MPC"]["total"]),
@@ -109,6 +110,8 @@ def target_status(report: dict) -> dict:
     agreements = [p["first_torque_max_abs_diff_nm"] for p in mpc_peers.values() if p.get("available")]
     sklearn = report["peers"]["gp"]["peers"].get("sklearn", {})
     return {
+        "pi_idmpc_median_ms": check(report["pi_idmpc_step_ms"]["median"], TARGETS["pi_idmpc_median_ms"], False),
+        "pi_idmpc_p99_ms": check(report["pi_idmpc_step_ms"]["p99"], TARGETS["pi_idmpc_p99_ms"], False),
         "gp_idmpc_median_ms": check(report["gp_idmpc_step_ms"]["median"], TARGETS["gp_idmpc_median_ms"], False),
         "gp_idmpc_p99_ms": check(report["gp_idmpc_step_ms"]["p99"], TARGETS["gp_idmpc_p99_ms"], False),
         "gp_mpc_median_ms": check(report["gp_mpc_step_ms"]["median"], TARGETS["gp_mpc_median_ms"], False),

@@ -10,6 +10,8 @@ import time
 import numpy as np
 
 TARGETS = {
+    "pi_idmpc_median_ms": 0.3,
+    "pi_idmpc_p99_ms": 0.6,
     "gp_idmpc_median_ms": 0.3,
     "gp_idmpc_p99_ms": 0.6,
     "gp_mpc_median_ms": 1.0,

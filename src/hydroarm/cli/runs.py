@@ -75,6 +75,14 @@ def run(
     view: Annotated[
         bool, typer.Option("--view", help="Then open the run in the browser viewer (the viewer extra).")
     ] = False,
+    model: Annotated[
+        Path | None,
+        typer.Option("--model", help="PI-IDMPC: start from the water model saved in this file (JSON)."),
+    ] = None,
+    save_model: Annotated[
+        Path | None,
+        typer.Option("--save-model", help="PI-IDMPC: save the water model learned by the run to this file (JSON)."),
+    ] = None,
     vehicle: Annotated[
         str | None,
         typer.Option(
@@ -115,6 +123,12 @@ def run(
         if on_vehicle and noise is not None:
             raise ConfigError("--noise does not apply on a vehicle: the floating plant gives its true state")
         name = canonical_name(controller if controller is not None else ("smc" if on_vehicle else "gp-mpc"))
+        if (model is not None or save_model is not None) and name != "PI-IDMPC":
+            raise ConfigError(
+                f"--model / --save-model: only PI-IDMPC has a water model to load or save (controller {name})"
+            )
+        if model is not None and not model.is_file():
+            raise ConfigError(f"--model '{model}': no such file")
         if on_vehicle:
             if not mismatch.is_identity:
                 raise ConfigError("mismatch.*: not on a vehicle run (the floating plant's arm is the arm file's)")
@@ -136,8 +150,22 @@ def run(
         TextColumn(label), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(), console=console
     ) as progress:
         task = progress.add_task(label, total=int(round(config.duration / config.control_period)))
+        learner = experiment.controller
+        while model is not None or save_model is not None:  # PI-IDMPC, behind its Kalman filter
+            if hasattr(learner, "load_model"):
+                break
+            learner = learner.controller
+        if model is not None:
+            try:
+                learner.load_model(model)
+            except ConfigError as error:
+                progress.stop()
+                _fail(str(error))
         traj = experiment.run(seed, progress=lambda k, total: progress.update(task, completed=k))
         traj.meta["mismatch"] = mismatch.model_dump()
+    if save_model is not None:
+        learner.save_model(save_model)
+        traj.meta["model_saved"] = str(save_model)
     traj.save(out / "trajectory.npz")
     metrics = tracking_metrics(traj, steady_after=STEADY_AFTER)
     if on_vehicle:
@@ -226,37 +254,6 @@ def animate(
 
 
 @app.command()
-def controllers(as_json: Annotated[bool, typer.Option("--json", help="Machine-readable list.")] = False) -> None:
-    """List the registered controllers: name, what it is, the settings sections it reads, its
-    default state estimator and its GP's inputs on a 6-joint arm (default settings)."""
-    from hydroarm.control.registry import REGISTRY, settings_read_by
-    from hydroarm.sim.experiment import ExperimentConfig, gp_inputs
-
-    rows = []
-    for name, spec in REGISTRY.items():
-        inputs = gp_inputs(name, ExperimentConfig(), 6)
-        rows.append(
-            {
-                "name": name.lower(),
-                "description": spec.description,
-                "sections": list(settings_read_by(name)),
-                "default_estimator": spec.default_estimator,
-                "gp_inputs_6_joints": None if inputs is None else inputs[0],
-            }
-        )
-    if as_json:
-        typer.echo(json.dumps(rows, indent=1))
-        return
-    table = Table(title="registered controllers (--controller NAME; either spelling)")
-    for column in ("name", "description", "reads", "estimator", "GP inputs (6 joints)"):
-        table.add_column(column)
-    for row in rows:
-        gp = "-" if row["gp_inputs_6_joints"] is None else str(row["gp_inputs_6_joints"])
-        table.add_row(row["name"], row["description"], ", ".join(row["sections"]), row["default_estimator"], gp)
-    Console(soft_wrap=True).print(table)
-
-
-@app.command()
 def arms(as_json: Annotated[bool, typer.Option("--json")] = False) -> None:
     """List the built-in arms."""
     from hydroarm.model.loading import BUILTIN_ARMS, arm_description, load_arm
@@ -284,6 +281,33 @@ def arms(as_json: Annotated[bool, typer.Option("--json")] = False) -> None:
             row["name"], str(row["joints"]), row["description"], ", ".join(f"{x:g}" for x in row["torque_limit"])
         )
     Console().print(table)
+
+
+@app.command()
+def controllers(as_json: Annotated[bool, typer.Option("--json", help="Machine-readable list.")] = False) -> None:
+    """List the registered controllers (their settings sections, default estimator, whether they
+    run over an observer, their GP's inputs on 6 joints) and the aliases (flagship)."""
+    from hydroarm.control.registry import ALIASES, REGISTRY
+    from hydroarm.sim.experiment import ExperimentConfig, gp_inputs
+
+    rows = [
+        {"name": spec.name, "sections": list(spec.sections), "estimator": spec.default_estimator,
+         "observer": spec.observer, "description": spec.description,
+         "gp_inputs_6_joints": (gp_inputs(spec.name, ExperimentConfig(), 6) or (None,))[0]}
+        for spec in REGISTRY.values()
+    ]  # fmt: skip
+    if as_json:
+        print(json.dumps({"controllers": rows, "aliases": ALIASES}))
+        return
+    table = Table(title="controllers (--controller takes the name in any case, - or _)")
+    for column in ("name", "settings sections", "estimator", "observer", "description"):
+        table.add_column(column)
+    for row in rows:
+        table.add_row(row["name"], ", ".join(row["sections"]), row["estimator"], "yes" if row["observer"] else "",
+                      row["description"])  # fmt: skip
+    Console().print(table)
+    for alias, target in ALIASES.items():
+        console.print(f"alias [bold]{alias}[/] = {target} (hydroarm's best controller)")
 
 
 @app.command("export-urdf")

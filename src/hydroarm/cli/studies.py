@@ -262,7 +262,7 @@ def tune(
     if out.exists() and not out.is_file():
         _fail(f"--out '{out}': exists and is not a file")
     _check_file_out(out)
-    grid = tuning_grid(name)
+    grid = tuning_grid(config, name)
     with (
         _sigterm_as_interrupt(),
         Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),

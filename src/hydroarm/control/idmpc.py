@@ -261,12 +261,19 @@ class InverseDynamicsMPC:
         e0, c, a_r, q_r, v_r = self._last_problem
         return self.qp.solve(e0, c, q_r, v_r, a_r, mass, bias, w_hat)
 
-    def torque_map(self, q: np.ndarray, v: np.ndarray, acceleration: np.ndarray, w_hat: np.ndarray):
+    def torque_map(
+        self, q: np.ndarray, v: np.ndarray, acceleration: np.ndarray, w_hat: np.ndarray,
+        added_mass: np.ndarray | None = None,
+    ):  # fmt: skip
         """``(tau, a, saturated)``: the torques (n,) realising ``acceleration`` on the dry model
-        minus the estimate ``w_hat`` (n,), within the limits (``config.limits``)."""
+        minus the estimate ``w_hat`` (n,), within the limits (``config.limits``). ``added_mass``
+        (n, n) kg m^2: a model's added-mass inertia, added to M(q) (the estimate is then
+        ``w_hat - M_A a`` at whatever acceleration the limits leave)."""
         model, data = self.arm.model, self.nominal.data
         mass = pin.crba(model, data, q)
         mass = np.triu(mass) + np.triu(mass, 1).T
+        if added_mass is not None:
+            mass = mass + added_mass
         bias = pin.nonLinearEffects(model, data, q, v) - w_hat
         if self.config.limits == "clip":
             tau = mass @ acceleration + bias
@@ -290,7 +297,12 @@ class InverseDynamicsMPC:
         return np.concatenate([y, acceleration / self.config.acceleration_scale])
 
     # --- the controller interface ---------------------------------------------------------
-    def compute(self, t: float, y: np.ndarray, reference: Reference) -> ControlOutput:
+    def compute(
+        self, t: float, y: np.ndarray, reference: Reference, feedforward_torque: np.ndarray | None = None
+    ) -> ControlOutput:
+        """The torque (n,) N m at measured state y (2n,). ``feedforward_torque`` (n,) N m: an
+        outside disturbance estimate (an observer's, :mod:`hydroarm.control.observers`) added to
+        the GP's (zero without a GP) in the torque map and the torque rows."""
         start = time.perf_counter()
         n = self.n
         y = np.asarray(y, dtype=float)
@@ -308,6 +320,8 @@ class InverseDynamicsMPC:
                 if not np.all(np.isfinite(mean)):
                     self._pending_events.append("gp_nonfinite_prediction")
                     mean = np.where(np.isfinite(mean), mean, 0.0)
+        if feedforward_torque is not None:
+            mean = mean + feedforward_torque
         t_gp = time.perf_counter()
         tau, realised, saturated = self.torque_map(y[:n], y[n:], acceleration, mean)
         self.saturated_steps += bool(saturated.any())

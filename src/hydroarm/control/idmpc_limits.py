@@ -25,7 +25,10 @@ of each joint's double integrator), the rows are the inverse dynamics linearised
     tau_k(U) ~ ID(q_k, v_k, a_k) - w_hat + M(q_k) du_k
                + sum_{i<k} [dID/dq (k - i - 1/2) T^2 + dID/dv T] du_i,    du = U - U^
 
-(Pinocchio's RNEA derivatives; ``dq_k/du_i = (k - i - 1/2) T^2``, ``dv_k/du_i = T`` for i < k),
+(Pinocchio's RNEA derivatives; ``dq_k/du_i = (k - i - 1/2) T^2``, ``dv_k/du_i = T`` for i < k);
+with a ``disturbance_model`` (a learned model of the water) ``w_hat`` of row k is the model's
+prediction at the plan's (q_k, v_k, a_k) instead of the current estimate, and its added-mass
+inertia M_A,k joins M(q_k) in the row (the rest of its dependence on du is not linearised),
 so the plan knows how its own motion changes M(q) and the Coriolis terms: while a base joint
 is saturated, the plan folds the other joints the way that lowers the base joint's inertia.
 Each solve is warm-started with the previous one's multipliers (DAQP ``dual_start``). The first
@@ -169,6 +172,7 @@ class HorizonQP:
         self._d_v = np.empty((horizon, n, n))
         self._mass = np.empty((horizon, n, n))
         self.last_iterations = 0  # SQP steps the last solve took (0: the frozen rows' solution)
+        self.disturbance_model = None  # optional (q, v, a) (N, n) each -> (w (N, n), M_A (N, n, n))
         # load the compiled kernels now, not in the first saturated step
         zeros = np.zeros((horizon, n))
         predicted_plan(np.zeros((n, 2)), np.zeros((horizon, n, 2)), zeros, zeros, zeros, zeros, self.period)
@@ -196,7 +200,12 @@ class HorizonQP:
             d_q, d_v, mass = pin.computeRNEADerivatives(model, data, q[k], v[k], a[k])
             self._d_q[k], self._d_v[k], self._mass[k] = d_q, d_v, mass
             base[k * n : (k + 1) * n] = data.tau
-        base -= np.tile(w_hat, self.horizon)
+        if self.disturbance_model is not None:  # the disturbance at the planned states, step by step
+            w_plan, added_mass = self.disturbance_model(q, v, a)
+            base -= w_plan.ravel()
+            self._mass += added_mass  # the row's inertia M_k + M_A,k (the model's added mass answers du_k)
+        else:
+            base -= np.tile(w_hat, self.horizon)
         fill_linearised_rows(self._d_q, self._d_v, self._mass, period, self._rows)
         shift = self._rows @ moves.ravel() - base
         return self._rows, self.limit + shift, -self.limit + shift

@@ -22,6 +22,8 @@ from hydroarm.control.gpmpc import GPMPC, feature_size
 from hydroarm.control.idmpc import InverseDynamicsMPC, gp_input_size
 from hydroarm.control.interface import Controller
 from hydroarm.control.mpc import LinearMPC
+from hydroarm.control.observers import DisturbanceObserver, ObservedController
+from hydroarm.control.pi_idmpc import PhysicsInformedIDMPC
 from hydroarm.control.smc import SlidingModeController
 from hydroarm.model.arm import Arm
 from hydroarm.model.nominal import NominalModel
@@ -34,15 +36,18 @@ class ControllerSpec:
     ``sections`` it reads (keys of the ``sections`` mapping :func:`build_controller` takes;
     every controller also reads ``estimator``), a one-line ``description`` (the CLI's help),
     its ``build(arm, sections, control_period)``, the state estimator it uses when
-    ``estimator.kind = "auto"``, ``gp_inputs(sections, n_joints) -> (d, why)``: the input count
-    of its GP on n joints and the setting that decides it (None: no GP), and ``tuning_grid``:
-    the gains ``hydroarm tune`` searches (dotted setting -> values)."""
+    ``estimator.kind = "auto"``; ``observer``: it can run over a disturbance observer (reads
+    the ``observer`` section, :mod:`hydroarm.control.observers`); ``gp_inputs(sections,
+    n_joints) -> (d, why)``: the input count of its GP on n joints and the setting that decides
+    it (None: no GP); ``tuning_grid``: the gains ``hydroarm tune`` searches (dotted setting ->
+    values)."""
 
     name: str
     sections: tuple[str, ...]
     description: str
     build: Callable[[Arm, Mapping[str, Any], float], Controller]
     default_estimator: str = "none"
+    observer: bool = False
     gp_inputs: Callable[[Mapping[str, Any], int], tuple[int, str]] | None = None
     tuning_grid: Mapping[str, Sequence[Any]] = field(default_factory=dict)
 
@@ -65,6 +70,10 @@ def _idmpc(arm: Arm, sections: Mapping[str, Any], period: float) -> Controller:
 
 def _gp_idmpc(arm: Arm, sections: Mapping[str, Any], period: float) -> Controller:
     return InverseDynamicsMPC(arm, sections["idmpc"], control_period=period, gp_config=sections["gp"])
+
+
+def _pi_idmpc(arm: Arm, sections: Mapping[str, Any], period: float) -> Controller:
+    return PhysicsInformedIDMPC(arm, sections["idmpc"], sections["water_model"], control_period=period)
 
 
 def _gpmpc_inputs(sections: Mapping[str, Any], n: int) -> tuple[int, str]:
@@ -90,10 +99,20 @@ REGISTRY: dict[str, ControllerSpec] = {
     spec.name: spec
     for spec in (
         ControllerSpec(
-            "SMC", ("smc",), "boundary-layer sliding-mode computed torque on the dry model", _smc, tuning_grid=_SMC_GRID
+            "SMC",
+            ("smc", "observer"),
+            "boundary-layer sliding-mode computed torque on the dry model",
+            _smc,
+            observer=True,
+            tuning_grid=_SMC_GRID,
         ),
         ControllerSpec(
-            "MPC", ("mpc",), "linear time-varying MPC about the reference (the paper's)", _mpc, tuning_grid=_MPC_GRID
+            "MPC",
+            ("mpc", "observer"),
+            "linear time-varying MPC about the reference (the paper's)",
+            _mpc,
+            observer=True,
+            tuning_grid=_MPC_GRID,
         ),
         ControllerSpec(
             "GP-MPC",
@@ -105,24 +124,32 @@ REGISTRY: dict[str, ControllerSpec] = {
         ),
         ControllerSpec(
             "IDMPC",
-            ("idmpc",),
+            ("idmpc", "observer"),
             "hydroarm's inverse-dynamics MPC (acceleration-space MPC + computed torque)",
             _idmpc,
             default_estimator="kalman",
+            observer=True,
             tuning_grid=_IDMPC_GRID,
         ),
         ControllerSpec(
             "GP-IDMPC",
             ("idmpc", "gp"),
-            "hydroarm's best: the inverse-dynamics MPC with the GP fed forward",
+            "the inverse-dynamics MPC with the sliding-window GP fed forward",
             _gp_idmpc,
             default_estimator="kalman",
             gp_inputs=_gp_idmpc_inputs,
             tuning_grid=_IDMPC_GRID,
         ),
+        ControllerSpec(
+            "PI-IDMPC",
+            ("idmpc", "water_model"),
+            "the inverse-dynamics MPC with a physics-informed water model along the horizon + an observer on the rest",
+            _pi_idmpc,
+            default_estimator="kalman",
+            tuning_grid=_IDMPC_GRID,  # on land the water model has nothing to learn either
+        ),
     )
 }
-"""Every controller by canonical name, in the order tables show them (:func:`register` adds)."""
 
 CONTROLLERS: tuple[str, ...] = tuple(REGISTRY)
 """The built-in controllers' canonical names, in the order tables show them (every registered
@@ -134,7 +161,7 @@ def register(spec: ControllerSpec) -> ControllerSpec:
     know it by its name (either spelling). Raises :class:`ConfigError` if a controller of that
     name (either spelling) is registered already."""
     key = _key(spec.name)
-    taken = [name for name in REGISTRY if _key(name) == key]
+    taken = [name for name in (*REGISTRY, *ALIASES) if _key(name) == key]
     if taken:
         raise ConfigError(f"controller {spec.name!r}: a controller of that name is registered already ({taken[0]})")
     REGISTRY[spec.name] = spec
@@ -163,19 +190,28 @@ PAPER_CONTROLLERS: tuple[str, ...] = ("SMC", "MPC", "GP-MPC")
 """The controllers of Liu et al. 2023's tables (the reproduction's rows)."""
 
 
+ALIASES: dict[str, str] = {"flagship": "GP-IDMPC"}
+"""Stable names for registered controllers: ``flagship`` always means hydroarm's best controller
+(measured: docs/controllers.md, "Learning against the classic observers"), so scripts and papers
+that name it keep working as it improves. :func:`canonical_name` resolves them."""
+
+
 def _key(name: str) -> str:
     return name.strip().upper().replace("_", "-")
 
 
 def canonical_name(name: str) -> str:
-    """The canonical name of controller ``name`` (either spelling); raises :class:`ConfigError`
-    naming the allowed names otherwise."""
+    """The canonical name of controller ``name`` (either spelling, or an alias of :data:`ALIASES`);
+    raises :class:`ConfigError` naming the allowed names otherwise."""
     if isinstance(name, str):
         key = _key(name)
+        for alias, target in ALIASES.items():
+            if _key(alias) == key:
+                return target
         for canonical in REGISTRY:
             if _key(canonical) == key:
                 return canonical
-    allowed = ", ".join(f"{c} ({c.lower()})" for c in REGISTRY)
+    allowed = ", ".join([*(f"{c} ({c.lower()})" for c in REGISTRY), *(f"{a} (= {t})" for a, t in ALIASES.items())])
     raise ConfigError(f"controller = {name!r}: must be one of {allowed}")
 
 
@@ -204,12 +240,25 @@ def build_controller(
     model, e.g. ``{"mpc": MPCConfig()}``) with the control period (s), behind the state
     estimator of ``sections["estimator"]`` (an :class:`EstimatorConfig`; absent = ``auto``).
 
+    With ``sections["observer"]`` (an :class:`~hydroarm.control.observers.ObserverConfig`) of
+    a kind other than ``"none"``, the controller runs over that disturbance observer
+    (:class:`ObservedController`), inside the estimator: the observer sees the filtered state.
+
     ``sensor_variance``: the measurement-noise variance of the plant it will run on (rad^2),
     what ``estimator.measurement_variance = "plant"`` stands for; needed only then. ``sensor``:
     the plant's sensor (None: q and v measured) and ``loop_delay`` (periods, ``sensor.delay +
     actuator.delay``): what ``estimator.measures`` and ``estimator.delay = "plant"`` stand for."""
     spec = controller_spec(name)
     controller = spec.build(arm, sections, control_period)
+    observer = sections.get("observer")
+    if observer is not None and observer.kind != "none":
+        if not spec.observer:
+            takes = ", ".join(c for c, s in REGISTRY.items() if s.observer)
+            raise ConfigError(
+                f"observer.kind = {observer.kind!r}: {spec.name} learns the disturbance itself; "
+                f"an observer runs under {takes} (or set observer.kind = 'none')"
+            )
+        controller = ObservedController(controller, DisturbanceObserver(arm, control_period, observer))
     estimator = sections.get("estimator")
     if estimator_kind(spec.name, estimator) == "kalman":
         config = estimator if estimator is not None else EstimatorConfig()

@@ -73,7 +73,11 @@ class SlidingModeController:
     def reset(self) -> None:
         """Stateless: nothing to forget."""
 
-    def compute(self, t: float, y: np.ndarray, reference: Reference) -> ControlOutput:
+    def compute(
+        self, t: float, y: np.ndarray, reference: Reference, feedforward_torque: np.ndarray | None = None
+    ) -> ControlOutput:
+        """The torque (n,) N m at measured state y (2n,); ``feedforward_torque`` w_hat (n,) N m: a
+        disturbance estimate compensated before the clip (``tau = ID(q, v, a) - w_hat``)."""
         start = time.perf_counter()
         n = self.arm.n_joints
         q, v = y[:n], y[n:]
@@ -82,6 +86,8 @@ class SlidingModeController:
         surface = error_v + self.slope * (q - q_r)
         acc = a_r - self.slope * error_v - self.linear * surface - self.gain * np.clip(surface / self.layer, -1.0, 1.0)
         tau = self.nominal.inverse_dynamics(q, v, acc)
+        if feedforward_torque is not None:
+            tau = tau - feedforward_torque
         tau = np.clip(tau, -self.torque_limit, self.torque_limit)
         return ControlOutput(tau=tau, timings={"total": time.perf_counter() - start})
 

@@ -59,6 +59,7 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
+from hydroarm.config import ConfigError
 from hydroarm.model.arm import Arm, revolute_axes
 from hydroarm.model.water import Water, WaterModel, current_velocity
 
@@ -96,6 +97,11 @@ def _z_to(axis: np.ndarray) -> np.ndarray:
 
 
 def _cd(cylinder, water: Water) -> float:
+    if water.drag_model != "constant":
+        raise ConfigError(
+            "water.drag_model = 'reynolds': only the fixed-base plant (UnderwaterPlant) has it; "
+            "use water.drag_model = 'constant' here"
+        )
     return water.cd if cylinder.cd is None else cylinder.cd
 
 

@@ -230,6 +230,10 @@ class UnderwaterPlant:
         friction = float(self.config.friction)
         joint_friction, joint_arrays = self.joint_friction, self._friction_arrays
         drag, added_mass, buoyancy = water.drag, water.added_mass, water.buoyancy
+        reynolds = wm.reynolds  # drag_model = "reynolds": the drag joins tau, stage by stage
+        if reynolds is not None:
+            drag = False
+            stage_tau = tau.copy()
         live = self._views
         time = t
         for _ in range(steps):
@@ -239,9 +243,14 @@ class UnderwaterPlant:
                 nonlinear = pin.nonLinearEffects(model, data, q, v)
                 pin.computeJointJacobiansTimeVariation(model, data, q, v)
                 mass, jac, djac = live if live is not None else (data.M, data.J, data.dJ)
+                applied = tau
+                if reynolds is not None:
+                    reynolds_drag = reynolds.force(q, v, wm.current.at(stage_time)[1], data.J.reshape(6, n))
+                    np.add(tau, reynolds_drag, out=stage_tau)
+                    applied = stage_tau
                 try:
                     rk4_stage_kernel(
-                        stage, stage_time, h, state, stage_state, derivatives, disturbances, average, tau,
+                        stage, stage_time, h, state, stage_state, derivatives, disturbances, average, applied,
                         friction, mass, nonlinear, jac, djac,
                         current_joint, current_world, *constants, drag, added_mass, buoyancy,
                         joint_friction, *joint_arrays,
@@ -249,6 +258,10 @@ class UnderwaterPlant:
                 except np.linalg.LinAlgError:  # the solve met an infinite force: diverged
                     stage_state[:] = np.nan
                     break
+                if reynolds is not None:  # the drag is part of the disturbance (stage 3: of its average too)
+                    disturbances[stage] += reynolds_drag
+                    if stage == 3:
+                        average += reynolds_drag
             if not np.all(np.isfinite(stage_state)):  # diverged: NaN out, the caller reports it
                 nan = np.full(n, np.nan)
                 return np.full(2 * n, np.nan), StepInfo(disturbance=nan, disturbance_start=nan.copy())

@@ -36,6 +36,7 @@ import numba
 import numpy as np
 import pinocchio as pin
 
+from hydroarm.config import ConfigError
 from hydroarm.model.arm import Arm
 from hydroarm.model.current import CurrentField
 from hydroarm.model.loading import load_arm
@@ -144,6 +145,11 @@ class FloatingStrips:
     base moves every cylinder)."""
 
     def __init__(self, uvms: UVMS, water: Water):
+        if water.drag_model != "constant":
+            raise ConfigError(
+                "water.drag_model = 'reynolds': only the fixed-base plant (UnderwaterPlant) has it; "
+                "use water.drag_model = 'constant' here"
+            )
         arm = uvms.arm
         geometry = StripGeometry(arm, water)
         nj = geometry.parents.shape[0]

@@ -28,7 +28,7 @@ import numba
 import numpy as np
 import pydantic
 
-from hydroarm.config import FrozenModel
+from hydroarm.config import ConfigError, FrozenModel
 from hydroarm.model.current import current_at
 from hydroarm.model.plant import inner_steps
 from hydroarm.model.strips import StripGeometry
@@ -95,6 +95,11 @@ class FastUVMSDynamics:
         rows = []
         arm = uvms.arm
         if arm is not None and arm.cylinders:
+            if water.drag_model != "constant":
+                raise ConfigError(
+                    "water.drag_model = 'reynolds': only the fixed-base plant (UnderwaterPlant) has it; "
+                    "use water.drag_model = 'constant' here"
+                )
             geometry = StripGeometry(arm, water)
             mount = uvms.mount
             for k in range(geometry.joint_ids.shape[0]):

@@ -31,6 +31,7 @@ All world quantities are in the base frame (z up). Forces in N, torques in N m.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 import pinocchio as pin
@@ -39,6 +40,7 @@ import pydantic
 from hydroarm.config import FrozenModel
 from hydroarm.model.arm import Arm
 from hydroarm.model.current import CurrentConfig, CurrentField, current_velocity, paper_current_acceleration
+from hydroarm.model.reynolds import ReynoldsDrag
 from hydroarm.model.strips import StripGeometry, underwater_dynamics_kernel, water_terms_kernel
 
 __all__ = [
@@ -74,6 +76,13 @@ class Water(FrozenModel):
     )
     gravity: float = pydantic.Field(9.81, ge=0.0, le=100.0, description="gravity for the buoyancy (m/s^2)")
     drag: bool = pydantic.Field(True, description="switch: the Morison drag on the arm (on/off)")
+    drag_model: Literal["constant", "reynolds"] = pydantic.Field(
+        "constant",
+        description="constant: C_d = cd; reynolds: C_d(Re) of a smooth cylinder along every strip (DNV-RP-C205)",
+    )
+    kinematic_viscosity: float = pydantic.Field(
+        1.0e-6, gt=0.0, le=1e-3, description="nu of the water, for drag_model = reynolds (m^2/s)"
+    )
     added_mass: bool = pydantic.Field(True, description="switch: the added mass of the water (on/off)")
     buoyancy: bool = pydantic.Field(True, description="switch: the buoyancy of the wetted cylinders (on/off)")
     current: CurrentConfig = pydantic.Field(CurrentConfig(), description="the ocean current (section)")
@@ -118,16 +127,24 @@ class WaterModel:
         self.kernel_constants = self.geometry.kernel_constants()
         self.current = CurrentField(water.current, arm.n_joints)
         self.data = arm.create_data()
+        self.reynolds = (
+            ReynoldsDrag(arm, water, self.geometry) if water.drag and water.drag_model == "reynolds" else None
+        )
+        """The Reynolds-dependent drag (:mod:`hydroarm.model.reynolds`), None for a constant C_d."""
 
     def _kernel(self, q, v, t, drag, added_mass, buoyancy):
         data = self.data
         pin.computeJointJacobiansTimeVariation(self.arm.model, data, q, v)
         n = self.arm.n_joints
-        return water_terms_kernel(
-            q, v, self.current.at(t)[1], data.J.reshape(6, n), data.dJ.reshape(6, n),
+        water_velocity = self.current.at(t)[1]
+        mass, bias, force = water_terms_kernel(
+            q, v, water_velocity, data.J.reshape(6, n), data.dJ.reshape(6, n),
             *self.kernel_constants,
-            drag, added_mass, buoyancy,
+            drag and self.reynolds is None, added_mass, buoyancy,
         )  # fmt: skip
+        if drag and self.reynolds is not None:
+            force = force + self.reynolds.force(q, v, water_velocity, data.J.reshape(6, n))
+        return mass, bias, force
 
     def dynamics(
         self, q: np.ndarray, v: np.ndarray, tau: np.ndarray, t: float, friction: float = 0.0
@@ -144,9 +161,17 @@ class WaterModel:
         nonlinear = pin.nonLinearEffects(model, data, q, v)
         pin.computeJointJacobiansTimeVariation(model, data, q, v)
         joint_acc, water_velocity = self.current.at(t)
+        jac = data.J.reshape(6, self.arm.n_joints)
+        if self.reynolds is not None:  # the drag as a generalised force beside tau
+            drag = self.reynolds.force(q, v, water_velocity, jac)
+            acc, disturbance = underwater_dynamics_kernel(
+                q, v, np.asarray(tau, dtype=float) + drag, water_velocity, joint_acc, friction, data.M, nonlinear,
+                jac, data.dJ.reshape(6, self.arm.n_joints), *self.kernel_constants, False, w.added_mass, w.buoyancy,
+            )  # fmt: skip
+            return acc, disturbance + drag
         return underwater_dynamics_kernel(
             q, v, tau, water_velocity, joint_acc, friction, data.M, nonlinear,
-            data.J.reshape(6, self.arm.n_joints), data.dJ.reshape(6, self.arm.n_joints),
+            jac, data.dJ.reshape(6, self.arm.n_joints),
             *self.kernel_constants, w.drag, w.added_mass, w.buoyancy,
         )  # fmt: skip
 

@@ -38,14 +38,17 @@ from hydroarm.control.gpmpc import GPMPCConfig
 from hydroarm.control.idmpc import IDMPCConfig
 from hydroarm.control.interface import CONTROL_PERIOD_RANGE, DEFAULT_CONTROL_PERIOD, Controller, Reference
 from hydroarm.control.mpc import MPCConfig
+from hydroarm.control.observers import ObserverConfig
 from hydroarm.control.registry import CONTROLLERS, canonical_name, controller_sections, controller_spec
 from hydroarm.control.smc import SMCConfig
+from hydroarm.control.water_model import WaterModelConfig
 from hydroarm.model.arm import Arm
 from hydroarm.model.friction import FrictionConfig
 from hydroarm.model.loading import BUILTIN_ARMS, load_arm
 from hydroarm.model.plant import PlantConfig, UnderwaterPlant
 from hydroarm.model.sensing import ActuatorConfig, SensorConfig
-from hydroarm.model.task import SinusoidReference, task_for_arm
+from hydroarm.model.task import SinusoidReference
+from hydroarm.model.task_file import SplineReference, TaskConfig, reference_for
 from hydroarm.model.water import Water
 from hydroarm.sim.plant import Plant
 from hydroarm.sim.runner import Trajectory, run_closed_loop
@@ -81,9 +84,11 @@ REAL_LOOP_SECTIONS: tuple[str, ...] = ("sensor", "actuator", "friction")
 left out of :meth:`ExperimentConfig.canonical` (digests, run ids), so results made before they
 existed still match."""
 
-OPTIONAL_SECTIONS: tuple[str, ...] = (*REAL_LOOP_SECTIONS, "vehicle")
-"""The sections left out of :meth:`ExperimentConfig.canonical` at their defaults: the real loop's
-and the vehicle's (off unless ``vehicle.name`` is set)."""
+OPTIONAL_SECTIONS: tuple[str, ...] = (*REAL_LOOP_SECTIONS, "vehicle", "observer", "water_model", "task")
+"""The sections left out of :meth:`ExperimentConfig.canonical` at their defaults: the real loop's,
+the vehicle's (off unless ``vehicle.name`` is set), the disturbance observer's (none), the
+physics-informed water model's (read by PI-IDMPC only) and the task's (the arm's own): results
+made before they existed still match."""
 
 REAL_LOOP_ESTIMATOR_KEYS: tuple[str, ...] = ("measures", "delay", "repeated")
 """The estimator's real-loop settings, left out of :meth:`ExperimentConfig.canonical` at their defaults."""
@@ -158,8 +163,17 @@ class ExperimentConfig(FrozenModel):
     idmpc: IDMPCConfig = pydantic.Field(
         IDMPCConfig(), description="the inverse-dynamics MPC, IDMPC and GP-IDMPC (section)"
     )
+    water_model: WaterModelConfig = pydantic.Field(
+        WaterModelConfig(), description="PI-IDMPC's physics-informed water model and its remainder observer (section)"
+    )
+    observer: ObserverConfig = pydantic.Field(
+        ObserverConfig(), description="the disturbance observer (TDE, NDOB) under SMC, MPC or IDMPC (section)"
+    )
     estimator: EstimatorConfig = pydantic.Field(
         EstimatorConfig(), description="the state estimator any controller can run behind (section)"
+    )
+    task: TaskConfig = pydantic.Field(
+        TaskConfig(), description="the reference: the arm's task, sinusoids or a file, and the start (section)"
     )
     initial_state: InitialState = pydantic.Field(
         InitialState(), description="a seeded random start around the task's start (section)"
@@ -276,12 +290,15 @@ def check_settings_for_arm(
     the d GP inputs (:func:`gp_inputs`) of each GP controller among ``controllers`` (default:
     every registered controller; the section is shared) on the arm's n joints; ``plant.friction`` and
     the joint friction model (``friction``) must suit the RK4 step on this arm
-    (:class:`~hydroarm.model.plant.UnderwaterPlant` checks it). Nothing is run (with friction or
-    a real-loop setting, the plant is built: about a millisecond).
+    (:class:`~hydroarm.model.plant.UnderwaterPlant` checks it); a task from settings or a file
+    must be readable and have the arm's joint count. Nothing is run (with friction or a
+    real-loop setting, the plant is built: about a millisecond).
     """
     n = arm.n_joints
     try:
         check_joint_counts(config, n)
+        if config.task.kind != "arm":  # the task's joint count, its file
+            reference_for(config.task, arm)
         real_loop = any(getattr(config, s) != type(getattr(config, s))() for s in REAL_LOOP_SECTIONS)
         if config.plant.friction > 0.0 or real_loop:
             make_plant(arm, config)
@@ -328,10 +345,12 @@ def build_controller(name: str, arm: Arm, config: ExperimentConfig) -> Controlle
     )
 
 
-def start_for_arm(arm: Arm, config: ExperimentConfig) -> tuple[SinusoidReference, np.ndarray]:
-    """The reference and the start state (2n,) of a run of ``config`` on ``arm``:
-    :func:`task_for_arm`'s, moved by ``config.initial_state`` (:class:`InitialState`)."""
-    reference, x0 = task_for_arm(arm)
+def start_for_arm(arm: Arm, config: ExperimentConfig) -> tuple[SinusoidReference | SplineReference, np.ndarray]:
+    """The reference and the start state (2n,) of a run of ``config`` on ``arm``: the task of
+    ``config.task`` (:func:`~hydroarm.model.task_file.reference_for`; default the arm's,
+    :func:`~hydroarm.model.task.task_for_arm`), moved by ``config.initial_state``
+    (:class:`InitialState`)."""
+    reference, x0 = reference_for(config.task, arm)
     return reference, config.initial_state.apply(x0)
 
 

@@ -40,9 +40,18 @@ EXTRA_ROWS: dict[str, tuple[str, dict]] = {
     "SMC+KF": ("SMC", {"estimator.kind": "kalman"}),
     "MPC+KF": ("MPC", {"estimator.kind": "kalman"}),
     "GP-MPC+KF": ("GP-MPC", {"estimator.kind": "kalman"}),
+    "IDMPC+KF": ("IDMPC", {"estimator.kind": "auto"}),
+    "IDMPC+TDE+KF": ("IDMPC", {"observer.kind": "tde"}),
+    "IDMPC+TDE-gated+KF": ("IDMPC", {"observer.kind": "tde", "observer.gate": True}),
+    "IDMPC+NDOB+KF": ("IDMPC", {"observer.kind": "ndob"}),
+    "IDMPC+NDOB-gated+KF": ("IDMPC", {"observer.kind": "ndob", "observer.gate": True}),
+    "PI-IDMPC+KF": ("PI-IDMPC", {"estimator.kind": "auto"}),
 }
 """Rows beyond the paper's: row name -> (registered controller, settings). Each row's name is
-what its controller reports (``Trajectory.meta["controller"]``)."""
+what its controller reports (``Trajectory.meta["controller"]``). The IDMPC rows are the fair
+baselines of a learned disturbance model: no estimate, and the classic observers (TDE, NDOB with
+L = 0.1, each with and without the saturation gate, :mod:`hydroarm.control.observers`) in the
+same inverse-dynamics MPC behind the same filter."""
 
 ROWS: tuple[str, ...] = (*PAPER_CONTROLLERS, *EXTRA_ROWS)
 """The paper's "average control accuracy" gain: the mean of the per-joint gains (%)."""

@@ -42,10 +42,21 @@ DRY = {"water.drag": False, "water.added_mass": False, "water.buoyancy": False, 
 """The overrides that take the water away ("on land")."""
 
 
-def tuning_grid(controller: str) -> dict[str, list[Any]]:
-    """The gains controller ``controller`` (either spelling) is tuned over: its registry spec's
-    ``tuning_grid`` (dotted keys of :class:`ExperimentConfig` -> values)."""
-    return {key: list(values) for key, values in controller_spec(controller).tuning_grid.items()}
+NDOB_GAINS = [0.05, 0.1, 0.3, 1.0]
+"""With ``observer.kind = "ndob"`` in the settings, the NDOB's gain L joins the grid of every
+controller that runs over an observer (a TDE has no gain: the controller's grid alone; on the
+dry arm's noisy run the observer's noise amplification is what the score sees)."""
+
+
+def tuning_grid(base: ExperimentConfig, controller: str) -> dict[str, list[Any]]:
+    """The grid ``controller`` (either spelling) is tuned over from the settings ``base``: its
+    registry spec's ``tuning_grid`` (dotted keys of :class:`ExperimentConfig` -> values), plus the
+    NDOB's gain (:data:`NDOB_GAINS`) when ``base`` runs it under an NDOB."""
+    spec = controller_spec(controller)
+    grid = {key: list(values) for key, values in spec.tuning_grid.items()}
+    if spec.observer and base.observer.kind == "ndob":
+        grid["observer.gain"] = list(NDOB_GAINS)
+    return grid
 
 
 @dataclass(frozen=True)
@@ -70,7 +81,7 @@ def plan_tuning(base: ExperimentConfig, controller: str, grid: Mapping[str, list
     """The runs of tuning ``controller`` (any spelling) from the settings ``base`` (its arm,
     duration, control period): every grid point x {clean, noisy}, on the dry arm."""
     name = canonical_name(controller)
-    grid = tuning_grid(name) if grid is None else grid
+    grid = tuning_grid(base, name) if grid is None else grid
     keys = sorted(grid)
     tasks = []
     for values in itertools.product(*(grid[key] for key in keys)):

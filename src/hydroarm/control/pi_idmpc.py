@@ -1,0 +1,154 @@
+"""PI-IDMPC: the inverse-dynamics MPC with a physics-informed water model, and an observer on the rest.
+
+Each step, at the (filtered) state y = [q, v] (2n,):
+
+1. the outer MPC plans the acceleration a_0 (n,) (:class:`~hydroarm.control.idmpc.InverseDynamicsMPC`;
+   the plan does not depend on the disturbance);
+2. the water model (:class:`~hydroarm.control.water_model.PhysicsInformedModel`) predicts the
+   water's generalised force at (q, v, a_0): drag, added mass (it answers a_0) and buoyancy;
+3. the remainder observer (``remainder``: TDE or NDOB, :mod:`hydroarm.control.observers`) adds
+   what the state model cannot know (the paper's time-varying current, a plant mismatch): it
+   filters the part of the TDE residual the model did not predict;
+4. computed torque ``tau = (M + M_A) a + h - f - w_rest``, with the model's force split as
+   ``f - M_A a`` (its added mass joins the inertia, so it answers whatever acceleration the torque
+   limits leave) and w_rest the remainder's estimate; the limits are held by the horizon QP
+   (``idmpc.limits``) whose SQP rows take the model's prediction at every planned state of the
+   horizon (:class:`~hydroarm.control.idmpc_limits.HorizonQP`), so a
+   saturated start-up plans with the water it will meet, not the water of now.
+
+After the step (``observe``) the model learns the transition (recursive least squares) and the
+remainder observer takes ``r - model(midpoint)``. A model saved by :meth:`save_model` and given
+back with :meth:`load_model` (``hydroarm run --model FILE``) starts a run knowing the water;
+``reset`` goes back to the loaded model (or the prior).
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+
+from hydroarm.control.idmpc import IDMPCConfig, InverseDynamicsMPC
+from hydroarm.control.interface import ControlOutput, Reference
+from hydroarm.control.observers import DisturbanceObserver
+from hydroarm.control.water_model import PhysicsInformedModel, WaterModelConfig
+from hydroarm.model.arm import Arm
+
+
+class PhysicsInformedIDMPC:
+    """IDMPC + physics-informed water model + remainder observer (module docstring).
+
+    ``model_config.remainder``: the observer on what the model leaves (``kind = "none"``: the model alone).
+    Attributes: ``mpc`` (the IDMPC), ``model``, ``remainder`` (a DisturbanceObserver or None).
+    """
+
+    name = "PI-IDMPC"
+
+    def __init__(
+        self,
+        arm: Arm,
+        config: IDMPCConfig | None = None,
+        model_config: WaterModelConfig | None = None,
+        control_period: float = 0.01,
+    ):
+        self.arm = arm
+        self.n = arm.n_joints
+        self.mpc = InverseDynamicsMPC(arm, config, control_period=control_period)
+        self.control_period = self.mpc.control_period
+        self.torque_limit = self.mpc.torque_limit
+        self.model = PhysicsInformedModel(arm, model_config)
+        remainder = self.model.config.remainder
+        self.remainder = None if remainder.kind == "none" else DisturbanceObserver(arm, self.control_period, remainder)
+        self._loaded: tuple[np.ndarray, np.ndarray, int] | None = None
+        if self.mpc.qp is not None:
+            self.mpc.qp.disturbance_model = self._along_plan
+        self._saturated = False
+        self.reset()
+
+    # --- memory -------------------------------------------------------------------
+    def load_model(self, path: str | Path) -> None:
+        """Start from the water model saved in ``path`` (now and after every ``reset``)."""
+        self.model.load(path)
+        self._loaded = (self.model.theta.copy(), self.model.covariance.copy(), self.model.samples)
+
+    def save_model(self, path: str | Path) -> None:
+        """Save the water model learned so far (JSON, :meth:`PhysicsInformedModel.save`)."""
+        self.model.save(path)
+
+    def reset(self) -> None:
+        """Forget the run: the model goes back to the loaded one (or its prior), the observer to zero."""
+        self.mpc.reset()
+        self.model.reset()
+        if self._loaded is not None:
+            theta, covariance, samples = self._loaded
+            self.model.theta, self.model.covariance, self.model.samples = theta.copy(), covariance.copy(), samples
+        if self.remainder is not None:
+            self.remainder.reset()
+        self._saturated = False
+        self._rest = np.zeros(self.n)
+        self._commanded: np.ndarray | None = None
+        self._learn_time = 0.0
+
+    # --- the controller interface ---------------------------------------------------
+    def _along_plan(self, q: np.ndarray, v: np.ndarray, a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(w (N, n), M_A (N, n, n))`` at the planned states and accelerations (N, n) each:
+        the model's force (+ the remainder's estimate), clipped to the torque limits, and its
+        added-mass inertia."""
+        horizon, n = q.shape
+        w = np.empty((horizon, n))
+        added = np.empty((horizon, n, n))
+        for k in range(horizon):
+            added[k], rest = self.model.terms(q[k], v[k])
+            w[k] = rest - added[k] @ a[k] + self._rest
+        # a plan far from feasible (light joints, long horizons) reaches speeds where |v| v drag
+        # explodes; a force beyond the torque limit cannot be compensated anyway: hold it there
+        return np.clip(w, -self.torque_limit, self.torque_limit), added
+
+    def compute(self, t: float, y: np.ndarray, reference: Reference) -> ControlOutput:
+        """The torque at state y (2n,). ``timings["learn"]`` (s): the last ``observe``'s learning
+        (basis, RLS step, remainder), reported here (the runner records compute's timings only);
+        ``"total"`` is this compute's, as for every controller (the benchmark adds ``observe``)."""
+        learn_time, self._learn_time = self._learn_time, 0.0
+        start = time.perf_counter()
+        n = self.n
+        y = np.asarray(y, dtype=float)
+        q, v = y[:n], y[n:]
+        acceleration = self.mpc.planned_acceleration(t, y, reference)
+        t_plan = time.perf_counter()
+        self._rest = self.remainder.feedforward() if self.remainder is not None else np.zeros(n)
+        added_mass, rest = self.model.terms(q, v)
+        w_free = rest + self._rest  # the estimate apart from the added mass: -M_A a joins the inertia
+        if not (np.all(np.isfinite(w_free)) and np.all(np.isfinite(added_mass))):
+            w_free, added_mass = np.where(np.isfinite(w_free), w_free, 0.0), None
+        t_model = time.perf_counter()
+        tau, realised, saturated = self.mpc.torque_map(q, v, acceleration, w_free, added_mass)
+        self._saturated = bool(saturated.any())
+        self._commanded = realised
+        w_hat = w_free if added_mass is None else w_free - added_mass @ realised
+        end = time.perf_counter()
+        return ControlOutput(
+            tau=tau,
+            status="saturated" if self._saturated else "ok",
+            timings={
+                "plan": t_plan - start,
+                "model": t_model - t_plan,
+                "torque": end - t_model,
+                "learn": learn_time,
+                "total": end - start,
+            },
+            disturbance_mean=w_hat,
+            acceleration=realised,
+        )
+
+    def observe(self, t: float, y: np.ndarray, u: np.ndarray, y_next: np.ndarray) -> None:
+        """Learn the transition (the basis's added mass at the commanded acceleration, free of the
+        sensor's noise); the remainder observer takes what the model does not predict."""
+        start = time.perf_counter()
+        commanded, self._commanded = self._commanded, None
+        residual = self.model.learn(y, u, y_next, self.control_period, acceleration=commanded)
+        if residual is not None and self.remainder is not None:
+            y, y_next = np.asarray(y, dtype=float), np.asarray(y_next, dtype=float)
+            q_mid, v_mid, a = self.model.transition_features(y, y_next, self.control_period)
+            self.remainder.update_residual(residual - self.model.predict(q_mid, v_mid, a), self._saturated)
+        self._learn_time = time.perf_counter() - start

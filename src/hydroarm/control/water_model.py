@@ -1,0 +1,224 @@
+"""A physics-informed model of the water, learned online: recursive least squares on the Morison basis.
+
+The water's generalised force is linear in three coefficients per wetted cylinder
+(:class:`~hydroarm.model.water_regressor.WaterRegressor`): ``w = Phi(q, v, a) theta``. The
+learner keeps a Gaussian belief ``theta ~ N(theta_hat, P)`` and updates it with each observed
+transition ``y -> y_next`` under the applied torque u (recursive least squares with exponential
+forgetting, i.e. Bayesian linear regression whose old evidence fades by lambda per step)::
+
+    r   = M(q) (v_next - v) / T + h(q, v) - u                     (the TDE residual, N m, (n,))
+    Phi = Phi(q_mid, v_mid, (v_next - v) / T)                     (midpoint of the step)
+    S   = lambda sigma^2 I + Phi P Phi^T,   K = P Phi^T S^-1
+    theta_hat += K (r - Phi theta_hat),     P = (P - K Phi P) / lambda
+
+then theta_hat is projected onto the box ``0 <= theta <= max_ratio x textbook`` (no negative
+drag, added mass or volume, none beyond a bound: an estimate far outside it, fed through the
+added-mass inertia into a loop with a time-delay estimate, breaks that loop's stability condition
+``M_hat < 2 M_true``; measured: C_m = 16 fitted on a weakly exciting trajectory diverged).
+``sigma^2`` ((N m)^2) is the residual's noise variance the learner assumes; ``P`` stays the
+posterior covariance of theta (times the fading): :meth:`PhysicsInformedModel.variance` gives
+the predicted force's variance. Forgetting is applied only in the directions the sample
+excites (P is not inflated where Phi is zero), so an unexcited coefficient keeps its variance.
+
+Prior (``prior = "textbook"``): C_d = 1 and C_m = 1 (a smooth circular cylinder, potential-flow
+added mass) on every cylinder, and the displaced volume of the arm file (``buoyancy_kg`` or the
+cylinder's): what a user knows before any data, not the plant's values. ``"zero"``: theta = 0.
+The prior's standard deviation is ``prior_std`` times the textbook value of each coefficient.
+
+A model is saved and loaded as JSON (:meth:`save`, :meth:`load`): theta_hat, P, the settings and
+the arm's fingerprint (a model learned on one arm is refused on another).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+import pinocchio as pin
+import pydantic
+
+from hydroarm.config import ConfigError, FrozenModel
+from hydroarm.control.observers import ObserverConfig
+from hydroarm.model.arm import Arm
+from hydroarm.model.water import Water
+from hydroarm.model.water_regressor import WaterRegressor
+
+MODEL_FORMAT = "hydroarm-water-model-1"
+
+
+class WaterModelConfig(FrozenModel):
+    """Settings of the physics-informed water model (module docstring)."""
+
+    forgetting: float = pydantic.Field(
+        0.999, ge=0.9, le=1.0, description="lambda, the fading of old evidence per sample, 0.9 <= x <= 1 (-)"
+    )
+    noise_std: float = pydantic.Field(
+        1.0, gt=0.0, le=1e4, description="sigma, the residual's noise the learner assumes per joint (N m)"
+    )
+    prior: Literal["textbook", "zero"] = pydantic.Field(
+        "textbook", description="theta's prior mean: C_d = C_m = 1 and the arm file's volumes, or zero"
+    )
+    prior_std: float = pydantic.Field(
+        1.0, gt=0.0, le=1e3, description="theta's prior std as a multiple of each textbook coefficient (-)"
+    )
+    max_acceleration: float = pydantic.Field(
+        500.0, gt=0.0, le=1e6, description="a transition whose |dv/T| exceeds this is not learned (rad/s^2)"
+    )
+    max_ratio: float = pydantic.Field(
+        3.0,
+        ge=1.0,
+        le=1e3,
+        description="each coefficient is kept within [0, max_ratio x its textbook value] (projection) (-)",
+    )
+    remainder: ObserverConfig = pydantic.Field(
+        ObserverConfig(kind="tde"),
+        description="PI-IDMPC: the observer on what the model does not predict (the current, a mismatch) (section)",
+    )
+
+
+def arm_fingerprint(arm: Arm) -> str:
+    """A short hash of what the basis depends on: the arm's kinematics and wetted cylinders."""
+    parts = [arm.n_joints]
+    for cylinder in arm.cylinders:
+        parts += [cylinder.joint_id, *np.round(cylinder.start, 9), *np.round(cylinder.axis, 9)]
+        parts += [round(cylinder.length, 9), round(cylinder.diameter, 9)]
+    for placement in arm.model.jointPlacements:
+        parts += list(np.round(placement.translation, 9)) + list(np.round(placement.rotation.ravel(), 9))
+    return hashlib.sha256(json.dumps([float(p) for p in parts]).encode()).hexdigest()[:16]
+
+
+class PhysicsInformedModel:
+    """The Morison-basis water model of ``arm`` with its RLS learner (module docstring).
+
+    ``water``: the density, gravity and quadrature the basis uses (its C_d, C_m are not read).
+    :meth:`predict` (n,) N m at (q, v, a); :meth:`learn` one transition; :attr:`theta` (3C,),
+    :attr:`covariance` (3C, 3C); :meth:`coefficients` C_d, C_m and volumes.
+    """
+
+    def __init__(self, arm: Arm, config: WaterModelConfig | None = None, water: Water | None = None):
+        self.arm = arm
+        self.config = config if config is not None else WaterModelConfig()
+        self.regressor = WaterRegressor(arm, water)
+        self.n = arm.n_joints
+        self.data = arm.create_data()
+        textbook = self.regressor.parameters(self.regressor.water.model_copy(update={"cd": 1.0, "cm": 1.0}))
+        self.textbook = textbook
+        self._prior_mean = textbook.copy() if self.config.prior == "textbook" else np.zeros_like(textbook)
+        scale = np.maximum(textbook, 1e-6 * max(float(textbook.max()), 1.0))
+        self._prior_covariance = np.diag((self.config.prior_std * scale) ** 2)
+        self._upper = self.config.max_ratio * scale
+        self.reset()
+
+    def reset(self) -> None:
+        """Back to the prior."""
+        self.theta = self._prior_mean.copy()
+        self.covariance = self._prior_covariance.copy()
+        self.samples = 0
+
+    # --- prediction ---------------------------------------------------------------
+    def predict(self, q: np.ndarray, v: np.ndarray, a: np.ndarray) -> np.ndarray:
+        """The water's generalised force (n,) N m at q, v (n,) and acceleration a (n,)."""
+        return self.regressor.predict(self.theta, q, v, a)
+
+    def terms(self, q: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(M_A (n, n) kg m^2, f (n,) N m)``: the predicted water force is ``f - M_A a``."""
+        return self.regressor.terms(self.theta, q, v)
+
+    def variance(self, q: np.ndarray, v: np.ndarray, a: np.ndarray) -> np.ndarray:
+        """The predicted force's variance (n,) (N m)^2 under the belief on theta."""
+        phi = self.regressor.basis(q, v, a)
+        return np.einsum("ip,pq,iq->i", phi, self.covariance, phi)
+
+    def coefficients(self) -> dict[str, np.ndarray]:
+        """C_d, C_m and the displaced volume (m^3) of every cylinder from theta (C,) each."""
+        return self.regressor.physical(self.theta)
+
+    # --- learning -----------------------------------------------------------------
+    def residual(self, y: np.ndarray, u: np.ndarray, y_next: np.ndarray, period: float) -> np.ndarray:
+        """The TDE residual ``M(q) (v_next - v) / T + h(q, v) - u`` (n,) N m of a transition."""
+        n, model, data = self.n, self.arm.model, self.data
+        q, v = y[:n], y[n:]
+        mass = pin.crba(model, data, q)
+        mass = np.triu(mass) + np.triu(mass, 1).T
+        return mass @ (y_next[n:] - v) / period + pin.nonLinearEffects(model, data, q, v) - u
+
+    def transition_features(self, y: np.ndarray, y_next: np.ndarray, period: float):
+        """``(q_mid, v_mid, a)``: the midpoint state and the mean acceleration of a transition."""
+        n = self.n
+        return 0.5 * (y[:n] + y_next[:n]), 0.5 * (y[n:] + y_next[n:]), (y_next[n:] - y[n:]) / period
+
+    def update(self, phi: np.ndarray, target: np.ndarray) -> bool:
+        """One RLS step with the regressor ``phi`` (n, 3C) and the observed force ``target`` (n,)
+        N m; False (nothing learned) for a non-finite sample."""
+        if not (np.all(np.isfinite(phi)) and np.all(np.isfinite(target))):
+            return False
+        lam = self.config.forgetting
+        p = self.covariance
+        p_phi = p @ phi.T
+        innovation_cov = lam * self.config.noise_std**2 * np.eye(self.n) + phi @ p_phi
+        gain = np.linalg.solve(innovation_cov, p_phi.T).T
+        self.theta = np.clip(self.theta + gain @ (target - phi @ self.theta), 0.0, self._upper)
+        p = p - gain @ p_phi.T
+        if lam < 1.0:  # fade only the excited directions: P += (1/lam - 1) K S K^T
+            p = p + (1.0 / lam - 1.0) * gain @ innovation_cov @ gain.T
+        self.covariance = 0.5 * (p + p.T)
+        self.samples += 1
+        return True
+
+    def learn(
+        self, y: np.ndarray, u: np.ndarray, y_next: np.ndarray, period: float, acceleration: np.ndarray | None = None
+    ) -> np.ndarray | None:
+        """Learn the transition ``y -> y_next`` (2n,) under ``u`` (n,) over ``period`` (s); returns
+        its residual (n,) N m, or None if the sample was refused (non-finite, or an acceleration
+        beyond ``max_acceleration``: a blown-up or clipped step).
+
+        ``acceleration`` (n,) rad/s^2: the acceleration the basis's added-mass columns take (the
+        controller's commanded one: free of the sensor's noise, which in ``(v_next - v) / T``
+        would bias the fit towards zero added mass); None: ``(v_next - v) / T``."""
+        y, y_next, u = (np.asarray(x, dtype=float) for x in (y, y_next, u))
+        q, v, a = self.transition_features(y, y_next, period)
+        if not np.all(np.abs(a) <= self.config.max_acceleration):
+            return None
+        if acceleration is not None:
+            a = np.asarray(acceleration, dtype=float)
+        r = self.residual(y, u, y_next, period)
+        return r if self.update(self.regressor.basis(q, v, a), r) else None
+
+    # --- memory -------------------------------------------------------------------
+    def save(self, path: str | Path) -> None:
+        """Write theta, P, the settings and the arm's fingerprint to ``path`` (JSON)."""
+        payload = {
+            "format": MODEL_FORMAT,
+            "arm": arm_fingerprint(self.arm),
+            "config": self.config.model_dump(mode="json"),
+            "samples": self.samples,
+            "theta": self.theta.tolist(),
+            "covariance": self.covariance.tolist(),
+            "coefficients": {k: v.tolist() for k, v in self.coefficients().items()},
+        }
+        Path(path).write_text(json.dumps(payload, indent=1))
+
+    def load(self, path: str | Path) -> None:
+        """Start from the model saved in ``path``; raises :class:`ConfigError` naming what is
+        wrong (unreadable, another format, another arm, wrong sizes)."""
+        source = Path(path)
+        try:
+            payload = json.loads(source.read_text())
+        except (OSError, ValueError) as error:
+            raise ConfigError(f"model file '{source}': cannot be read as JSON ({error})") from None
+        if not isinstance(payload, dict) or payload.get("format") != MODEL_FORMAT:
+            raise ConfigError(f"model file '{source}': not a hydroarm water model (format {MODEL_FORMAT!r})")
+        if payload.get("arm") != arm_fingerprint(self.arm):
+            raise ConfigError(f"model file '{source}': learned on another arm (its geometry differs from this one)")
+        size = self.theta.shape[0]
+        theta = np.asarray(payload.get("theta"), dtype=float)
+        covariance = np.asarray(payload.get("covariance"), dtype=float)
+        if theta.shape != (size,) or covariance.shape != (size, size) or not np.all(np.isfinite(covariance)):
+            raise ConfigError(f"model file '{source}': theta must have {size} values and P {size} x {size}")
+        if not np.all(np.isfinite(theta)):
+            raise ConfigError(f"model file '{source}': theta is not finite")
+        self.theta, self.covariance = theta, covariance
+        self.samples = int(payload.get("samples", 0))
