@@ -32,9 +32,7 @@ CASES = {
     "paper": {"arm": "paper"},
     "paper, UR5 limits": {
         "arm": "paper",
-        "smc.torque_limit": UR5_LIMITS,
-        "mpc.torque_limit": UR5_LIMITS,
-        "idmpc.torque_limit": UR5_LIMITS,
+        "torque_limit": UR5_LIMITS,
     },
     "ur5": {"arm": "ur5"},
     "alpha5": {"arm": "alpha5"},

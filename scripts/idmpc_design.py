@@ -127,10 +127,7 @@ def _cpu_clock():
 
 
 def _limit_overrides(controller: str, limits) -> dict:
-    if limits is None:
-        return {}
-    section = {"smc": "smc", "mpc": "mpc", "gp-mpc": "mpc"}.get(controller, "idmpc")
-    return {f"{section}.torque_limit": limits}
+    return {} if limits is None else {"torque_limit": limits}  # one limit, every controller
 
 
 def run_one(job):

@@ -25,7 +25,7 @@ from hydroarm.sim.experiment import ExperimentConfig, build_experiment, with_ove
 UR5_LIMITS = [150.0, 150.0, 150.0, 28.0, 28.0, 28.0]
 CASES = {
     "paper": {"arm": "paper"},
-    "paper, UR5 limits": {"arm": "paper", "idmpc.torque_limit": UR5_LIMITS},
+    "paper, UR5 limits": {"arm": "paper", "torque_limit": UR5_LIMITS},
     "ur5": {"arm": "ur5"},
     "alpha5": {"arm": "alpha5"},
     "iiwa14 (7 joints)": {"arm": "examples/urdf/iiwa14.urdf"},

@@ -57,7 +57,7 @@ def refused(data: dict, model=ExperimentConfig, source: str = "settings") -> str
         ({"initial_state": {"seed": 1.5}}, "settings: initial_state.seed = 1.5: Input should be a valid integer"),
         # a boolean inside a list: named by the item's path, once
         ({"mpc": {"r": [True, 1.0]}}, "settings: mpc.r.0 = True: Input should be a valid number"),
-        ({"mpc": {"torque_limit": [1.0, "2"]}}, "settings: mpc.torque_limit.1 = '2': Input should be a valid number"),
+        ({"torque_limit": [1.0, "2"]}, "settings: torque_limit.1 = '2': Input should be a valid number"),
         (
             {"water": {"current": {"mean": [0.0, True, 0.0]}}},
             "settings: water.current.mean.1 = True: Input should be a valid number",

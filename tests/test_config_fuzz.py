@@ -84,9 +84,9 @@ EXPERIMENT = ExperimentConfig.model_validate(
             "surface_slope": [40.0] * 6,
             "boundary_layer": 2.0,
             "linear_gain": [30.0] * 6,
-            "torque_limit": [500.0] * 6,
         },
-        "mpc": {"horizon": 4, "q_position": [300.0] * 6, "r": [0.1] * 6, "torque_limit": [500.0] * 6},
+        "mpc": {"horizon": 4, "q_position": [300.0] * 6, "r": [0.1] * 6},
+        "torque_limit": [500.0] * 6,
         "gp": {"window": 4, "theta0": [1.0] * 14, "input_scale": [1.0] * 12, "output_scale": [1.0] * 6},
         "gpmpc": {"min_samples": 2},
         "idmpc": {"gp_features": "state"},  # the GP section is shared: d = 12 for GP-MPC and GP-IDMPC
@@ -579,9 +579,8 @@ def test_broken_sweep_file_is_refused_cleanly(data):
     ("section", "field", "value", "allowed"),
     [
         ("mpc", "horizon", 0, "greater than or equal to 1"),
-        ("mpc", "torque_limit", 0.0, "greater than 0"),
-        ("mpc", "torque_limit", -500.0, "greater than 0"),
-        ("smc", "torque_limit", 0, "greater than 0"),
+        ("actuator", "torque_limit", 0.0, "greater than 0"),
+        ("actuator", "torque_limit", -500.0, "greater than 0"),
         ("gp", "window", 1, "greater than or equal to 2"),
         ("gp", "window", 1.5, "valid integer"),
         ("mpc", "r", math.nan, "finite"),
@@ -590,6 +589,7 @@ def test_broken_sweep_file_is_refused_cleanly(data):
     ],
 )
 def test_listed_breakages_name_field_value_and_range(section, field, value, allowed):
+    """(The controllers' torque limit is a top-level setting: test_top_level_torque_limit_is_checked.)"""
     data = copy.deepcopy(EXPERIMENT)
     data[section][field] = value
     with pytest.raises(ConfigError) as error:
@@ -624,11 +624,26 @@ def test_arm_file_messages(tmp_path, change, expected):
 )
 def test_per_joint_list_of_the_wrong_length_is_a_config_error_when_used(controller, field):
     data = copy.deepcopy(EXPERIMENT)
-    section = controller.lower()
-    data[section][field] = [1.0] * 4
+    if field == "torque_limit":
+        data[field] = [1.0] * 4  # the one torque limit every controller holds
+    else:
+        data[controller.lower()][field] = [1.0] * 4
     config = validate(ExperimentConfig, data, "settings")
     with pytest.raises(ConfigError, match=rf"{field} = \[1.0, 1.0, 1.0, 1.0\]: 4 values for 6 joints: give one"):
         build_controller(controller, _arm("paper"), config)
+
+
+@pytest.mark.parametrize(
+    ("value", "allowed"), [(0.0, "greater than 0"), (-500.0, "greater than 0"), (2e12, "less than or equal to")]
+)
+def test_top_level_torque_limit_is_checked(value, allowed):
+    """The one torque limit every controller holds (the arm file's unless set) names itself and its range."""
+    data = copy.deepcopy(EXPERIMENT)
+    data["torque_limit"] = value
+    with pytest.raises(ConfigError) as error:
+        validate(ExperimentConfig, data, "settings")
+    message = str(error.value)
+    assert f"settings: torque_limit = {value!r}" in message and allowed in message, message
 
 
 @pytest.mark.parametrize("field", ["theta0", "input_scale", "output_scale"])
@@ -695,7 +710,7 @@ def test_bad_files_are_config_errors(tmp_path):
     ]:
         with pytest.raises(ConfigError, match=message):
             read_mapping(tmp_path / name)
-    with pytest.raises(ConfigError, match="neither a built-in arm"):
+    with pytest.raises(ConfigError, match="a folder, not a file"):
         load_arm(tmp_path)
 
 
@@ -795,7 +810,7 @@ def test_cli_sweep_file_with_a_broken_value_exits_2(data):
         (["run", "--set", "mpc.horizon"], "--set 'mpc.horizon': expected key=value"),
         (["run", "--set", "mpc.horizon=0"], "mpc.horizon = 0: Input should be greater than or equal to 1"),
         (["run", "--set", "gp.window=1"], "gp.window = 1: Input should be greater than or equal to 2"),
-        (["run", "--set", "mpc.torque_limit=0"], "mpc.torque_limit = 0: Input should be greater than 0"),
+        (["run", "--set", "torque_limit=0"], "torque_limit = 0: Input should be greater than 0"),
         (["run", "--set", "mpc.r=[1, 2]"], "mpc.r = [1.0, 2.0]: 2 values for 6 joints: give one value or a list of 6"),
         (["run", "--set", "gp.input_scale=[1, 2]"], "gp.input_scale"),
         (["run", "--set", "mpc.bogus=1"], "unknown setting 'mpc.bogus'"),

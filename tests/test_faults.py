@@ -155,7 +155,7 @@ def test_qp_failures_fall_back_within_limits(arm, reference, solver, event):
     """Start-up from rest, far from q_r(0), with 40 N m limits: the torques saturate,
     so the QP has many active bounds. Failed solves use the shifted previous plan or
     the saturated LQR law, and each is counted."""
-    mpc = controller("MPC", arm, mpc=MPCConfig(torque_limit=40.0))
+    mpc = controller("MPC", arm.with_torque_limit(40.0))
     mpc._solver = solver
     traj = run_closed_loop(UnderwaterPlant(arm), mpc, reference, DURATION)
     assert not traj.meta["stopped"]

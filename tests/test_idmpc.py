@@ -57,9 +57,7 @@ def test_authority_weights_closed_form_and_the_light_joints_tend_to_deadbeat(pap
     """R_a,j = max(r (m_j / max m)^2, floor), m_j = M_jj(0) / tau_max,j; the joint of least
     authority keeps r, and a joint at the floor has both closed-loop poles near 0."""
     limit = np.array([150.0, 150, 150, 28, 28, 28])
-    controller = InverseDynamicsMPC(
-        paper_arm, IDMPCConfig(torque_limit=limit.tolist(), r_acceleration=2e-5, r_floor=1e-9)
-    )
+    controller = InverseDynamicsMPC(paper_arm.with_torque_limit(limit), IDMPCConfig(r_acceleration=2e-5, r_floor=1e-9))
     inertia = np.array([paper_arm.mass_matrix(np.zeros(6))[j, j] for j in range(6)])
     m = inertia / limit
     expected = np.maximum(2e-5 * (m / m.max()) ** 2, 1e-9)
@@ -119,8 +117,8 @@ def test_qp_first_move_matches_an_independent_solver_and_holds_the_limits(paper_
     built from per-joint least squares and solved by an LSI -> NNLS reduction."""
     horizon, n = 4, 6
     limit = np.array([60.0, 60, 40, 5, 5, 5])
-    config = IDMPCConfig(horizon=horizon, limits="qp", sqp_iterations=0, torque_limit=limit.tolist())
-    controller = InverseDynamicsMPC(paper_arm, config)
+    config = IDMPCConfig(horizon=horizon, limits="qp", sqp_iterations=0)
+    controller = InverseDynamicsMPC(paper_arm.with_torque_limit(limit), config)
     rng = np.random.default_rng(7)
     q, v = rng.normal(size=n), rng.normal(size=n)
     planned = controller.planned_acceleration(0.3, np.concatenate([q, v]), paper_reference())
@@ -165,7 +163,7 @@ def test_sqp_rows_are_the_inverse_dynamics_linearised_along_the_plan(paper_arm):
     """rows @ dU against central differences of tau_k(U) = RNEA(q_k(U), v_k(U), a_k(U)) - w_hat."""
     horizon, n = 4, 6
     limit = np.full(n, 100.0)
-    controller = InverseDynamicsMPC(paper_arm, IDMPCConfig(horizon=horizon, torque_limit=limit.tolist()))
+    controller = InverseDynamicsMPC(paper_arm.with_torque_limit(limit), IDMPCConfig(horizon=horizon))
     rng = np.random.default_rng(11)
     e0, c = rng.normal(size=(n, 2)), rng.normal(scale=1e-3, size=(horizon, n, 2))
     moves, a_r = rng.normal(scale=20.0, size=(horizon, n)), rng.normal(size=(horizon, n))
@@ -193,7 +191,7 @@ def test_sqp_first_torque_row_is_exact_and_the_limits_hold(paper_arm):
     """After the SQP step the k = 0 row is still the exact dry inverse dynamics: the torque the
     controller applies is M a + h - w_hat of the acceleration it reports, within the limits."""
     limit = np.array([60.0, 60, 40, 5, 5, 5])
-    controller = InverseDynamicsMPC(paper_arm, IDMPCConfig(torque_limit=limit.tolist(), sqp_iterations=2))
+    controller = InverseDynamicsMPC(paper_arm.with_torque_limit(limit), IDMPCConfig(sqp_iterations=2))
     rng = np.random.default_rng(5)
     reference = paper_reference()
     solved = 0
@@ -254,7 +252,7 @@ def test_preview_of_the_reference_defects_equals_the_brute_force_qp():
 
 
 def test_torque_map_is_the_dry_inverse_dynamics(paper_arm):
-    controller = InverseDynamicsMPC(paper_arm, IDMPCConfig(torque_limit=1e6))
+    controller = InverseDynamicsMPC(paper_arm.with_torque_limit(1e6), IDMPCConfig())
     plant = hydroarm.UnderwaterPlant(paper_arm, hydroarm.Water().off())
     rng = np.random.default_rng(1)
     for _ in range(5):

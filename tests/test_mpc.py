@@ -147,7 +147,7 @@ def test_unconstrained_lti_first_move_is_the_lqr_move(arm, discretisation):
     """
     q0 = np.array([0.3, -0.8, 1.2, 0.4, -0.6, 0.2])
     reference = constant_reference(q0)
-    mpc = LinearMPC(arm, MPCConfig(horizon=30, torque_limit=1e9, discretisation=discretisation))
+    mpc = LinearMPC(arm.with_torque_limit(1e9), MPCConfig(horizon=30, discretisation=discretisation))
     u_ref = arm.inverse_dynamics(q0, np.zeros(6), np.zeros(6))
     A, B, _ = linearise(arm, q0, np.zeros(6), u_ref, T, discretisation)
     gain = solve_riccati(A, B, mpc.Q, mpc.R).K
@@ -319,12 +319,12 @@ def test_sliding_horizon_linearises_one_new_index_per_step(arm, monkeypatch):
 
 def test_cached_linearisations_give_the_same_torque_as_a_fresh_controller(arm):
     reference = paper_reference()
-    sliding = LinearMPC(arm, MPCConfig(torque_limit=120.0))
+    sliding = LinearMPC(arm.with_torque_limit(120.0), MPCConfig())
     rng = np.random.default_rng(12)
     for k in list(range(8)) + [3, 20, 21, 25]:
         y = paper_state(k * T) + rng.normal(0.0, 0.2, 12)
         tau = sliding.compute(k * T, y, reference).tau
-        fresh = LinearMPC(arm, MPCConfig(torque_limit=120.0)).compute(k * T, y, reference).tau
+        fresh = LinearMPC(arm.with_torque_limit(120.0), MPCConfig()).compute(k * T, y, reference).tau
         np.testing.assert_allclose(tau, fresh, rtol=1e-9, atol=1e-9)
 
 
@@ -333,7 +333,7 @@ def test_torque_limits_always_hold(arm):
     rng = np.random.default_rng(9)
     reference = paper_reference()
     for limit in (0.5, [0.2, 3.0, 1.0, 0.05, 0.5, 2.0]):
-        mpc = LinearMPC(arm, MPCConfig(torque_limit=limit))
+        mpc = LinearMPC(arm.with_torque_limit(limit), MPCConfig())
         for k in range(15):
             y = np.concatenate([rng.uniform(-10, 10, 6), rng.uniform(-20, 20, 6)])
             out = mpc.compute(k * T, y, reference)
@@ -419,7 +419,7 @@ def test_terminal_set_is_met_when_starting_on_the_reference(arm, mode):
 
 def test_solver_failure_falls_back_to_lqr_then_to_the_shifted_plan(arm, monkeypatch):
     reference = paper_reference()
-    mpc = LinearMPC(arm, MPCConfig(torque_limit=50.0))
+    mpc = LinearMPC(arm.with_torque_limit(50.0), MPCConfig())
     failing = lambda *args: QPResult(None, "failed", "forced failure")  # noqa: E731
     monkeypatch.setattr(mpc._solver, "solve", failing)
     y = paper_state(0.0) + 0.3
@@ -474,7 +474,7 @@ def test_feedforward_acceleration_is_compensated(arm):
     """
     q0 = np.array([0.3, -0.8, 1.2, 0.4, -0.6, 0.2])
     reference = constant_reference(q0)
-    mpc = LinearMPC(arm, MPCConfig(horizon=50, torque_limit=1e9, r=1e-4))
+    mpc = LinearMPC(arm.with_torque_limit(1e9), MPCConfig(horizon=50, r=1e-4))
     x0 = np.concatenate([q0, np.zeros(6)])
     base = mpc.compute(0.0, x0, reference).tau
     d = np.array([2.0, -1.0, 0.5, 3.0, -2.0, 1.0])
@@ -489,7 +489,7 @@ def test_two_runs_give_identical_torques(arm):
     reference = paper_reference()
 
     def run():
-        mpc = LinearMPC(arm, MPCConfig(torque_limit=100.0))
+        mpc = LinearMPC(arm.with_torque_limit(100.0), MPCConfig())
         x = np.zeros(12)
         plant = NominalModel(arm)
         torques = []
@@ -511,7 +511,7 @@ def test_two_runs_give_identical_torques(arm):
         ({"q_position": -300.0}, "q_position"),
         ({"q_velocity": [0.01, -1.0]}, "q_velocity"),
         ({"r": 0.0}, "r"),
-        ({"torque_limit": -5.0}, "torque_limit"),
+        ({"torque_limit": 50.0}, "torque_limit"),  # the arm's actuators' (the experiment's override), not the MPC's
         ({"terminal_set": "maybe"}, "terminal_set"),
         ({"solver": "gurobi"}, "solver"),
         ({"riccati_max_iterations": 0}, "riccati_max_iterations"),
@@ -525,8 +525,15 @@ def test_bad_config_values_name_the_field(data, field):
         MPCConfig(**data)
 
 
-@pytest.mark.parametrize("field", ["q_position", "q_velocity", "r", "torque_limit"])
+@pytest.mark.parametrize("field", ["q_position", "q_velocity", "r"])
 def test_per_joint_lists_must_match_the_arm(arm, field):
     LinearMPC(arm, MPCConfig(**{field: [1.0] * 6}))
     with pytest.raises(ConfigError, match=rf"{field} = \[1.0, 1.0, 1.0, 1.0\]: 4 values for 6 joints"):
         LinearMPC(arm, MPCConfig(**{field: [1.0] * 4}))
+
+
+def test_a_torque_limit_override_must_match_the_arm(arm):
+    assert np.array_equal(arm.with_torque_limit([1.0] * 6).torque_limit, np.ones(6))
+    assert arm.with_torque_limit(None) is arm
+    with pytest.raises(ConfigError, match=r"torque_limit = \[1.0, 1.0, 1.0, 1.0\]: 4 values for 6 joints"):
+        arm.with_torque_limit([1.0] * 4)

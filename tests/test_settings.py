@@ -62,7 +62,7 @@ def test_the_table_has_every_key_its_default_and_its_range():
     assert rows["water.current.model"].allowed == "one of paper, uniform, none"
     assert rows["water.current.mean"].allowed == "3 values, each -20 <= x <= 20"
     assert rows["smc.surface_slope"].kind == "float or one per joint"
-    assert rows["mpc.torque_limit"].default is None and rows["mpc.torque_limit"].allowed.endswith("or null")
+    assert rows["torque_limit"].default is None and rows["torque_limit"].allowed.endswith("or null")
     assert rows["gp.log_sf2_bounds"].allowed.startswith("2 values")
     assert rows["water.drag"].allowed == "true or false"
 

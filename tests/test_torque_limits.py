@@ -11,7 +11,6 @@ from hypothesis import strategies as st
 import hydroarm
 from hydroarm.control.gp import GPConfig
 from hydroarm.control.mpc import MPCConfig
-from hydroarm.control.smc import SMCConfig
 from hydroarm.model.plant import PlantConfig, UnderwaterPlant
 from hydroarm.model.water import CurrentConfig, Water
 from hydroarm.sim.experiment import ExperimentConfig, build_controller
@@ -54,8 +53,8 @@ def test_no_controller_ever_exceeds_its_torque_limit(arm, case):
     config = ExperimentConfig(
         water=Water(cd=case["cd"], cm=case["cm"], current=CurrentConfig(scale=case["current_scale"])),
         plant=PlantConfig(noise_variance=case["noise_variance"]),
-        smc=SMCConfig(torque_limit=case["limit"]),
-        mpc=MPCConfig(torque_limit=case["limit"], r=case["r"]),
+        torque_limit=case["limit"],
+        mpc=MPCConfig(r=case["r"]),
         gp=GPConfig(),
     )
     controller = build_controller(case["controller"], arm, config)

@@ -105,9 +105,6 @@ class IDMPCConfig(FrozenModel):
     sqp_iterations: int = pydantic.Field(
         1, ge=0, le=10, description="limits = 'qp': relinearisations of the torque rows along the plan (0-10)"
     )
-    torque_limit: PositiveFloat | PositiveList | None = pydantic.Field(
-        None, description="|tau_i| <= limit (N m); None = the arm's"
-    )
     min_samples: int = pydantic.Field(2, ge=1, le=10_000, description="GP window samples before feeding forward")
     gp_features: Literal["state", "state+acceleration"] = pydantic.Field(
         "state+acceleration", description="GP inputs: the state, or the state and the planned acceleration a_0"
@@ -198,8 +195,7 @@ class InverseDynamicsMPC:
         q_pos = per_joint(cfg.q_position, n, "q_position")
         q_vel = per_joint(cfg.q_velocity, n, "q_velocity")
         r_acc = per_joint(cfg.r_acceleration, n, "r_acceleration")
-        limit = arm.torque_limit if cfg.torque_limit is None else cfg.torque_limit
-        self.torque_limit = per_joint(limit, n, "torque_limit")
+        self.torque_limit = per_joint(arm.torque_limit, n, "torque_limit")  # the arm's actuators
         if cfg.r_scaling == "authority":
             r_acc = authority_weights(np.diag(arm.mass_matrix(np.zeros(n))), self.torque_limit, r_acc, cfg.r_floor)
         self.r_acceleration = r_acc

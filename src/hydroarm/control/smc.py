@@ -47,9 +47,6 @@ class SMCConfig(FrozenModel):
     linear_gain: NonNegativeGain | list[NonNegativeGain] = pydantic.Field(
         30.0, description="k_s, the linear gain on s (1/s)"
     )
-    torque_limit: Annotated[float, pydantic.Field(gt=0.0)] | list[Annotated[float, pydantic.Field(gt=0.0)]] | None = (
-        pydantic.Field(None, description="|tau_i| <= limit (N m); none = the arm's")
-    )
 
 
 class SlidingModeController:
@@ -67,8 +64,7 @@ class SlidingModeController:
         self.gain = per_joint(self.config.switching_gain, n, "switching_gain")
         self.layer = per_joint(self.config.boundary_layer, n, "boundary_layer")
         self.linear = per_joint(self.config.linear_gain, n, "linear_gain")
-        limit = arm.torque_limit if self.config.torque_limit is None else self.config.torque_limit
-        self.torque_limit = per_joint(limit, n, "torque_limit")
+        self.torque_limit = per_joint(arm.torque_limit, n, "torque_limit")  # the arm's actuators
 
     def reset(self) -> None:
         """Stateless: nothing to forget."""

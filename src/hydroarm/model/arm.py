@@ -17,6 +17,7 @@ the base frame.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from typing import Annotated, Self
@@ -25,7 +26,7 @@ import numpy as np
 import pinocchio as pin
 import pydantic
 
-from hydroarm.config import ConfigError, FrozenModel, field_error
+from hydroarm.config import ConfigError, FrozenModel, field_error, per_joint
 
 REFERENCE_WATER_DENSITY = 1000.0
 """kg/m^3: the density at which arm files state ``buoyancy_kg`` (Table A1's)."""
@@ -227,6 +228,16 @@ class Arm:
     torque_limit: np.ndarray
     spec: ArmSpec | None = None
     position_limit: np.ndarray | None = None
+
+    def with_torque_limit(self, limit: float | list[float] | np.ndarray | None) -> Arm:
+        """This arm with its actuators' torque limit replaced (N m: one value or one per joint);
+        ``limit`` None: this arm itself. The model and the cylinders are shared (constants)."""
+        if limit is None:
+            return self
+        values = per_joint(
+            [float(x) for x in np.ravel(limit)] if np.ndim(limit) else float(limit), self.model.nv, "torque_limit"
+        )
+        return dataclasses.replace(self, torque_limit=values)
 
     def __post_init__(self) -> None:
         if self.model.nq != self.model.nv:

@@ -16,7 +16,7 @@ import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, ClassVar
+from typing import TYPE_CHECKING, Annotated, Any, ClassVar
 
 import numpy as np
 import pydantic
@@ -53,6 +53,8 @@ from hydroarm.model.water import Water
 from hydroarm.sim.plant import Plant
 from hydroarm.sim.runner import Trajectory, run_closed_loop
 from hydroarm.sim.vehicle import VehicleRun, station_keeping_metrics
+
+TorqueLimit = Annotated[float, pydantic.Field(gt=0.0, le=1e12)]
 
 if TYPE_CHECKING:
     from hydroarm.model.uvms import UVMS
@@ -144,6 +146,11 @@ class ExperimentConfig(FrozenModel):
         ge=CONTROL_PERIOD_RANGE[0],
         le=CONTROL_PERIOD_RANGE[1],
         description="T, the control period of every controller (s)",
+    )
+    torque_limit: TorqueLimit | list[TorqueLimit] | None = pydantic.Field(
+        None,
+        description="|tau_i| <= limit (N m) every controller holds, one value or one per joint, at most 1e12; "
+        "null: the arm file's (its actuators')",
     )
     water: Water = pydantic.Field(Water(), description="the water of the true plant (section)")
     plant: PlantConfig = pydantic.Field(PlantConfig(), description="the true plant's integration and sensing (section)")
@@ -336,7 +343,7 @@ def build_controller(name: str, arm: Arm, config: ExperimentConfig) -> Controlle
     sections = controller_settings(config)
     return registry.build_controller(
         name,
-        arm,
+        arm.with_torque_limit(config.torque_limit),
         sections,
         config.control_period,
         sensor_variance=config.plant.noise_variance,
@@ -421,7 +428,7 @@ def build_experiment(
     """
     if config.vehicle.name is not None:
         return _build_vehicle_experiment(config, controller, arm)
-    arm = load_arm(config.arm) if arm is None else arm
+    arm = (load_arm(config.arm) if arm is None else arm).with_torque_limit(config.torque_limit)
     check_settings_for_arm(config, arm, controllers=() if controller is None else (controller,))
     plant = make_plant(arm if plant_arm is None else plant_arm, config)
     reference, x0 = start_for_arm(arm, config)
@@ -449,7 +456,7 @@ def _build_vehicle_experiment(config: ExperimentConfig, controller: str | None, 
         raise ConfigError(
             f"vehicle.home = {shown(vehicle.home)}: {len(vehicle.home)} angles; the arm on the vehicle has {n} joints"
         )
-    arm_model = mounted_arm(uvms)
+    arm_model = mounted_arm(uvms).with_torque_limit(config.torque_limit)
     check_settings_for_arm(config, arm_model, controllers=() if controller is None else (controller,))
     plant = FastUVMSPlant(uvms, vehicle.water(config.water), vehicle.plant)
     reference = vehicle.reference()

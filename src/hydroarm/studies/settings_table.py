@@ -255,7 +255,7 @@ def settings_markdown() -> str:
         "this table as data.",
         "",
         "Per-joint settings take one value (every joint) or a list of one value per joint. `null`",
-        "(`--set mpc.torque_limit=null`; leave the key out in a file) means the documented default.",
+        "(`--set torque_limit=null`; leave the key out in a file) means the documented default.",
         "",
         "| controller | reads the sections |",
         "|---|---|",

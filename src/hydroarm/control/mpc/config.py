@@ -24,8 +24,8 @@ class MPCConfig(FrozenModel):
     or a list of n.
 
     Defaults are the paper's (Section 4) where it gives them: Q = diag(300 x n,
-    0.01 x n), R = 0.1 I, |u| <= 500 N m (the paper arm's limit, read from the
-    arm file when ``torque_limit`` is None); N = 10 is our reading's choice (the paper
+    0.01 x n), R = 0.1 I, |u| <= 500 N m (the paper arm's limit: the arm file's
+    ``torque_limit``, which the experiment's ``torque_limit`` overrides); N = 10 is our reading's choice (the paper
     gives none). The control period T (paper reading: 10 ms) is not a field: it is
     ``LinearMPC``'s ``control_period`` argument. ``discretisation`` departs from the
     paper's Euler step by default: in the second-order Taylor step the held torque
@@ -43,9 +43,6 @@ class MPCConfig(FrozenModel):
     )
     r: PositiveFloat | PositiveList = pydantic.Field(
         0.1, description="R weight on the torque deviation u - u_r (1/(N m)^2), within [1e-6, 1e6]"
-    )
-    torque_limit: PositiveFloat | PositiveList | None = pydantic.Field(
-        None, description="|u_i| <= limit (N m), at most 1e12; none = the arm's"
     )
     terminal_set: Literal["off", "soft", "hard"] = pydantic.Field(
         "off", description="terminal constraint x_N' P x_N <= alpha: off, soft (penalised slack) or hard"
@@ -70,12 +67,11 @@ class MPCConfig(FrozenModel):
 
     @pydantic.model_validator(mode="after")
     def _check_ranges(self) -> MPCConfig:
-        """Weights within [1e-6, 1e8] (q_velocity from 0), r within [1e-6, 1e6], torque_limit
-        <= 1e12 N m: beyond these the Riccati equation and the QP lose all precision."""
+        """Weights within [1e-6, 1e8] (q_velocity from 0), r within [1e-6, 1e6]: beyond these the
+        Riccati equation and the QP lose all precision."""
         from hydroarm.config import field_error
 
-        for name, low, high in (("q_position", 1e-6, 1e8), ("q_velocity", 0.0, 1e8), ("r", 1e-6, 1e6),
-                                ("torque_limit", 0.0, 1e12)):  # fmt: skip
+        for name, low, high in (("q_position", 1e-6, 1e8), ("q_velocity", 0.0, 1e8), ("r", 1e-6, 1e6)):
             value = getattr(self, name)
             for k, entry in enumerate(value if isinstance(value, list) else [value]):
                 if entry is not None and not low <= entry <= high:

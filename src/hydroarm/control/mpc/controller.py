@@ -68,8 +68,7 @@ class LinearMPC:
         self._r_diag = per_joint(cfg.r, n, "r")
         self.Q = np.diag(self._q_diag)
         self.R = np.diag(self._r_diag)
-        limit = arm.torque_limit if cfg.torque_limit is None else cfg.torque_limit
-        self.torque_limit = per_joint(limit, n, "torque_limit")
+        self.torque_limit = per_joint(arm.torque_limit, n, "torque_limit")  # the arm's actuators
         self._limit_stacked = np.tile(self.torque_limit, cfg.horizon)
         self._solver = make_box_qp_solver(cfg.solver)
         if cfg.terminal_set != "off":
