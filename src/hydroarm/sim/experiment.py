@@ -52,7 +52,7 @@ from hydroarm.model.task_file import SplineReference, TaskConfig, reference_for
 from hydroarm.model.water import Water
 from hydroarm.sim.plant import Plant
 from hydroarm.sim.runner import Trajectory, run_closed_loop
-from hydroarm.sim.vehicle import VehicleRun, station_keeping_metrics
+from hydroarm.sim.vehicle import VehicleRun, source_name, station_keeper, station_keeping_metrics, vehicle_parts
 
 TorqueLimit = Annotated[float, pydantic.Field(gt=0.0, le=1e12)]
 
@@ -398,8 +398,8 @@ class Experiment:
         if self.uvms is not None:
             vehicle = self.config.vehicle
             arm = self.uvms.vehicle.mount_arm if self.config.arm == "mount" else self.config.arm
-            traj.meta["arm"] = _source(arm)
-            traj.meta["vehicle"] = _source(vehicle.name)
+            traj.meta["arm"] = source_name(arm)
+            traj.meta["vehicle"] = source_name(vehicle.name)
             traj.meta["target_pose"] = self.x0[:7].tolist()
             traj.meta["metrics"] = station_keeping_metrics(self.uvms, traj, self.reference)
         return traj
@@ -438,56 +438,16 @@ def build_experiment(
 
 def _build_vehicle_experiment(config: ExperimentConfig, controller: str | None, arm: Arm | None) -> Experiment:
     """:func:`build_experiment` for a vehicle run (``config.vehicle.name`` set)."""
-    from hydroarm.control.uvms_control import UVMSController
-    from hydroarm.model.uvms import build_uvms, mounted_arm
-    from hydroarm.model.uvms_fast import FastUVMSPlant
-
-    vehicle = config.vehicle
-    try:
-        uvms = build_uvms(vehicle.name, config.arm if arm is None else arm)
-    except ConfigError as error:
-        raise ConfigError(f"vehicle.name = {vehicle.name!r}: {error}") from None
-    except (ValueError, FileNotFoundError, OSError) as error:
-        raise ConfigError(f"vehicle.name = {vehicle.name!r} with arm = {config.arm!r}: {error}") from None
-    if uvms.arm is None:
-        raise ConfigError(f"arm = {config.arm!r}: a vehicle run needs an arm on the vehicle")
-    n = uvms.n_arm
-    if len(vehicle.home) != n:
-        raise ConfigError(
-            f"vehicle.home = {shown(vehicle.home)}: {len(vehicle.home)} angles; the arm on the vehicle has {n} joints"
-        )
-    arm_model = mounted_arm(uvms).with_torque_limit(config.torque_limit)
-    check_settings_for_arm(config, arm_model, controllers=() if controller is None else (controller,))
-    plant = FastUVMSPlant(uvms, vehicle.water(config.water), vehicle.plant)
-    reference = vehicle.reference()
-    x0 = plant.initial_state(uvms.neutral(q_arm=vehicle.home))
+    parts = vehicle_parts(config.vehicle, config.arm if arm is None else arm, config.water, config.torque_limit)
+    check_settings_for_arm(config, parts.arm, controllers=() if controller is None else (controller,))
     built = None
     if controller is not None:
-        sections = controller_settings(config)
         # the floating plant gives its true state: an estimator set to "plant" passes it through
         arm_controller = registry.build_controller(
-            controller, arm_model, sections, config.control_period, sensor_variance=0.0
+            controller, parts.arm, controller_settings(config), config.control_period, sensor_variance=0.0
         )
-        built = UVMSController(
-            uvms,
-            arm_controller,
-            x0[:7],
-            vehicle=vehicle.control,
-            gp=vehicle.gp,
-            aware=vehicle.aware,
-            control_period=config.control_period,
-        )
-    return Experiment(config, arm_model, plant, built, reference, x0, uvms=uvms)
-
-
-def _source(name: str | None) -> str | None:
-    """A built-in name as is; a file as its absolute path (the saved run can be read elsewhere)."""
-    from pathlib import Path
-
-    if name is None:
-        return None
-    path = Path(name)
-    return str(path.resolve()) if path.is_file() else name
+        built = station_keeper(config.vehicle, parts, arm_controller, config.control_period)
+    return Experiment(config, parts.arm, parts.plant, built, parts.reference, parts.x0, uvms=parts.uvms)
 
 
 def run_experiment(

@@ -11,16 +11,20 @@ mounted arm + the station keeper), the arm's reach-and-return task
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from pathlib import Path
+
 import numpy as np
 import pinocchio as pin
 import pydantic
 
-from hydroarm.config import FrozenModel
+from hydroarm.config import ConfigError, FrozenModel, shown
 from hydroarm.control.gp import GPConfig
 from hydroarm.control.vehicle_control import VehicleControlConfig
+from hydroarm.model.arm import Arm
 from hydroarm.model.task import ReachReturn
 from hydroarm.model.uvms import UVMS
-from hydroarm.model.uvms_fast import FastUVMSConfig
+from hydroarm.model.uvms_fast import FastUVMSConfig, FastUVMSPlant
 from hydroarm.model.water import CurrentConfig, Water
 
 Angles = list[float]
@@ -77,6 +81,61 @@ class VehicleRun(FrozenModel):
 
     def reference(self) -> ReachReturn:
         return ReachReturn(self.home, self.reach, self.task_period)
+
+
+@dataclass
+class VehicleParts:
+    """What a vehicle run is built from: the floating system, the mounted arm the arm
+    controller knows, the floating plant, the arm's reach-and-return task and the start state."""
+
+    uvms: UVMS
+    arm: Arm
+    plant: FastUVMSPlant
+    reference: ReachReturn
+    x0: np.ndarray
+
+
+def vehicle_parts(vehicle: VehicleRun, arm: str | Arm, water: Water, torque_limit=None) -> VehicleParts:
+    """The parts of a vehicle run of ``vehicle`` with ``arm`` ("mount": the vehicle file's) in
+    ``water`` (its current replaced by ``vehicle.current``); ``torque_limit`` overrides the arm's
+    (N m, None: the arm file's). Raises :class:`ConfigError` naming the setting at fault."""
+    from hydroarm.model.uvms import build_uvms, mounted_arm
+
+    try:
+        uvms = build_uvms(vehicle.name, arm)
+    except ConfigError as error:
+        raise ConfigError(f"vehicle.name = {vehicle.name!r}: {error}") from None
+    except (ValueError, FileNotFoundError, OSError) as error:
+        raise ConfigError(f"vehicle.name = {vehicle.name!r} with arm = {arm!r}: {error}") from None
+    if uvms.arm is None:
+        raise ConfigError(f"arm = {arm!r}: a vehicle run needs an arm on the vehicle")
+    n = uvms.n_arm
+    if len(vehicle.home) != n:
+        raise ConfigError(
+            f"vehicle.home = {shown(vehicle.home)}: {len(vehicle.home)} angles; the arm on the vehicle has {n} joints"
+        )
+    plant = FastUVMSPlant(uvms, vehicle.water(water), vehicle.plant)
+    x0 = plant.initial_state(uvms.neutral(q_arm=vehicle.home))
+    return VehicleParts(uvms, mounted_arm(uvms).with_torque_limit(torque_limit), plant, vehicle.reference(), x0)
+
+
+def station_keeper(vehicle: VehicleRun, parts: VehicleParts, arm_controller, control_period: float):
+    """The whole system's :class:`~hydroarm.control.uvms_control.UVMSController`: ``arm_controller``
+    on the mounted arm + the station keeper of ``vehicle.control`` holding the start pose."""
+    from hydroarm.control.uvms_control import UVMSController
+
+    return UVMSController(
+        parts.uvms, arm_controller, parts.x0[:7], vehicle=vehicle.control, gp=vehicle.gp,
+        aware=vehicle.aware, control_period=control_period,
+    )  # fmt: skip
+
+
+def source_name(name: str | None) -> str | None:
+    """A built-in name as is; a file as its absolute path (the saved run can be read elsewhere)."""
+    if name is None:
+        return None
+    path = Path(name)
+    return str(path.resolve()) if path.is_file() else name
 
 
 def end_effector(uvms: UVMS, data: pin.Data, q: np.ndarray) -> np.ndarray:
