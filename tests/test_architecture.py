@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 import grimp
+import numpy as np
 import pytest
 
 import hydroarm
@@ -97,3 +98,22 @@ def test_public_api_names_resolve():
         assert getattr(hydroarm, name) is not None, name
     with pytest.raises(AttributeError, match="no attribute 'nope'"):
         hydroarm.nope  # noqa: B018
+
+
+def test_every_true_plant_follows_the_plant_protocol():
+    """The fixed-base arm, the vehicle with its arm and its compiled fast path are one protocol
+    (hydroarm.sim.plant.Plant): the one runner runs each of them."""
+    from hydroarm.model.loading import load_arm
+    from hydroarm.model.plant import UnderwaterPlant
+    from hydroarm.model.uvms import build_uvms
+    from hydroarm.model.uvms_fast import FastUVMSPlant
+    from hydroarm.model.uvms_plant import UVMSPlant
+    from hydroarm.sim.plant import Plant
+
+    uvms = build_uvms("bluerov2-heavy", "mount")
+    for plant in (UnderwaterPlant(load_arm("paper")), UVMSPlant(uvms), FastUVMSPlant(uvms)):
+        assert isinstance(plant, Plant), type(plant).__name__
+        x = plant.initial_state(uvms.neutral()) if hasattr(plant, "initial_state") else np.zeros(plant.state_size)
+        assert x.shape == (plant.state_size,) and plant.joint_state(x).shape == (2 * plant.n,)
+        x_next, info = plant.step(0.0, x, np.zeros(plant.n_inputs), 0.01)
+        assert x_next.shape == x.shape and info.disturbance.shape == (plant.n,)
