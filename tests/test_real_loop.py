@@ -261,6 +261,18 @@ def test_a_learning_controller_does_not_learn_from_a_bridged_sample(arm):
         wrapped.observe(k * PERIOD, samples[k], np.zeros(N), samples[k + 1])
     # transitions 0->1 and 2->3 are real; 1->1' (into the bridged sample) and 1'->2 (out of it) are not
     assert [o[0] for o in stub.observed] == [1.0, 3.0]
+    # with a sensor delay the first sample is held: its repeats are not lost samples
+    delayed = EstimatorConfig(measurement_variance=0.0)
+    design = delayed.design(0.0, SensorConfig(delay=1), loop_delay=1)
+    stub = Stub()
+    wrapped = FilteredController(
+        stub, JointKalmanFilter(N, PERIOD, delayed, design), NominalModel(arm, inner_step=None)
+    )
+    samples = [np.full(2 * N, k, dtype=float) for k in (0, 0, 1, 2)]  # sample 0 held for one period
+    for k in range(3):
+        wrapped.compute(k * PERIOD, samples[k], None)
+        wrapped.observe(k * PERIOD, samples[k], np.zeros(N), samples[k + 1])
+    assert [o[0] for o in stub.observed] == [1.0, 2.0]  # 0 -> 1 is observed once the delay line is full
 
 
 @pytest.mark.parametrize(("sensor_delay", "actuator_delay"), [(1, 0), (0, 2), (2, 1)])

@@ -440,7 +440,8 @@ class FilteredController:
         skipped = self.kalman.skipped
         filtered_next = self.kalman.update(np.asarray(y_next, dtype=float))
         self._next = filtered_next
-        bridged, self._bridged = self._bridged, self.kalman.skipped > skipped
+        held = self._steps <= self.sensor_delay  # the first sample, held until the sensor's delay has passed
+        bridged, self._bridged = self._bridged, self.kalman.skipped > skipped and not held
         if bridged or self._bridged:  # a lost sample bridged by the prediction: nothing to learn from
             return
         previous = self._filtered if self._filtered is not None else np.asarray(y, dtype=float)
