@@ -185,8 +185,11 @@ def main() -> None:
     parser.add_argument(
         "--groups", nargs="*", default=None, help="run only these groups and merge them into --out (grid, alone, ...)"
     )
+    parser.add_argument("--worlds", nargs="*", default=None, help="with --groups: only these worlds of them")
     args = parser.parse_args()
     todo = tasks() if args.groups is None else [t for t in tasks() if t[0] in args.groups]
+    if args.worlds is not None:
+        todo = [t for t in todo if t[1] in args.worlds]
     start = time.perf_counter()
     results = []
     with ProcessPoolExecutor(args.workers) as pool:
@@ -197,9 +200,10 @@ def main() -> None:
     wall = time.perf_counter() - start
     if args.groups is not None:  # merge: keep the other groups' runs and the first wall time
         previous = json.loads(args.out.read_text())
-        kept = [r for r in previous["runs"] if r["group"] not in args.groups]
+        done = {(t[0], t[1], t[2]) for t in todo}
+        kept = [r for r in previous["runs"] if (r["group"], r["world"], r["controller"]) not in done]
         previous["runs"] = kept + results
-        previous.setdefault("extra_wall_time_s", {})[",".join(args.groups)] = wall
+        previous.setdefault("extra_wall_time_s", {})[",".join(args.groups + (args.worlds or []))] = wall
         args.out.write_text(json.dumps(previous, indent=1) + "\n")
         print(table(previous["runs"]))
         return

@@ -213,6 +213,21 @@ def test_the_position_only_filter_estimates_the_velocity():
     assert max(errors[100:]) < 0.02  # then the velocity is known within a few counts per period
 
 
+def test_a_repeated_sample_is_bridged_by_the_prediction_not_taken_as_new():
+    kalman = JointKalmanFilter(N, PERIOD, EstimatorConfig(measurement_variance=0.0))  # exact: L = I
+    y = np.concatenate([np.zeros(N), np.ones(N)])
+    np.testing.assert_array_equal(kalman.update(y), y)
+    kalman.predict(np.full(N, 2.0))
+    bridged = kalman.update(y.copy())  # the same sample again: a dropout
+    np.testing.assert_allclose(bridged[:N], PERIOD * 1.0 + 0.5 * PERIOD**2 * 2.0)
+    np.testing.assert_allclose(bridged[N:], 1.0 + PERIOD * 2.0)
+    assert kalman.skipped == 1
+    used = JointKalmanFilter(N, PERIOD, EstimatorConfig(measurement_variance=0.0, repeated="use"))
+    used.update(y)
+    used.predict(np.full(N, 2.0))
+    np.testing.assert_array_equal(used.update(y.copy()), y)
+
+
 class Stub:
     """A controller that commands a known acceleration and records the state it is given."""
 
@@ -221,9 +236,11 @@ class Stub:
 
     def __init__(self):
         self.seen: list[np.ndarray] = []
+        self.observed: list[np.ndarray] = []
 
     def reset(self):
         self.seen.clear()
+        self.observed.clear()
 
     def compute(self, t, y, reference):
         self.seen.append(np.array(y))
@@ -231,7 +248,31 @@ class Stub:
         return ControlOutput(tau=np.zeros(N), acceleration=acceleration)
 
     def observe(self, t, y, u, y_next):
-        pass
+        self.observed.append(np.array(y_next))
+
+
+def test_a_learning_controller_does_not_learn_from_a_bridged_sample(arm):
+    stub = Stub()
+    kalman = JointKalmanFilter(N, PERIOD, EstimatorConfig(measurement_variance=0.0))
+    wrapped = FilteredController(stub, kalman, NominalModel(arm, inner_step=None))
+    samples = [np.full(2 * N, k, dtype=float) for k in (0, 1, 1, 2, 3)]  # the third is a repeat: lost
+    for k in range(4):
+        wrapped.compute(k * PERIOD, samples[k], None)
+        wrapped.observe(k * PERIOD, samples[k], np.zeros(N), samples[k + 1])
+    # transitions 0->1 and 2->3 are real; 1->1' (into the bridged sample) and 1'->2 (out of it) are not
+    assert [o[0] for o in stub.observed] == [1.0, 3.0]
+    # with a sensor delay the first sample is held: its repeats are not lost samples
+    delayed = EstimatorConfig(measurement_variance=0.0)
+    design = delayed.design(0.0, SensorConfig(delay=1), loop_delay=1)
+    stub = Stub()
+    wrapped = FilteredController(
+        stub, JointKalmanFilter(N, PERIOD, delayed, design), NominalModel(arm, inner_step=None)
+    )
+    samples = [np.full(2 * N, k, dtype=float) for k in (0, 0, 1, 2)]  # sample 0 held for one period
+    for k in range(3):
+        wrapped.compute(k * PERIOD, samples[k], None)
+        wrapped.observe(k * PERIOD, samples[k], np.zeros(N), samples[k + 1])
+    assert [o[0] for o in stub.observed] == [1.0, 2.0]  # 0 -> 1 is observed once the delay line is full
 
 
 @pytest.mark.parametrize(("sensor_delay", "actuator_delay"), [(1, 0), (0, 2), (2, 1)])

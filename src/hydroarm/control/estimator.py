@@ -43,7 +43,9 @@ The real loop (issue 23, :mod:`hydroarm.model.sensing`):
   commanded accelerations still in flight. A learning controller observes the filtered
   transition with the torque that acted during it, not the one just commanded.
 * **dropout**: a measurement equal to the previous one in every channel (the sensor repeated a
-  lost sample) is not corrected with (``estimator.repeated = "skip"``): the filter predicts only.
+  lost sample) is not corrected with (``estimator.repeated = "skip"``): the filter predicts only
+  (the pass-through filter of a noise-free sensor too), and the transitions into and out of the
+  bridged sample are not passed to a learning controller (as the runner does for a held one).
 
 With the defaults on the idealised loop (state measured, no delay) every number is as before.
 """
@@ -315,10 +317,12 @@ class JointKalmanFilter:
         if self._q is None and self.position_only:
             self._q, self._v = q_meas.copy(), np.zeros(n)
             self._last = np.array(y, dtype=float)
+        elif self._skip_repeated and self._last is not None and np.array_equal(y, self._last):
+            self.skipped += 1  # a lost sample the sensor repeated: keep the prediction
         elif self._q is None or self._exact:
             self._q, self._v = q_meas.copy(), v_meas.copy()
-        elif self._skip_repeated and self._last is not None and np.array_equal(y, self._last):
-            self.skipped += 1
+            if self._skip_repeated:
+                self._last = np.array(y, dtype=float)
         elif self.position_only:
             self._last = np.array(y, dtype=float)
             dq = q_meas - self._q
@@ -356,6 +360,7 @@ class FilteredController:
         self.delay = kalman.delay
         self.sensor_delay = kalman.design.sensor_delay
         self._steps = 0
+        self._bridged = False
         self._filtered: np.ndarray | None = None
         self._next: np.ndarray | None = None
         self._accelerations: deque[np.ndarray] = deque(maxlen=self.delay + 1)
@@ -369,6 +374,7 @@ class FilteredController:
         self._accelerations.clear()
         self._torques.clear()
         self._steps = 0
+        self._bridged = False
 
     def _unforced(self, state: np.ndarray) -> np.ndarray:
         """The dry model's acceleration (n,) at ``state`` with no torque: before the first
@@ -429,9 +435,15 @@ class FilteredController:
     def observe(self, t: float, y: np.ndarray, u: np.ndarray, y_next: np.ndarray) -> None:
         """Filter ``y_next`` (it is the next step's measurement too) and pass the filtered
         transition to the wrapped controller, with the torque that acted during it (with a
-        loop delay of d periods: the command of d steps ago; none before the first arrives)."""
+        loop delay of d periods: the command of d steps ago; none before the first arrives).
+        A transition into or out of a lost sample the filter bridged is not passed on."""
+        skipped = self.kalman.skipped
         filtered_next = self.kalman.update(np.asarray(y_next, dtype=float))
         self._next = filtered_next
+        held = self._steps <= self.sensor_delay  # the first sample, held until the sensor's delay has passed
+        bridged, self._bridged = self._bridged, self.kalman.skipped > skipped and not held
+        if bridged or self._bridged:  # a lost sample bridged by the prediction: nothing to learn from
+            return
         previous = self._filtered if self._filtered is not None else np.asarray(y, dtype=float)
         if self.delay == 0:
             self.controller.observe(t, previous, u, filtered_next)
