@@ -119,6 +119,24 @@ def _paper_header(metrics: dict) -> tuple[list[str], list[str]]:
     ]
 
 
+REPRODUCIBLE_DIGITS = [
+    "### Which digits reproduce on another machine",
+    "",
+    "Every number here is the same, bit for bit, for the same command and package versions on one",
+    "machine, whatever the CPU the compiled kernels were built for (numba for the host CPU, for a",
+    "generic x86-64 and without FMA gave the same summary.json, and so did one or two BLAS threads).",
+    "On a machine whose BLAS picks other kernels (another CPU, another NumPy build), the rows without the",
+    "sliding-window GP (SMC, MPC, IDMPC with or without an observer, PI-IDMPC) agree to about 1e-11",
+    "relative, but the GP rows do not: the GP's accept/reject of each hyperparameter step turns",
+    "last-bit differences of the matrix products into a different run (OpenBLAS's Haswell kernels",
+    "instead of SkylakeX moved the clean GP-MPC row's E_p by up to 55 % on one joint and GP-IDMPC's by",
+    "up to 20 %). Compare GP rows across machines by their first digit, or pin the BLAS kernels on",
+    "both, e.g. `OPENBLAS_CORETYPE=Haswell` (measured on 2026-12-01; docs/reliability.md).",
+    "",
+]
+"""What the report says of the digits that reproduce across machines (docs/data/reproducibility.json)."""
+
+
 def render_report(metrics: dict, out: Path) -> str:
     """report.md. On the paper's arm (``settings.paper_arm``): the reproduction, the paper's
     numbers beside ours and report_notes.md; on any other arm: the same study on that arm,
@@ -215,6 +233,7 @@ def render_report(metrics: dict, out: Path) -> str:
     for name in [n for n in clean if isinstance(clean[n], dict) and "step_ms_median" in clean[n]]:
         lines.append(f"| {name} | {clean[name]['step_ms_median']:.3f} | {clean[name]['step_ms_p99']:.3f} |")
     lines += ["", "(Measured inside the closed loop on a shared machine; `hydroarm bench` measures it properly.)", ""]
+    lines += REPRODUCIBLE_DIGITS
     lines += ["### Faults met during the runs (docs/reliability.md)", ""]
     faults = [
         f"- {case}, {name}: " + ", ".join(f"{key} x {count}" for key, count in sorted(block[name]["faults"].items()))
