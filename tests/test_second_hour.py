@@ -226,3 +226,31 @@ def test_run_prints_e_p_after_the_start_up_beside_the_whole_run(tmp_path):
     result = RUNNER.invoke(app, ["run", "--controller", "smc", "--set", "duration=2.5", "--out", str(tmp_path / "r")])
     assert result.exit_code == 0, result.output
     assert "whole run" in result.output and "after the start-up (t > 2 s)" in result.output
+
+
+# --- text that fits the terminal ---------------------------------------------------------
+
+
+def test_help_paragraphs_are_wrapped_by_the_terminal_not_the_docstring():
+    """The docstring's hard line breaks are gone: at 80 columns no help line ends a phrase early
+    (e.g. "results of other" then "settings" alone), and each example keeps its own line."""
+    result = RUNNER.invoke(app, ["reproduce", "--help"], env={"COLUMNS": "80"})
+    assert result.exit_code == 0
+    text = " ".join(result.output.split())
+    assert "a folder holding results of other settings is refused" in text
+    lines = [line.strip() for line in result.output.splitlines()]
+    assert any(line.startswith("Examples: hydroarm reproduce --out results") for line in lines)
+    from hydroarm.cli._common import _reflow
+
+    assert (
+        _reflow("One\nparagraph here.\n\nExample: hydroarm x\nmore")
+        == "One paragraph here.\n\nExample: hydroarm x\n\nmore"
+    )
+
+
+def test_settings_honours_columns():
+    wide = RUNNER.invoke(app, ["settings"], env={"COLUMNS": "200"}).output
+    narrow = RUNNER.invoke(app, ["settings"], env={"COLUMNS": "80"}).output
+    assert max(len(line) for line in narrow.splitlines()) <= 80
+    assert max(len(line) for line in wide.splitlines()) > 80
+    assert " ".join(narrow.split()).count("water density (kg/m^3)") == 1
