@@ -254,3 +254,25 @@ def test_settings_honours_columns():
     assert max(len(line) for line in narrow.splitlines()) <= 80
     assert max(len(line) for line in wide.splitlines()) > 80
     assert " ".join(narrow.split()).count("water density (kg/m^3)") == 1
+
+
+def test_torque_figures_scale_each_joint_to_its_own_torques(tmp_path, monkeypatch):
+    """Figure 11: a joint whose torques stay far below the limit is not drawn on +-limit axes."""
+    import matplotlib.pyplot as plt
+
+    from hydroarm.studies import figures
+
+    traj = build_experiment(ExperimentConfig(duration=0.3), "SMC").run()
+    limit = np.full(6, 500.0)
+    captured = {}
+    monkeypatch.setattr(figures, "_finish", lambda fig, axes, path: captured.update(axes=axes) or path)
+    figures.plot_torque(traj, tmp_path / "t.png", "torques", limit)
+    assert np.min(np.max(np.abs(traj.u), axis=0)) < 250.0  # the wrist's torques are small
+    for j, ax in enumerate(captured["axes"]):
+        peak = np.max(np.abs(traj.u[:, j]))
+        low, high = ax.get_ylim()
+        if peak < 250.0:
+            assert high < 250.0 and "limit 500" in ax.get_ylabel(), (j, peak, high)
+        else:
+            assert high >= 500.0
+    plt.close("all")
