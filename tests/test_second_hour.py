@@ -276,3 +276,15 @@ def test_torque_figures_scale_each_joint_to_its_own_torques(tmp_path, monkeypatc
         else:
             assert high >= 500.0
     plt.close("all")
+
+
+def test_view_out_writes_the_recording_without_a_server_banner(tmp_path, capfd):
+    pytest.importorskip("viser")
+    run = tmp_path / "run.npz"
+    build_experiment(ExperimentConfig(duration=0.05), "SMC").run().save(run)
+    result = RUNNER.invoke(app, ["view", str(run), "--out", str(tmp_path / "run.html")])
+    captured = capfd.readouterr()
+    assert result.exit_code == 0, result.output
+    text = result.output + captured.out + captured.err
+    assert "wrote" in text and "http://" not in text and "Websocket" not in text and "Server stopped" not in text
+    assert (tmp_path / "run.html").stat().st_size > 1000
