@@ -288,3 +288,30 @@ def test_view_out_writes_the_recording_without_a_server_banner(tmp_path, capfd):
     text = result.output + captured.out + captured.err
     assert "wrote" in text and "http://" not in text and "Websocket" not in text and "Server stopped" not in text
     assert (tmp_path / "run.html").stat().st_size > 1000
+
+
+def test_a_quick_tables_title_says_its_task_is_shorter_than_the_papers(tmp_path):
+    from hydroarm.studies.reproduce_tables import write_tables
+
+    block = {name: {"Ep": [0.1] * 6, "Ep_steady": [0.01] * 6} for name in ("SMC", "MPC", "GP-MPC")}
+    for duration, said in ((3.0, True), (10.0, False)):
+        metrics = {"settings": {"paper_arm": True, "experiment": {"duration": duration}}, "ablation": {}}
+        for case in ("clean", "noisy"):
+            metrics[case] = _table_block(block, case)
+        write_tables(metrics, tmp_path)
+        title = (tmp_path / "table1.md").read_text().splitlines()[0]
+        assert ("over a 3 s task, the paper's over its 10 s one" in title) is said, title
+
+
+def _table_block(block, case):
+    from hydroarm.studies.reproduce_tables import EXTRA_ROWS
+
+    rows = {name: {**row, "seeds": [0, 1], "Ep_std": [0.0] * 6} for name, row in block.items()}
+    rows.update({name: {"Ep": [0.1] * 6, "Ep_steady": [0.01] * 6} for name in EXTRA_ROWS})
+    rows["MPC_dry_arm_bound"] = {"Ep": [0.05] * 6, "gain_over_MPC_percent": [50.0] * 6}
+    rows["gain_gp_mpc_over_mpc_percent"] = {
+        "per_joint": [0.0] * 6,
+        "mean_of_joints": 0.0,
+        "steady_per_joint": [0.0] * 6,
+    }
+    return rows
