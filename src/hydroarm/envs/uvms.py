@@ -10,7 +10,10 @@ agent drives the thrusters.
 * observation (12 + 2 n_arm,), float64: the vehicle's body-frame pose error to its start pose
   (position m, rotation vector rad), its body twist, the arm's angles and rates;
 * reward: ``-(|position error|^2 + 0.1 |attitude error|^2)``;
-* truncation after ``duration`` s; termination if the state blows up or drifts > 5 m.
+* observation bounds: finite (position error 10 m, rotation vector pi, body speeds 10 m/s and
+  50 rad/s, arm angles 1e4 rad and rates 1e3 rad/s); the observation is clipped into them;
+* truncation after ``duration`` s; termination if the state blows up, drifts > 5 m or a speed
+  leaves its bound.
 
 ``reset(seed=...)`` draws the vehicle's start offset (uniform within ``start_offset`` m per
 axis) from the seeded generator: the same seed gives the same episode.
@@ -30,6 +33,17 @@ from hydroarm.model.uvms import build_uvms
 from hydroarm.model.uvms_fast import FastUVMSPlant
 from hydroarm.model.water import CurrentConfig, Water
 from hydroarm.studies.uvms_run import ReachReturn, UVMSRunConfig, arm_sections
+
+MAX_DRIFT = 5.0
+"""m: a vehicle farther than this from its start pose ends the episode."""
+MAX_SPEED = 10.0
+"""m/s: the bound on the vehicle's body-frame linear speeds (beyond: the episode ends)."""
+MAX_RATE = 50.0
+"""rad/s: the bound on the vehicle's body-frame angular rates (beyond: the episode ends)."""
+ARM_POSITION_BOUND = 1e4
+"""rad: the bound on the arm's joint angles."""
+ARM_RATE_BOUND = 1e3
+"""rad/s: the bound on the arm's joint rates (the runner's divergence speed)."""
 
 
 class UVMSEnv(gymnasium.Env):
@@ -54,7 +68,12 @@ class UVMSEnv(gymnasium.Env):
         vehicle_ = self.uvms.vehicle
         self.n_arm, self.n_thr = self.uvms.n_arm, vehicle_.n_thrusters
         self.action_space = spaces.Box(-1.0, 1.0, shape=(self.n_thr,), dtype=np.float64)
-        self.observation_space = spaces.Box(-np.inf, np.inf, shape=(12 + 2 * self.n_arm,), dtype=np.float64)
+        n = self.n_arm
+        high = np.concatenate([
+            np.full(3, 2.0 * MAX_DRIFT), np.full(3, np.pi), np.full(3, MAX_SPEED), np.full(3, MAX_RATE),
+            np.full(n, ARM_POSITION_BOUND), np.full(n, ARM_RATE_BOUND),
+        ])  # fmt: skip
+        self.observation_space = spaces.Box(-high, high, dtype=np.float64)
         self.x = self.plant.initial_state(self.uvms.neutral(q_arm=self.home))
         self.target = self.x[:7].copy()
         self.k = 0
@@ -62,9 +81,10 @@ class UVMSEnv(gymnasium.Env):
     def _observation(self) -> np.ndarray:
         nq = self.uvms.nq
         x = self.x
-        return np.concatenate(
+        observation = np.concatenate(
             [pose_error(x[:7], self.target), x[nq : nq + 6], x[7:nq], x[nq + 6 : nq + 6 + self.n_arm]]
         )
+        return np.clip(observation, self.observation_space.low, self.observation_space.high)
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
@@ -89,9 +109,16 @@ class UVMSEnv(gymnasium.Env):
         self.x, _ = self.plant.step(t, self.x, np.concatenate([tau, thrust]), self.period)
         self.k += 1
         observation = self._observation()
-        error = observation[:6]
+        error = pose_error(self.x[:7], self.target)  # unclipped: the reward and the drift
         reward = -float(error[:3] @ error[:3] + 0.1 * error[3:] @ error[3:])
-        terminated = bool(not np.all(np.isfinite(self.x)) or np.linalg.norm(error[:3]) > 5.0)
+        speeds = np.abs(np.concatenate([self.x[nq : nq + 6], self.x[nq + 6 : nq + 6 + self.n_arm]]))
+        limits = np.concatenate([np.full(3, MAX_SPEED), np.full(3, MAX_RATE), np.full(self.n_arm, ARM_RATE_BOUND)])
+        terminated = bool(
+            not np.all(np.isfinite(self.x))
+            or np.linalg.norm(error[:3]) > MAX_DRIFT
+            or np.any(speeds > limits)
+            or np.any(np.abs(self.x[7:nq]) > ARM_POSITION_BOUND)
+        )
         if terminated:
             observation = np.nan_to_num(observation, nan=0.0, posinf=0.0, neginf=0.0)
             reward = -100.0
