@@ -710,8 +710,10 @@ def test_bad_files_are_config_errors(tmp_path):
     ]:
         with pytest.raises(ConfigError, match=message):
             read_mapping(tmp_path / name)
-    with pytest.raises(ConfigError, match="a folder, not a file"):
+    with pytest.raises(ConfigError, match="a folder, not a file"):  # a folder is named as one (issue 24)
         load_arm(tmp_path)
+    with pytest.raises(ConfigError, match="neither a built-in arm"):
+        load_arm(tmp_path / "missing.toml")
 
 
 # --- 2. the command line ------------------------------------------------------------------

@@ -90,8 +90,10 @@ def quick(command: str) -> str:
         return command
     words = shlex.split(command, comments=True)
     extra: list[str] = []
-    if words[1] == "reproduce":
-        extra = [*([] if "--quick" in words else ["--quick"]), "--seeds", "1", "--set", f"duration={DURATION}"]
+    if words[1] == "reproduce":  # --quick sets a 3 s task itself: a short task and one seed instead
+        words = [w for w in words if w != "--quick"]
+        command = shlex.join(words)
+        extra = ["--seeds", "1", "--no-ablation", "--set", f"duration={DURATION}"]
     elif words[1] in ("run", "tune") and "--vehicle" not in words:
         extra = ["--set", f"duration={DURATION}"]
     elif words[1] == "run":
@@ -101,10 +103,18 @@ def quick(command: str) -> str:
 
 
 def _documented() -> list[tuple[str, str]]:
+    """(where, command) of every documented command, each quick form once (the first place it
+    appears: the tutorial repeats the README's)."""
     commands = [("README", c) for c in _shell_lines(ROOT / "README.md")]
     commands += [("tutorial", c) for c in _shell_lines(ROOT / "docs" / "tutorial.md")]
     commands += [("--help", c) for c in _help_examples()]
-    return commands
+    seen: set[str] = set()
+    unique = []
+    for source, command in commands:
+        if quick(command) not in seen:
+            seen.add(quick(command))
+            unique.append((source, command))
+    return unique
 
 
 DOCUMENTED = _documented()
@@ -118,8 +128,8 @@ def test_the_documented_commands_are_found():
     assert any(text.startswith("cat > fast.toml <<'EOF'\n") and text.endswith("\nEOF") for text in texts)
     assert "hydroarm animate results/runs/clean__gp-mpc__seed0.npz --out arm.gif" in texts
     assert "hydroarm settings --markdown > docs/settings.md" in texts
-    assert sum(source == "--help" for source, _ in DOCUMENTED) >= 10
-    assert sum(not_run(command) is None for _, command in DOCUMENTED) >= 30
+    assert sum(source == "--help" for source, _ in DOCUMENTED) >= 5
+    assert sum(not_run(command) is None for _, command in DOCUMENTED) >= 20
 
 
 @pytest.fixture(scope="module")

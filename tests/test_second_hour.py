@@ -221,3 +221,92 @@ def test_run_prints_e_p_after_the_start_up_beside_the_whole_run(tmp_path):
     result = RUNNER.invoke(app, ["run", "--controller", "smc", "--set", "duration=2.5", "--out", str(tmp_path / "r")])
     assert result.exit_code == 0, result.output
     assert "whole run" in result.output and "after the start-up (t > 2 s)" in result.output
+
+
+# --- text that fits the terminal ---------------------------------------------------------
+
+
+def test_help_paragraphs_are_wrapped_by_the_terminal_not_the_docstring():
+    """The docstring's hard line breaks are gone: at 80 columns no help line ends a phrase early
+    (e.g. "results of other" then "settings" alone), and each example keeps its own line."""
+    result = RUNNER.invoke(app, ["reproduce", "--help"], env={"COLUMNS": "80"})
+    assert result.exit_code == 0
+    text = " ".join(result.output.split())
+    assert "a folder holding results of other settings is refused" in text
+    lines = [line.strip() for line in result.output.splitlines()]
+    assert any(line.startswith("Examples: hydroarm reproduce --out results") for line in lines)
+    from hydroarm.cli._common import _reflow
+
+    assert (
+        _reflow("One\nparagraph here.\n\nExample: hydroarm x\nmore")
+        == "One paragraph here.\n\nExample: hydroarm x\n\nmore"
+    )
+
+
+def test_settings_honours_columns():
+    wide = RUNNER.invoke(app, ["settings"], env={"COLUMNS": "200"}).output
+    narrow = RUNNER.invoke(app, ["settings"], env={"COLUMNS": "80"}).output
+    assert max(len(line) for line in narrow.splitlines()) <= 80
+    assert max(len(line) for line in wide.splitlines()) > 80
+    assert " ".join(narrow.split()).count("water density (kg/m^3)") == 1
+
+
+def test_torque_figures_scale_each_joint_to_its_own_torques(tmp_path, monkeypatch):
+    """Figure 11: a joint whose torques stay far below the limit is not drawn on +-limit axes."""
+    import matplotlib.pyplot as plt
+
+    from hydroarm.studies import figures
+
+    traj = build_experiment(ExperimentConfig(duration=0.3), "SMC").run()
+    limit = np.full(6, 500.0)
+    captured = {}
+    monkeypatch.setattr(figures, "_finish", lambda fig, axes, path: captured.update(axes=axes) or path)
+    figures.plot_torque(traj, tmp_path / "t.png", "torques", limit)
+    assert np.min(np.max(np.abs(traj.u), axis=0)) < 250.0  # the wrist's torques are small
+    for j, ax in enumerate(captured["axes"]):
+        peak = np.max(np.abs(traj.u[:, j]))
+        low, high = ax.get_ylim()
+        if peak < 250.0:
+            assert high < 250.0 and "limit 500" in ax.get_ylabel(), (j, peak, high)
+        else:
+            assert high >= 500.0
+    plt.close("all")
+
+
+def test_view_out_writes_the_recording_without_a_server_banner(tmp_path, capfd):
+    pytest.importorskip("viser")
+    run = tmp_path / "run.npz"
+    build_experiment(ExperimentConfig(duration=0.05), "SMC").run().save(run)
+    result = RUNNER.invoke(app, ["view", str(run), "--out", str(tmp_path / "run.html")])
+    captured = capfd.readouterr()
+    assert result.exit_code == 0, result.output
+    text = result.output + captured.out + captured.err
+    assert "wrote" in text and "http://" not in text and "Websocket" not in text and "Server stopped" not in text
+    assert (tmp_path / "run.html").stat().st_size > 1000
+
+
+def test_a_quick_tables_title_says_its_task_is_shorter_than_the_papers(tmp_path):
+    from hydroarm.studies.reproduce_tables import write_tables
+
+    block = {name: {"Ep": [0.1] * 6, "Ep_steady": [0.01] * 6} for name in ("SMC", "MPC", "GP-MPC")}
+    for duration, said in ((3.0, True), (10.0, False)):
+        metrics = {"settings": {"paper_arm": True, "experiment": {"duration": duration}}, "ablation": {}}
+        for case in ("clean", "noisy"):
+            metrics[case] = _table_block(block, case)
+        write_tables(metrics, tmp_path)
+        title = (tmp_path / "table1.md").read_text().splitlines()[0]
+        assert ("over a 3 s task, the paper's over its 10 s one" in title) is said, title
+
+
+def _table_block(block, case):
+    from hydroarm.studies.reproduce_tables import EXTRA_ROWS
+
+    rows = {name: {**row, "seeds": [0, 1], "Ep_std": [0.0] * 6} for name, row in block.items()}
+    rows.update({name: {"Ep": [0.1] * 6, "Ep_steady": [0.01] * 6} for name in EXTRA_ROWS})
+    rows["MPC_dry_arm_bound"] = {"Ep": [0.05] * 6, "gain_over_MPC_percent": [50.0] * 6}
+    rows["gain_gp_mpc_over_mpc_percent"] = {
+        "per_joint": [0.0] * 6,
+        "mean_of_joints": 0.0,
+        "steady_per_joint": [0.0] * 6,
+    }
+    return rows

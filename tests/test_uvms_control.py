@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+import warnings
 
 import numpy as np
 import pytest
@@ -119,7 +120,10 @@ def test_env_passes_check_env_and_is_seeded():
     import hydroarm.envs  # noqa: F401  (registers the ids)
 
     env = gymnasium.make("hydroarm/UVMS-v0", duration=0.2).unwrapped
-    check_env(env, skip_render_check=True)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no warning: finite observation bounds (issue 24)
+        check_env(env, skip_render_check=True)
+    assert np.all(np.isfinite(env.observation_space.high))
 
     def episode(seed):
         obs, _ = env.reset(seed=seed)

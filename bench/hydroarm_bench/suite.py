@@ -8,6 +8,7 @@ import time
 from pathlib import Path
 
 from hydroarm_bench.control_steps import bench_control_steps
+from hydroarm_bench.envs import bench_envs, render_envs
 from hydroarm_bench.gp_peers import bench_gp_peers, record_gp_stream
 from hydroarm_bench.markdown import render_markdown
 from hydroarm_bench.mpc_peers import bench_mpc_peers
@@ -37,6 +38,7 @@ def run_benchmarks(out_dir: Path, quick: bool = False) -> dict:
         profile = profile_closed_loop(1.0 if quick else 3.0)
         uvms = bench_uvms(quick)
         viewer = bench_viewer(quick)
+        envs = bench_envs(quick)
     finally:
         if limiter is not None:
             limiter.unregister()
@@ -44,11 +46,12 @@ def run_benchmarks(out_dir: Path, quick: bool = False) -> dict:
     report["profile"] = profile
     report["uvms"] = uvms
     report["viewer"] = viewer
+    report["envs"] = envs
     report["target_status"] = target_status(report)  # again, with the vehicle and viewer sections
     report["suite_wall_s"] = time.perf_counter() - started
     report = json.loads(json.dumps(report, default=json_default))  # plain JSON types only
     (out_dir / "bench.json").write_text(json.dumps(report, indent=2) + "\n")
     (out_dir / "bench.md").write_text(
-        render_markdown(report) + render_uvms(report["uvms"]) + render_viewer(report["viewer"])
+        render_markdown(report) + render_uvms(report["uvms"]) + render_viewer(report["viewer"]) + render_envs(envs)
     )
     return report

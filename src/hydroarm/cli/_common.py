@@ -23,12 +23,36 @@ if typing.TYPE_CHECKING:
 def _flags_without_type(command: click.Command, ctx: click.Context) -> None:
     """No ``<bool>`` after plain flags (``--json``, ``--quick``, ``--help``) in ``command``'s help
     and its subcommands': a flag takes no value, so its metavar is empty."""
+    if command.help and not getattr(command, "_hydroarm_reflowed", False):
+        command.help = _reflow(command.help)
+        command._hydroarm_reflowed = True  # type: ignore[attr-defined]
     help_option = command.get_help_option(ctx)
     for param in [*command.params, *([help_option] if help_option is not None else [])]:
         if getattr(param, "is_flag", False) and param.metavar is None:
             param.metavar = ""
     for sub in getattr(command, "commands", {}).values():
         _flags_without_type(sub, ctx)
+
+
+def _reflow(text: str) -> str:
+    """A docstring's help with its hard line breaks taken out, so the terminal's width wraps it:
+    the lines of a paragraph joined, an ``Example:`` line kept as a line of its own."""
+    paragraphs = []
+    for paragraph in text.strip().split("\n\n"):
+        lines, current = [], []
+        for line in paragraph.splitlines():
+            line = line.strip()
+            if line.startswith(("Example:", "Examples:")):
+                if current:
+                    lines.append(" ".join(current))
+                lines.append(line)
+                current = []
+            elif line:
+                current.append(line)
+        if current:
+            lines.append(" ".join(current))
+        paragraphs.append("\n\n".join(lines))
+    return "\n\n".join(paragraphs)
 
 
 class _Group(TyperGroup):

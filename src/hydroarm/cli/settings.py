@@ -43,4 +43,9 @@ def settings(
         return
     if controller is not None:
         print(f"The settings a run of {canonical_name(controller)} reads (hydroarm settings: all of them).\n")
-    print(settings_text(rows), end="")
+    import os
+    import shutil
+    import sys
+
+    columns = shutil.get_terminal_size().columns if "COLUMNS" in os.environ or sys.stdout.isatty() else None
+    print(settings_text(rows, columns=max(columns, 40) if columns else None), end="")

@@ -54,7 +54,8 @@ def reproduce(
 
     The same command resumes from the finished runs in OUT; a folder holding results of other
     settings is refused unless --overwrite. OUT/summary.json holds every number (metrics.json only
-    the tables'). Examples: hydroarm reproduce --out results;  hydroarm reproduce --arm alpha5 --out alpha5
+    the tables').
+    Examples: hydroarm reproduce --out results;  hydroarm reproduce --arm alpha5 --out alpha5
     """
     from hydroarm.control.registry import PAPER_CONTROLLERS
     from hydroarm.model.loading import load_arm
@@ -241,7 +242,8 @@ def tune(
     """Tune a controller's gains on the arm without water ("tuned once on land") and write them.
 
     Every point of the controller's grid runs the arm's task clean and noisy on the dry arm;
-    the best mean E_p wins. Example: hydroarm tune --arm alpha5 --controller smc --out alpha5.toml
+    the best mean E_p wins.
+    Example: hydroarm tune --arm alpha5 --controller smc --out alpha5.toml
     """
     from hydroarm.model.loading import load_arm
     from hydroarm.sim.experiment import (
@@ -292,7 +294,7 @@ def tune(
     )
     table = Table(title=f"{name} on {arm}, dry arm: best of {len(result.rows)} points")
     for column in (*(key.split(".")[-1] for key in result.best), "clean", "noisy", "score"):
-        table.add_column(column)
+        table.add_column(column, no_wrap=True, min_width=len(column))  # a header is never cut
     for row in result.rows[:5]:
         cells = [f"{row['point'][k]:g}" for k in result.best]
         cells += [("diverged" if row[k] is None else f"{row[k]:.5g}") for k in ("clean", "noisy")]

@@ -19,8 +19,16 @@ With n the arm's joint count:
 * observation (4n,), float64: the measured joint state [q, v] (2n, rad and rad/s, with
   the plant's seeded noise: what a controller sees), then the reference [q_r, v_r] (2n)
   at the current time;
-* action (n,): joint torques (N m) within the arm's torque limits (``action_space``:
-  ``Box(-limit, limit)``); torques outside are clipped, non-finite ones or a wrong shape
+* observation bounds: finite, ``|q| <= POSITION_BOUND`` rad and ``|v| <= DIVERGENCE_SPEED``
+  rad/s for the measured state and the reference (the measurement is clipped into them; a true
+  state outside them ends the episode, ``terminated``);
+* action (n,), ``action_mode="normalised"`` (default): numbers in [-1, 1], joint i's torque
+  ``action_i * action_scale_i`` (N m); ``action_scale`` defaults to :data:`ACTION_MARGIN` times
+  the largest torque joint i needs along the task (the dry inverse dynamics of the reference
+  minus the water's torques on it, sampled at :data:`TASK_SAMPLES` instants), capped at the
+  torque limit, so that a policy can track the task and a random one does not spin a light
+  wrist to divergence. ``action_mode="torque"``: raw torques (N m) in
+  ``Box(-limit, limit)``. Actions outside the box are clipped, non-finite ones or a wrong shape
   raise ``ValueError``;
 * reward: minus the tracking cost of the true state at the start of the step,
   ``-(|q_r - q|^2 + 0.01 |v_r - v|^2)`` (rad^2): its mean over an episode is the sum
@@ -31,7 +39,17 @@ With n the arm's joint count:
 * ``info`` of ``step``: the true state ``x`` and time ``t`` at the start of the step, the
   water/current disturbance averaged over the step (``disturbance``, N m) and the
   tracking error ``q_r - q`` (``error``, rad); of ``reset``: ``x`` and ``t``;
-* ``reset(options={"x0": x0})`` starts at ``x0`` (2n,) instead of the task's start.
+* the start: the task's start, or, with ``start_spread = (dq, dv)`` (rad, rad/s), a uniform
+  draw within ``+-dq`` and ``+-dv`` around it from the env's seeded ``np_random`` at every
+  ``reset``; ``reset(options={"x0": x0})`` starts at ``x0`` (2n,) instead;
+* the plant's compiled step is compiled (or loaded from numba's cache) when the env is made,
+  not at the first ``step``.
+
+Vector envs: ``gymnasium.make_vec("hydroarm.envs:hydroarm/UnderwaterArm-v0", num_envs=8,
+vectorization_mode="async")`` (one process per copy; ``"sync"`` steps them in this process).
+The autoreset mode is Gymnasium's default, ``AutoresetMode.NEXT_STEP``: the step after an
+episode ended returns the first observation of the next one (its reward 0, not terminated) and
+ignores that step's action.
 
 Seeded through ``reset(seed=...)``: the measurement-noise stream is the one
 :func:`~hydroarm.sim.runner.run_closed_loop` draws with that seed, so a controller
@@ -65,10 +83,39 @@ from hydroarm.control.interface import Controller
 from hydroarm.sim.experiment import ExperimentConfig, build_controller, build_experiment, with_overrides
 from hydroarm.sim.runner import DIVERGENCE_SPEED
 
-__all__ = ["VELOCITY_WEIGHT", "ControllerPolicy", "UnderwaterArmEnv"]
+__all__ = ["ACTION_MARGIN", "POSITION_BOUND", "VELOCITY_WEIGHT", "ControllerPolicy", "UnderwaterArmEnv", "task_torque"]
 
 VELOCITY_WEIGHT = 0.01
 """Weight of the velocity error in the reward (s^2)."""
+
+POSITION_BOUND = 1e4
+"""rad: the observation's bound on every joint position (and the reference's); a true position
+beyond it ends the episode (a joint at the divergence speed for 10 s: no task comes near it)."""
+
+ACTION_MARGIN = 2.0
+"""The normalised action's full scale over the largest torque the task needs, per joint (-)."""
+
+TASK_SAMPLES = 200
+"""Instants of the task at which :func:`task_torque` samples the torque the task needs."""
+
+ACTION_MODES = ("normalised", "torque")
+
+
+def task_torque(experiment) -> np.ndarray:
+    """The largest |torque| (n,) N m each joint needs to follow the experiment's task on its
+    true plant: the dry inverse dynamics of the reference minus the water's torques (drag,
+    added mass, buoyancy; the current left out) on it, at :data:`TASK_SAMPLES` instants over the
+    episode (at least 1e-6 N m)."""
+    from hydroarm.model.water import hydrodynamic_torques
+
+    config, arm = experiment.config, experiment.arm
+    largest = np.zeros(arm.n_joints)
+    for t in np.linspace(0.0, config.duration, TASK_SAMPLES):
+        q, v, a = (np.asarray(x, dtype=float) for x in experiment.reference.sample(float(t)))
+        water = hydrodynamic_torques(arm, config.water, q, v, a)
+        tau = arm.inverse_dynamics(q, v, a) - water.drag - water.added_mass - water.buoyancy
+        largest = np.maximum(largest, np.abs(tau))
+    return np.maximum(largest, 1e-6)
 
 
 class UnderwaterArmEnv(gymnasium.Env):
@@ -89,6 +136,9 @@ class UnderwaterArmEnv(gymnasium.Env):
         noise_variance: float | None = None,
         duration: float | None = None,
         render_mode: str | None = None,
+        action_mode: str = "normalised",
+        action_scale: np.ndarray | list[float] | None = None,
+        start_spread: tuple[float, float] = (0.0, 0.0),
     ):
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be None or one of {self.metadata['render_modes']}; got {render_mode!r}")
@@ -111,12 +161,51 @@ class UnderwaterArmEnv(gymnasium.Env):
         self.n = self.arm.n_joints
         self.period = self.experiment.control_period
         self.steps = int(round(self.config.duration / self.period))
+        if action_mode not in ACTION_MODES:
+            raise ValueError(f"action_mode must be one of {ACTION_MODES}; got {action_mode!r}")
+        self.action_mode = action_mode
         limit = np.asarray(self.arm.torque_limit, dtype=np.float64)
-        self.action_space = spaces.Box(-limit, limit, dtype=np.float64)
-        self.observation_space = spaces.Box(-np.inf, np.inf, shape=(4 * self.n,), dtype=np.float64)
+        if action_scale is None:
+            scale = np.minimum(limit, ACTION_MARGIN * task_torque(self.experiment))
+        else:
+            scale = np.broadcast_to(np.asarray(action_scale, dtype=np.float64), (self.n,)).copy()
+            if not np.all(np.isfinite(scale)) or np.any(scale <= 0) or np.any(scale > limit):
+                raise ValueError(
+                    f"action_scale must be {self.n} torques 0 < x <= the torque limit (N m); got {scale!r}"
+                )
+        self.action_scale = scale
+        """N m per unit of a normalised action, per joint (``action_mode="normalised"``)."""
+        if action_mode == "normalised":
+            self.action_space = spaces.Box(-1.0, 1.0, shape=(self.n,), dtype=np.float64)
+        else:
+            self.action_space = spaces.Box(-limit, limit, dtype=np.float64)
+        spread = np.asarray(start_spread, dtype=float)
+        if spread.shape != (2,) or not np.all(np.isfinite(spread)) or np.any(spread < 0):
+            raise ValueError(f"start_spread must be (position rad, velocity rad/s) >= 0; got {start_spread!r}")
+        self.start_spread = (float(spread[0]), float(spread[1]))
+        high = np.concatenate([np.full(self.n, POSITION_BOUND), np.full(self.n, DIVERGENCE_SPEED)] * 2)
+        self.observation_space = spaces.Box(-high, high, dtype=np.float64)
+        self._high = high
         self._x = self.x0.copy()
         self._y = self.x0.copy()
         self._k = 0
+        # the compiled step is compiled (or loaded from numba's cache) now, not at the first step
+        self.plant.step(0.0, self.x0, np.zeros(self.n), self.period)
+
+    def torque(self, action) -> np.ndarray:
+        """The joint torques (n,) N m of ``action`` (in ``action_space``'s units), clipped to the box."""
+        action = np.asarray(action, dtype=float)
+        if action.shape != (self.n,) or not np.all(np.isfinite(action)):
+            unit = "normalised actions in [-1, 1]" if self.action_mode == "normalised" else "finite joint torques (N m)"
+            raise ValueError(f"action must be {self.n} finite numbers ({unit}); got {action!r}")
+        action = np.clip(action, self.action_space.low, self.action_space.high)
+        return action * self.action_scale if self.action_mode == "normalised" else action
+
+    def action(self, torque) -> np.ndarray:
+        """The action (in ``action_space``'s units) for joint torques ``torque`` (n,) N m, clipped."""
+        torque = np.asarray(torque, dtype=float)
+        action = torque / self.action_scale if self.action_mode == "normalised" else torque
+        return np.clip(action, self.action_space.low, self.action_space.high)
 
     @property
     def t(self) -> float:
@@ -135,7 +224,7 @@ class UnderwaterArmEnv(gymnasium.Env):
 
     def _observation(self) -> np.ndarray:
         q_r, v_r, _ = self.reference.sample(self.t)
-        return np.concatenate([self._y, q_r, v_r])
+        return np.clip(np.concatenate([self._y, q_r, v_r]), -self._high, self._high)
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
@@ -143,6 +232,10 @@ class UnderwaterArmEnv(gymnasium.Env):
         x0 = None if options is None else options.get("x0")
         if x0 is None:
             self._x = self.x0.copy()
+            dq, dv = self.start_spread
+            if dq > 0.0 or dv > 0.0:
+                n = self.n
+                self._x += np.concatenate([self.np_random.uniform(-dq, dq, n), self.np_random.uniform(-dv, dv, n)])
         else:
             x0 = np.asarray(x0, dtype=float)
             if x0.shape != (2 * self.n,) or not np.all(np.isfinite(x0)):
@@ -152,17 +245,18 @@ class UnderwaterArmEnv(gymnasium.Env):
         return self._observation(), {"x": self._x.copy(), "t": 0.0}
 
     def step(self, action):
-        action = np.asarray(action, dtype=float)
-        if action.shape != (self.n,) or not np.all(np.isfinite(action)):
-            raise ValueError(f"action must be {self.n} finite joint torques (N m); got {action!r}")
-        tau = np.clip(action, self.action_space.low, self.action_space.high)
+        tau = self.torque(action)
         t = self.t
         q_r, v_r, _ = self.reference.sample(t)
         error = q_r - self._x[: self.n]
         reward = -float(error @ error + VELOCITY_WEIGHT * np.sum((v_r - self._x[self.n :]) ** 2))
         x_next, step_info = self.plant.step(t, self._x, tau, self.period)
-        diverged = not np.all(np.isfinite(x_next)) or np.max(np.abs(x_next[self.n :])) > DIVERGENCE_SPEED
-        info = {"x": self._x.copy(), "t": t, "disturbance": step_info.disturbance, "error": error}
+        diverged = (
+            not np.all(np.isfinite(x_next))
+            or np.max(np.abs(x_next[self.n :])) > DIVERGENCE_SPEED
+            or np.max(np.abs(x_next[: self.n])) > POSITION_BOUND
+        )
+        info = {"x": self._x.copy(), "t": t, "disturbance": step_info.disturbance, "error": error, "torque": tau}
         self._k += 1
         if diverged:
             return self._observation(), reward, True, False, info
@@ -192,7 +286,9 @@ class ControllerPolicy:
 
     ``policy = ControllerPolicy.from_name("gp-mpc", env)`` (any spelling of the registry's
     names; ``env`` may be wrapped, e.g. by ``gymnasium.make``); at each step
-    ``action = policy(obs)``; after ``env.step`` call ``policy.observe(obs_next)`` so a
+    ``action = policy(obs)`` (the controller's torque in the env's action units: divided by
+    ``action_scale`` in the default normalised mode, so the torques agree with the runner's to
+    rounding; with ``action_mode="torque"`` bit for bit); after ``env.step`` call ``policy.observe(obs_next)`` so a
     learning controller sees the transition. Call ``policy.reset()`` with each new episode
     after the first (the constructor resets the controller).
     """
@@ -221,7 +317,7 @@ class ControllerPolicy:
         t = self.env.t
         tau = np.asarray(self.controller.compute(t, y, self.env.reference).tau, dtype=float)
         self._last = (y, tau, t)
-        return tau
+        return self.env.action(tau)
 
     def observe(self, observation: np.ndarray) -> None:
         """Pass the last transition (y_k, u_k, y_{k+1}) to the controller."""

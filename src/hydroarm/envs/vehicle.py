@@ -12,9 +12,13 @@ study); the agent takes the station keeper's place and drives the thrusters.
   -1 its reverse limit); outside values are clipped, non-finite ones raise ``ValueError``;
 * observation (12 + 2 n_arm,), float64: the vehicle's body-frame pose error to its start pose
   (position m, rotation vector rad), its body twist, the arm's angles and rates;
-* reward: ``-(|position error|^2 + attitude_weight |attitude error|^2)``;
-* truncation after ``duration`` s; termination if the state blows up or drifts more than
-  ``drift_limit`` m, with the reward ``termination_reward`` (settings: :class:`UVMSEnvConfig`).
+* observation bounds: finite (position error twice ``drift_limit``, rotation vector pi, body
+  speeds :data:`MAX_SPEED` and :data:`MAX_RATE`, arm angles :data:`ARM_POSITION_BOUND` and rates
+  :data:`ARM_RATE_BOUND`); the observation is clipped into them;
+* reward: ``-(|position error|^2 + attitude_weight |attitude error|^2)`` (of the unclipped error);
+* truncation after ``duration`` s; termination if the state blows up, drifts more than
+  ``drift_limit`` m or a speed leaves its bound, with the reward ``termination_reward``
+  (settings: :class:`UVMSEnvConfig`).
 
 ``reset(seed=...)`` draws the vehicle's start offset (uniform within ``start_offset`` m per
 axis) from the seeded generator: the same seed gives the same episode.
@@ -32,6 +36,15 @@ from gymnasium import spaces
 from hydroarm.config import FrozenModel
 from hydroarm.control.vehicle_control import pose_error
 from hydroarm.sim.experiment import ExperimentConfig, build_experiment
+
+MAX_SPEED = 10.0
+"""m/s: the bound on the vehicle's body-frame linear speeds (beyond: the episode ends)."""
+MAX_RATE = 50.0
+"""rad/s: the bound on the vehicle's body-frame angular rates (beyond: the episode ends)."""
+ARM_POSITION_BOUND = 1e4
+"""rad: the bound on the arm's joint angles."""
+ARM_RATE_BOUND = 1e3
+"""rad/s: the bound on the arm's joint rates (the runner's divergence speed)."""
 
 
 class UVMSEnvConfig(FrozenModel):
@@ -85,7 +98,12 @@ class UVMSEnv(gymnasium.Env):
         vehicle_ = self.uvms.vehicle
         self.n_arm, self.n_thr = self.uvms.n_arm, vehicle_.n_thrusters
         self.action_space = spaces.Box(-1.0, 1.0, shape=(self.n_thr,), dtype=np.float64)
-        self.observation_space = spaces.Box(-np.inf, np.inf, shape=(12 + 2 * self.n_arm,), dtype=np.float64)
+        n = self.n_arm
+        high = np.concatenate([
+            np.full(3, 2.0 * episode.drift_limit), np.full(3, np.pi), np.full(3, MAX_SPEED), np.full(3, MAX_RATE),
+            np.full(n, ARM_POSITION_BOUND), np.full(n, ARM_RATE_BOUND),
+        ])  # fmt: skip
+        self.observation_space = spaces.Box(-high, high, dtype=np.float64)
         self.x = self.experiment.x0.copy()
         self.target = self.x[:7].copy()
         self.k = 0
@@ -93,9 +111,10 @@ class UVMSEnv(gymnasium.Env):
     def _observation(self) -> np.ndarray:
         nq = self.uvms.nq
         x = self.x
-        return np.concatenate(
+        observation = np.concatenate(
             [pose_error(x[:7], self.target), x[nq : nq + 6], x[7:nq], x[nq + 6 : nq + 6 + self.n_arm]]
         )
+        return np.clip(observation, self.observation_space.low, self.observation_space.high)
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
@@ -120,9 +139,17 @@ class UVMSEnv(gymnasium.Env):
         self.x, _ = self.plant.step(t, self.x, np.concatenate([tau, thrust]), self.period)
         self.k += 1
         observation = self._observation()
-        error = observation[:6]
+        nq = self.uvms.nq
+        error = pose_error(self.x[:7], self.target)  # unclipped: the reward and the drift
         reward = -float(error[:3] @ error[:3] + self.episode.attitude_weight * error[3:] @ error[3:])
-        terminated = bool(not np.all(np.isfinite(self.x)) or np.linalg.norm(error[:3]) > self.episode.drift_limit)
+        speeds = np.abs(np.concatenate([self.x[nq : nq + 6], self.x[nq + 6 : nq + 6 + self.n_arm]]))
+        limits = np.concatenate([np.full(3, MAX_SPEED), np.full(3, MAX_RATE), np.full(self.n_arm, ARM_RATE_BOUND)])
+        terminated = bool(
+            not np.all(np.isfinite(self.x))
+            or np.linalg.norm(error[:3]) > self.episode.drift_limit
+            or np.any(speeds > limits)
+            or np.any(np.abs(self.x[7:nq]) > ARM_POSITION_BOUND)
+        )
         if terminated:
             observation = np.nan_to_num(observation, nan=0.0, posinf=0.0, neginf=0.0)
             reward = float(self.episode.termination_reward)

@@ -117,15 +117,22 @@ def plot_tracking(traj: Trajectory, path: Path, title: str, quantity: str = "pos
 
 
 def plot_torque(traj: Trajectory, path: Path, title: str, limit: np.ndarray | None = None) -> Path:
-    """Applied joint torques (paper Figs. 11, 14), with the limits dotted."""
+    """Applied joint torques (paper Figs. 11, 14), each joint on its own scale: the limits are
+    dotted where a joint's torque comes within half of its limit, else named in the axis label
+    (a wrist's few N m are not drawn flat on +-500 N m axes)."""
     fig, axes = _panels(traj.n_joints, title)
     name = traj.meta.get("controller", "")
     for j, ax in enumerate(axes):
         ax.plot(traj.t, traj.u[:, j], color=COLOURS.get(name, "tab:red"), lw=1.0, label=name)
+        label = f"joint {j + 1} (N m)"
         if limit is not None:
-            ax.axhline(limit[j], color="gray", ls=":", lw=0.8, label="limit")
-            ax.axhline(-limit[j], color="gray", ls=":", lw=0.8)
-        ax.set_ylabel(f"joint {j + 1} (N m)")
+            peak = float(np.nanmax(np.abs(traj.u[:, j]))) if traj.u.shape[0] else 0.0
+            if peak >= 0.5 * limit[j]:
+                ax.axhline(limit[j], color="gray", ls=":", lw=0.8, label="limit")
+                ax.axhline(-limit[j], color="gray", ls=":", lw=0.8)
+            else:
+                label = f"joint {j + 1} (N m; limit {limit[j]:g})"
+        ax.set_ylabel(label)
     return _finish(fig, axes, path)
 
 

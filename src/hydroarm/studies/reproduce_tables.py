@@ -57,6 +57,10 @@ ROWS: tuple[str, ...] = (*PAPER_CONTROLLERS, *EXTRA_ROWS)
 """The paper's "average control accuracy" gain: the mean of the per-joint gains (%)."""
 
 
+PAPER_DURATION = 10.0
+"""s: the paper's task (its Tables 1-2)."""
+
+
 def gain_percent(baseline: list[float], improved: list[float]) -> list[float]:
     """Per-joint improvement (%) of ``improved`` over ``baseline`` E_p (paper's definition)."""
     return [100.0 * (b - i) / b if b > 0 else 0.0 for b, i in zip(baseline, improved)]
@@ -246,6 +250,12 @@ def write_tables(metrics: dict, out: Path) -> None:
             if case == "clean"
             else f"Table 2: E_p (rad^2){on_arm}, measurement noise of variance 0.001"
         )
+        duration = settings.get("experiment", {}).get("duration", PAPER_DURATION)
+        if paper_arm and duration != PAPER_DURATION:
+            title += (
+                f"; ours over a {duration:g} s task, the paper's over its {PAPER_DURATION:g} s one: the start-up "
+                "weighs more in a shorter task, so compare the rows of a full run"
+            )
         _write_table(out / f"table{number}", title, header, rows)
     header = [
         "setting",

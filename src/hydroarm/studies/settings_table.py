@@ -211,17 +211,27 @@ def _sections(rows: list[SettingRow]) -> dict[str, list[SettingRow]]:
     return grouped
 
 
-def settings_text(rows: list[SettingRow]) -> str:
-    """Plain text, one line per key: ``key = default  [kind; allowed]  description``."""
+def settings_text(rows: list[SettingRow], columns: int | None = None) -> str:
+    """Plain text, one line per key: ``key = default  [kind; allowed]  description``; with
+    ``columns`` (a terminal's width), a key whose line would be wider gets ``key = default
+    [kind; allowed]`` on one line and its description wrapped below it, indented."""
+    import textwrap
+
     titles = section_descriptions()
     width = min(48, max(len(f"{row.key} = {_shown(row.default)}") for row in rows))
     lines = []
     for section, members in _sections(rows).items():
-        lines.append(f"[{section}]  {titles.get(section, '')}" if section else "top level: the run")
+        title = f"[{section}]  {titles.get(section, '')}" if section else "top level: the run"
+        lines += textwrap.wrap(title, columns, subsequent_indent="    ") if columns else [title]
         for row in members:
             left = f"{row.key} = {_shown(row.default)}"
             kind = f"{row.kind}; {row.allowed}" if row.allowed else row.kind
-            lines.append(f"  {left:<{width}}  [{kind}]  {row.description}")
+            line = f"  {left:<{width}}  [{kind}]  {row.description}"
+            if columns is None or len(line) <= columns:
+                lines.append(line)
+                continue
+            lines += textwrap.wrap(f"{left}  [{kind}]", columns, initial_indent="  ", subsequent_indent="      ")
+            lines += textwrap.wrap(row.description, columns, initial_indent="      ", subsequent_indent="      ")
         lines.append("")
     return "\n".join(lines)
 

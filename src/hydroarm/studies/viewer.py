@@ -307,9 +307,16 @@ def write_html(
     Opens in any browser, offline, with no server: viser's client with the recorded scene
     (timeline, play/pause); send it to a colleague. Returns the path.
     """
+    import contextlib
+    import io
+
     traj = as_trajectory(trajectory)
     the_arm = as_arm(arm, traj)
-    server = viser.ViserServer(host="127.0.0.1", port=_free_port(), verbose=False)
+    quiet = contextlib.ExitStack()  # the server only serialises the scene: no banner for the user
+    quiet.enter_context(contextlib.redirect_stdout(io.StringIO()))
+    quiet.enter_context(contextlib.redirect_stderr(io.StringIO()))
+    with quiet:
+        server = viser.ViserServer(host="127.0.0.1", port=_free_port(), verbose=False)
     try:
         scene = ArmScene(server, the_arm, reach(the_arm, np.concatenate([traj.q, traj.q_ref])))
         scene.show(traj.q[0], traj.q_ref[0])
@@ -321,7 +328,8 @@ def write_html(
             scene.show(traj.q[k], traj.q_ref[k])
         html = serializer.as_html()
     finally:
-        server.stop()
+        with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+            server.stop()
     out_path = Path(out_path)
     tmp = out_path.with_name(out_path.name + ".tmp")
     tmp.write_text(html)
