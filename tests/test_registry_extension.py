@@ -77,7 +77,9 @@ def test_a_registered_controller_drives_the_env_as_in_the_runner(toy):
     gymnasium = pytest.importorskip("gymnasium")
     from hydroarm.envs.underwater_arm import ControllerPolicy
 
-    env = gymnasium.make("hydroarm.envs:hydroarm/UnderwaterArm-v0", duration=0.3, noise_variance=1e-3)
+    env = gymnasium.make(
+        "hydroarm.envs:hydroarm/UnderwaterArm-v0", duration=0.3, noise_variance=1e-3, action_mode="torque"
+    )
     policy = ControllerPolicy.from_name("toy-ct", env)
     obs, _ = env.reset(seed=4)
     torques = []

@@ -47,9 +47,10 @@ def test_quick_reproduction_writes_everything(quick_run):
         assert (quick_run / name).is_file(), name
         assert (quick_run / name).stat().st_size > 0, name
     runs = sorted((quick_run / "runs").glob("*.npz"))
-    # the paper's 3 controllers and the 4 extra rows (hydroarm's best, 3 behind the Kalman filter),
-    # clean and noisy x 2 seeds, and the dry-arm bound (clean + 2 noisy)
-    assert len(runs) == (3 + 4) * (1 + 2) + 1 + 2
+    # the paper's 3 controllers and the 10 extra rows (hydroarm's best, the paper's 3 behind the
+    # Kalman filter, IDMPC alone and with the 4 observers, PI-IDMPC), clean and noisy x 2 seeds,
+    # and the dry-arm bound (clean + 2 noisy)
+    assert len(runs) == (3 + 10) * (1 + 2) + 1 + 2
 
 
 def test_tables_carry_hydroarms_best_beside_the_paper_rows(quick_run):

@@ -100,7 +100,7 @@ def run(
     With --vehicle (or vehicle.name in the settings), the arm works on the vehicle while the
     vehicle holds station: --controller is the arm's, the station keeper is
     vehicle.control.kind (pid or mpc), and metrics.json adds the station-keeping metrics.
-    Example: hydroarm run --vehicle bluerov2-heavy --set vehicle.control.kind=mpc --set duration=5 --out DIR
+    Example: hydroarm run --vehicle bluerov2-heavy --set vehicle.control.kind=mpc --set duration=5 --out VEHICLE_DIR
     """
     import numpy as np
 
