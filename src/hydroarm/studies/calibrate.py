@@ -1,0 +1,229 @@
+"""Calibrate a vehicle + arm from its logs: least squares on the replayed attitude error.
+
+The parameters (:data:`PARAMETERS`) are changes to the vehicle file: offsets of its centre of
+buoyancy and of gravity (m, start 0), and scales of its buoyancy, damping and added mass (start
+1). The residuals are the simulated minus the IMU's roll and pitch (deg) on the replay grid of
+every training trial, each trial weighted by 1/sqrt(its samples) (so every trial counts alike
+and the cost is the sum of the trials' mean squared errors). ``scipy.optimize.least_squares``
+(trust-region reflective, bounds; forward differences with steps of ``diff_step`` times
+max(1, |x|), which work at zero) fits them. The uncertainty of each parameter is the formal
+standard error ``sqrt(diag(s^2 (J^T J)^-1))``, s^2 the residual variance: it treats the samples
+as independent, which the quasi-static attitude's are not, so it is a lower bound.
+
+The calibrated vehicle file (TOML, what ``--vehicle`` reads) is the input file with the fitted
+changes applied.
+"""
+
+from __future__ import annotations
+
+import time as clock
+import warnings
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from hydroarm.config import ConfigError
+from hydroarm.model.vehicle import VehicleSpec
+from hydroarm.sim.files import atomic_write
+from hydroarm.sim.logs import load_trial
+from hydroarm.studies.replay import ReplayConfig, build_system, measured, simulate
+
+PARAMETERS: dict[str, tuple[str, float, float, float]] = {
+    # name: (what, start, lower, upper)
+    "cb_x": ("offset of the centre of buoyancy along x (m)", 0.0, -0.05, 0.05),
+    "cb_y": ("offset of the centre of buoyancy along y (m)", 0.0, -0.05, 0.05),
+    "cb_z": ("offset of the centre of buoyancy along z (m)", 0.0, -0.05, 0.05),
+    "cg_x": ("offset of the centre of gravity along x (m)", 0.0, -0.05, 0.05),
+    "cg_y": ("offset of the centre of gravity along y (m)", 0.0, -0.05, 0.05),
+    "cg_z": ("offset of the centre of gravity along z (m)", 0.0, -0.05, 0.05),
+    "buoyancy_scale": ("scale of the hull's displaced volume (-)", 1.0, 0.8, 1.2),
+    "rotational_damping_scale": ("scale of the K M N damping, linear and quadratic (-)", 1.0, 0.05, 20.0),
+    "translational_damping_scale": ("scale of the X Y Z damping, linear and quadratic (-)", 1.0, 0.05, 20.0),
+    "added_mass_scale": ("scale of the added mass (-)", 1.0, 0.0, 10.0),
+}
+"""The calibratable parameters of a vehicle file: what, start value, bounds."""
+
+
+def check_parameters(names: list[str]) -> list[str]:
+    """The parameter names (``vehicle.`` prefix optional), checked; ConfigError naming the bad one."""
+    out = []
+    for raw in names:
+        name = raw.strip().removeprefix("vehicle.")
+        if name not in PARAMETERS:
+            raise ConfigError(f"--params {raw!r}: unknown parameter; allowed: {', '.join(PARAMETERS)}")
+        if name in out:
+            raise ConfigError(f"--params {raw!r}: given twice")
+        out.append(name)
+    if not out:
+        raise ConfigError(f"--params: give at least one of {', '.join(PARAMETERS)}")
+    return out
+
+
+def apply_parameters(spec: VehicleSpec, values: dict[str, float]) -> VehicleSpec:
+    """The vehicle file with the parameters' values applied (module docstring)."""
+    data = spec.model_dump(by_alias=True)
+    for name, value in values.items():
+        if name[:3] in ("cb_", "cg_"):
+            data[name[:2]]["xyz".index(name[3])] += float(value)
+        elif name == "buoyancy_scale":
+            data["displaced_volume"] *= float(value)
+        elif name in ("rotational_damping_scale", "translational_damping_scale"):
+            part = slice(3, 6) if name.startswith("rotational") else slice(0, 3)
+            for key in ("linear_damping", "quadratic_damping"):
+                row = list(data[key])
+                row[part] = [float(value) * x for x in row[part]]
+                data[key] = row
+        elif name == "added_mass_scale":
+            added = np.asarray(data["added_mass"], dtype=float) * float(value)
+            data["added_mass"] = added.tolist()
+        else:  # pragma: no cover - names are checked
+            raise ConfigError(f"unknown parameter {name!r}")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        return VehicleSpec.model_validate(data)
+
+
+# --- the residuals, in worker processes -------------------------------------------------
+
+_STATE: dict[str, Any] = {}
+
+
+def _init(spec: VehicleSpec, arm: Any, config: ReplayConfig) -> None:
+    _STATE.update(spec=spec, config=config, logs={}, measured={})
+    _STATE["arm"] = build_system(spec, arm).arm
+
+
+def _residual(task: tuple[str, dict[str, float]]) -> np.ndarray:
+    path, values = task
+    arm = _STATE["arm"]
+    names = tuple(arm.model.names[1:])
+    if path not in _STATE["logs"]:
+        _STATE["logs"][path] = load_trial(path, names)
+    log = _STATE["logs"][path]
+    uvms = build_system(apply_parameters(_STATE["spec"], values), arm)
+    time, rpy = simulate(log, uvms, _STATE["config"])
+    if path not in _STATE["measured"]:
+        _STATE["measured"][path] = measured(log, time, _STATE["config"])[0]
+    imu = _STATE["measured"][path]
+    error = np.degrees(rpy[:, :2] - imu[:, :2])
+    return error.ravel() / np.sqrt(error.shape[0])
+
+
+@dataclass
+class Calibration:
+    """A fit: ``values`` and ``uncertainty`` (1 sigma) per parameter, ``cost`` (sum of the
+    training trials' mean squared roll and pitch errors, deg^2), ``seconds`` the fit's wall time."""
+
+    names: list[str]
+    values: dict[str, float]
+    uncertainty: dict[str, float]
+    cost: float
+    initial_cost: float
+    evaluations: int
+    seconds: float
+    status: str
+
+
+def calibrate(
+    paths: list[Path],
+    spec: VehicleSpec,
+    arm: Any,
+    names: list[str],
+    config: ReplayConfig | None = None,
+    workers: int = 2,
+    diff_step: float = 1e-3,
+    max_evaluations: int = 60,
+) -> Calibration:
+    """Fit ``names`` on the logs ``paths`` (module docstring)."""
+    config = config or ReplayConfig()
+    names = check_parameters(names)
+    start = np.array([PARAMETERS[n][1] for n in names])
+    lower = np.array([PARAMETERS[n][2] for n in names])
+    upper = np.array([PARAMETERS[n][3] for n in names])
+    keys = [str(p) for p in paths]
+    began = clock.perf_counter()
+    pool = ProcessPoolExecutor(workers, initializer=_init, initargs=(spec, arm, config)) if workers > 1 else None
+    if pool is None:
+        _init(spec, arm, config)
+    count = [0]
+
+    def residuals(x: np.ndarray) -> np.ndarray:
+        count[0] += 1
+        values = dict(zip(names, (float(v) for v in x), strict=True))
+        tasks = [(key, values) for key in keys]
+        parts = list(pool.map(_residual, tasks)) if pool is not None else [_residual(t) for t in tasks]
+        return np.concatenate(parts)
+
+    try:
+        initial = residuals(start)
+        fit = least_squares(
+            residuals, start, bounds=(lower, upper), method="trf", diff_step=diff_step, max_nfev=max_evaluations,
+            x_scale=np.where(np.abs(upper - lower) < 0.2, 0.01, 1.0),
+        )  # fmt: skip
+    finally:
+        if pool is not None:
+            pool.shutdown()
+    m, p = fit.fun.size, len(names)
+    jtj = fit.jac.T @ fit.jac
+    variance = 2.0 * fit.cost / max(m - p, 1)
+    try:
+        covariance = np.linalg.inv(jtj) * variance
+        sigma = np.sqrt(np.clip(np.diag(covariance), 0.0, None))
+    except np.linalg.LinAlgError:
+        sigma = np.full(p, np.nan)
+    return Calibration(
+        names=names,
+        values=dict(zip(names, (float(v) for v in fit.x), strict=True)),
+        uncertainty=dict(zip(names, (float(s) for s in sigma), strict=True)),
+        cost=float(2.0 * fit.cost),
+        initial_cost=float(initial @ initial),
+        evaluations=int(count[0]),
+        seconds=clock.perf_counter() - began,
+        status=str(fit.message),
+    )
+
+
+def write_calibrated_vehicle(path: Path, spec: VehicleSpec, calibration: Calibration, sources: list[str]) -> None:
+    """The calibrated vehicle file (TOML) with a header saying what was fitted on what."""
+    calibrated = apply_parameters(spec, calibration.values)
+    data = calibrated.model_dump(by_alias=True, exclude_none=True)
+    data["name"] = f"{spec.name}-calibrated"
+    lines = [f"# {spec.name} calibrated by hydroarm calibrate on {len(sources)} logs: {', '.join(sources)}"]
+    for name in calibration.names:
+        lines.append(
+            f"# {name} = {calibration.values[name]:.6g} +- {calibration.uncertainty[name]:.2g} ({PARAMETERS[name][0]})"
+        )
+    lines.append(f"# cost (sum of the trials' mean squared roll and pitch errors): {calibration.cost:.4g} deg^2")
+    atomic_write(path, "\n".join(lines) + "\n" + to_toml(data))
+
+
+def _value(value: Any) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, str):
+        return '"' + value.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(_value(v) for v in value) + "]"
+    return repr(float(value)) if isinstance(value, float) else repr(value)
+
+
+def to_toml(data: dict[str, Any]) -> str:
+    """A vehicle file's dict as TOML: scalars and lists, then tables, then arrays of tables."""
+    plain = {k: v for k, v in data.items() if not isinstance(v, dict) and not _tables(v)}
+    lines = [f"{k} = {_value(v)}" for k, v in plain.items()]
+    for key, value in data.items():
+        if isinstance(value, dict):
+            lines += ["", f"[{key}]"] + [f"{k} = {_value(v)}" for k, v in value.items() if v is not None]
+    for key, value in data.items():
+        if _tables(value):
+            for row in value:
+                lines += ["", f"[[{key}]]"] + [f"{k} = {_value(v)}" for k, v in row.items() if v is not None]
+    return "\n".join(lines) + "\n"
+
+
+def _tables(value: Any) -> bool:
+    return isinstance(value, list) and bool(value) and all(isinstance(v, dict) for v in value)
