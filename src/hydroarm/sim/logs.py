@@ -63,7 +63,7 @@ class CleaningConfig(FrozenModel):
         0.02, gt=0.0, le=10.0, description="rad: a sample farther than this from its neighbours' median is dropped"
     )
     smoothing: float | None = pydantic.Field(
-        1e-3,
+        1e-2,
         gt=0.0,
         le=1e6,
         description="penalty lambda of the joints' smoothing spline (s^3 scale; None: generalised cross-validation)",
@@ -183,9 +183,16 @@ def load_csv_trial(path: str | Path, joint_names: tuple[str, ...] | None = None)
     if not joints_path.is_file():
         raise LogError(f"{joints_path}: no such file (a trial is <trial>_joint_states.csv, _imu.csv, _mocap.csv)")
     joints = _read_csv(joints_path, ("time_secs",))
-    names = joint_names or tuple(c[: -len("_pos")] for c in joints if c.endswith("_pos"))
-    if not names:
+    logged = tuple(c[: -len("_pos")] for c in joints if c.endswith("_pos"))
+    if not logged:
         raise LogError(f"{joints_path}: no <joint>_pos column (the header has {', '.join(joints)})")
+    names = joint_names or logged
+    missing = [n for n in names if n not in logged]
+    if missing:
+        raise LogError(
+            f"{joints_path}: {len(logged)} joints logged ({', '.join(logged)}) but the arm has {len(names)} "
+            f"({', '.join(names)}): no column {', '.join(m + '_pos' for m in missing)}"
+        )
     joints = _read_csv(joints_path, ("time_secs", *(f"{n}_pos" for n in names)))
     time = joints["time_secs"]
     position = np.column_stack([joints[f"{n}_pos"] for n in names])
@@ -297,6 +304,25 @@ class JointSplines:
         a = np.stack([d(clipped) for d in self.second], axis=-1)
         mask = inside[..., None] if t.ndim else inside
         return q, np.where(mask, v, 0.0), np.where(mask, a, 0.0)
+
+    def tabulate(self, start: float, step: float, count: int) -> GridMotion:
+        """The same motion sampled once at ``start + k step`` (k < count): a fast ``sample``."""
+        return GridMotion(self, start, step, *self.sample(start + step * np.arange(count)))
+
+
+class GridMotion:
+    """A motion tabulated on a uniform grid (:meth:`JointSplines.tabulate`); ``sample`` at a grid
+    time is a lookup, elsewhere the splines'."""
+
+    def __init__(self, motion: JointSplines, start: float, step: float, q, v, a):
+        self.motion, self.start, self.step = motion, start, step
+        self.q, self.v, self.a = q, v, a
+
+    def sample(self, t: float):
+        k = round((t - self.start) / self.step)
+        if 0 <= k < self.q.shape[0] and abs(t - self.start - k * self.step) <= 1e-6 * self.step:
+            return self.q[k], self.v[k], self.a[k]
+        return self.motion.sample(t)
 
 
 def joint_motion(log: TrialLog, config: CleaningConfig | None = None) -> JointSplines:

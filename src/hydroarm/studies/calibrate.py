@@ -16,6 +16,7 @@ changes applied.
 
 from __future__ import annotations
 
+import os
 import time as clock
 import warnings
 from concurrent.futures import ProcessPoolExecutor
@@ -29,7 +30,7 @@ from scipy.optimize import least_squares
 from hydroarm.config import ConfigError
 from hydroarm.model.vehicle import VehicleSpec
 from hydroarm.sim.files import atomic_write
-from hydroarm.sim.logs import load_trial
+from hydroarm.sim.logs import joint_motion, load_trial
 from hydroarm.studies.replay import ReplayConfig, build_system, measured, simulate
 
 PARAMETERS: dict[str, tuple[str, float, float, float]] = {
@@ -41,8 +42,8 @@ PARAMETERS: dict[str, tuple[str, float, float, float]] = {
     "cg_y": ("offset of the centre of gravity along y (m)", 0.0, -0.05, 0.05),
     "cg_z": ("offset of the centre of gravity along z (m)", 0.0, -0.05, 0.05),
     "buoyancy_scale": ("scale of the hull's displaced volume (-)", 1.0, 0.8, 1.2),
-    "rotational_damping_scale": ("scale of the K M N damping, linear and quadratic (-)", 1.0, 0.05, 20.0),
-    "translational_damping_scale": ("scale of the X Y Z damping, linear and quadratic (-)", 1.0, 0.05, 20.0),
+    "rotational_damping_scale": ("scale of the K M N damping, linear and quadratic (-)", 1.0, 0.0, 20.0),
+    "translational_damping_scale": ("scale of the X Y Z damping, linear and quadratic (-)", 1.0, 0.0, 20.0),
     "added_mass_scale": ("scale of the added mass (-)", 1.0, 0.0, 10.0),
 }
 """The calibratable parameters of a vehicle file: what, start value, bounds."""
@@ -93,7 +94,7 @@ _STATE: dict[str, Any] = {}
 
 
 def _init(spec: VehicleSpec, arm: Any, config: ReplayConfig) -> None:
-    _STATE.update(spec=spec, config=config, logs={}, measured={})
+    _STATE.update(spec=spec, config=config, logs={}, measured={}, motions={})
     _STATE["arm"] = build_system(spec, arm).arm
 
 
@@ -103,9 +104,10 @@ def _residual(task: tuple[str, dict[str, float]]) -> np.ndarray:
     names = tuple(arm.model.names[1:])
     if path not in _STATE["logs"]:
         _STATE["logs"][path] = load_trial(path, names)
+        _STATE["motions"][path] = joint_motion(_STATE["logs"][path], _STATE["config"].cleaning)
     log = _STATE["logs"][path]
     uvms = build_system(apply_parameters(_STATE["spec"], values), arm)
-    time, rpy = simulate(log, uvms, _STATE["config"])
+    time, rpy = simulate(log, uvms, _STATE["config"], _STATE["motions"][path])
     if path not in _STATE["measured"]:
         _STATE["measured"][path] = measured(log, time, _STATE["config"])[0]
     imu = _STATE["measured"][path]
@@ -136,7 +138,8 @@ def calibrate(
     config: ReplayConfig | None = None,
     workers: int = 2,
     diff_step: float = 1e-3,
-    max_evaluations: int = 60,
+    max_evaluations: int = 30,
+    tolerance: float = 1e-4,
 ) -> Calibration:
     """Fit ``names`` on the logs ``paths`` (module docstring)."""
     config = config or ReplayConfig()
@@ -162,6 +165,7 @@ def calibrate(
         initial = residuals(start)
         fit = least_squares(
             residuals, start, bounds=(lower, upper), method="trf", diff_step=diff_step, max_nfev=max_evaluations,
+            ftol=tolerance, xtol=tolerance, gtol=tolerance,
             x_scale=np.where(np.abs(upper - lower) < 0.2, 0.01, 1.0),
         )  # fmt: skip
     finally:
@@ -192,12 +196,16 @@ def write_calibrated_vehicle(path: Path, spec: VehicleSpec, calibration: Calibra
     calibrated = apply_parameters(spec, calibration.values)
     data = calibrated.model_dump(by_alias=True, exclude_none=True)
     data["name"] = f"{spec.name}-calibrated"
+    arm = Path(data["mount"]["arm"])
+    if arm.is_absolute() and arm.is_file():  # an arm file: relative to the calibrated file, as it was
+        data["mount"]["arm"] = os.path.relpath(arm, path.absolute().parent)
     lines = [f"# {spec.name} calibrated by hydroarm calibrate on {len(sources)} logs: {', '.join(sources)}"]
     for name in calibration.names:
         lines.append(
             f"# {name} = {calibration.values[name]:.6g} +- {calibration.uncertainty[name]:.2g} ({PARAMETERS[name][0]})"
         )
     lines.append(f"# cost (sum of the trials' mean squared roll and pitch errors): {calibration.cost:.4g} deg^2")
+    path.parent.mkdir(parents=True, exist_ok=True)
     atomic_write(path, "\n".join(lines) + "\n" + to_toml(data))
 
 

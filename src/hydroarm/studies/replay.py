@@ -27,6 +27,7 @@ import pydantic
 
 from hydroarm.config import FrozenModel
 from hydroarm.model.loading import load_arm
+from hydroarm.model.plant import inner_steps
 from hydroarm.model.uvms import build_uvms
 from hydroarm.model.uvms_plant import UVMSPlantConfig
 from hydroarm.model.uvms_prescribed import PrescribedUVMSPlant
@@ -42,7 +43,9 @@ class ReplayConfig(FrozenModel):
     """How a replay runs (the physics is the vehicle and arm files')."""
 
     water_density: float = pydantic.Field(997.0, gt=0.0, le=2000.0, description="kg/m^3 (the tank's fresh water)")
-    inner_step: float = pydantic.Field(0.02, ge=1e-4, le=0.1, description="s: the vehicle's RK4 step")
+    inner_step: float = pydantic.Field(
+        0.05, ge=1e-4, le=0.1, description="s: the vehicle's longest RK4 step (the attitude is converged at 0.05)"
+    )
     output_period: float = pydantic.Field(0.05, ge=1e-3, le=1.0, description="s: the attitude.csv grid")
     rate_window: float = pydantic.Field(
         0.25, ge=0.0, le=5.0, description="s: the initial body rates are the IMU's mean over this window"
@@ -86,10 +89,11 @@ def _interp_angles(t: np.ndarray, time: np.ndarray, angles: np.ndarray) -> np.nd
     return np.column_stack([np.interp(t, time, unwrapped[:, i]) for i in range(angles.shape[1])])
 
 
-def simulate(log: TrialLog, uvms, config: ReplayConfig) -> tuple[np.ndarray, np.ndarray]:
-    """``(time (k,), simulated roll pitch yaw (k, 3))`` of one log on one system."""
+def simulate(log: TrialLog, uvms, config: ReplayConfig, motion=None) -> tuple[np.ndarray, np.ndarray]:
+    """``(time (k,), simulated roll pitch yaw (k, 3))`` of one log on one system (``motion``: the
+    log's cleaned joint motion, if already made)."""
     names = tuple(uvms.arm.model.names[1:])
-    motion = joint_motion(log.select_joints(names), config.cleaning)
+    motion = motion if motion is not None else joint_motion(log.select_joints(names), config.cleaning)
     t0 = max(float(log.joint_time[0]), float(log.imu_time[0]))
     t1 = min(float(log.joint_time[-1]), float(log.imu_time[-1]))
     first = int(np.searchsorted(log.imu_time, t0))
@@ -101,10 +105,12 @@ def simulate(log: TrialLog, uvms, config: ReplayConfig) -> tuple[np.ndarray, np.
         if window.any():
             twist[3:] = log.imu_angular_velocity[window].mean(axis=0)
     water = Water(rho=config.water_density, current={"model": "none"})
-    plant = PrescribedUVMSPlant(uvms, motion, water, UVMSPlantConfig(inner_step=config.inner_step))
-    x = plant.initial_state(t0, pose, twist)
     steps = int(math.floor((t1 - t0) / config.output_period + 1e-9))
     time = t0 + config.output_period * np.arange(steps + 1)
+    inner, h = inner_steps(config.output_period, config.inner_step)
+    grid = motion.tabulate(t0, 0.5 * h, 2 * inner * steps + 1)  # every RK4 stage time
+    plant = PrescribedUVMSPlant(uvms, grid, water, UVMSPlantConfig(inner_step=config.inner_step))
+    x = plant.initial_state(t0, pose, twist)
     rpy = np.empty((time.size, 3))
     for k in range(time.size):
         rpy[k] = pin.rpy.matrixToRpy(pin.Quaternion(x[3:7]).normalized().toRotationMatrix())
