@@ -56,6 +56,9 @@ def replay(
     arm: ArmOption = "mount",
     workers: WorkersOption = 2,
     figures: Annotated[bool, typer.Option("--figures/--no-figures", help="attitude.png per trial.")] = True,
+    bag: Annotated[
+        bool, typer.Option("--bag/--no-bag", help="Also <trial>/replay: a ROS 2 bag (MCAP) of the log and the run.")
+    ] = False,
     settings: Annotated[
         list[str] | None, typer.Option("--set", help="Replay setting key=value (hydroarm settings).")
     ] = None,
@@ -82,8 +85,10 @@ def replay(
         console.print("[yellow]interrupted[/]")
         raise typer.Exit(130) from None
     out.mkdir(parents=True, exist_ok=True)
-    for result in results:
+    for path, result in zip(paths, results, strict=True):
         write_trial(out, result, figures=figures)
+        if bag:
+            _write_run_bag(out / result.name / "replay", path, result)
     table = summary(results)
     table["vehicle"], table["arm"] = vehicle, arm
     table["settings"] = config.model_dump()
@@ -94,6 +99,20 @@ def replay(
         f"{mean['pitch_rmse_imu_deg']:.2f} deg, roll {mean['roll_rmse_imu_deg']:.2f} deg "
         f"(hold: {mean['pitch_rmse_hold_deg']:.2f}, {mean['roll_rmse_hold_deg']:.2f})"
     )
+
+
+def _write_run_bag(target: Path, log_path: Path, result) -> None:
+    import shutil
+
+    import pinocchio as pin
+
+    from hydroarm.sim.logs import load_trial
+    from hydroarm.sim.rosbag import write_bag
+
+    if target.exists():
+        shutil.rmtree(target)
+    quaternions = [pin.Quaternion(pin.rpy.rpyToMatrix(*rpy)).coeffs() for rpy in result.simulated]
+    write_bag(target, load_trial(log_path), (result.time, quaternions))
 
 
 @app.command()
