@@ -156,7 +156,7 @@ def calibrate(
         console.print("[yellow]interrupted[/]")
         raise typer.Exit(130) from None
     sources = [p.name for p in paths]
-    write_calibrated_vehicle(out, spec, result, sources)
+    write_calibrated_vehicle(out, spec, result, sources, build_system(spec, arm).arm)
     report = {
         "vehicle": vehicle,
         "arm": arm,

@@ -10,12 +10,16 @@ max(1, |x|), which work at zero) fits them. The uncertainty of each parameter is
 standard error ``sqrt(diag(s^2 (J^T J)^-1))``, s^2 the residual variance: it treats the samples
 as independent, which the quasi-static attitude's are not, so it is a lower bound.
 
+``arm_buoyancy_scale`` scales every displaced volume of the mounted arm (a URDF arm): its
+calibrated hydrodynamics file is written beside the vehicle file, which mounts it.
+
 The calibrated vehicle file (TOML, what ``--vehicle`` reads) is the input file with the fitted
 changes applied.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import time as clock
 import warnings
@@ -45,6 +49,7 @@ PARAMETERS: dict[str, tuple[str, float, float, float]] = {
     "rotational_damping_scale": ("scale of the K M N damping, linear and quadratic (-)", 1.0, 0.0, 20.0),
     "translational_damping_scale": ("scale of the X Y Z damping, linear and quadratic (-)", 1.0, 0.0, 20.0),
     "added_mass_scale": ("scale of the added mass (-)", 1.0, 0.0, 10.0),
+    "arm_buoyancy_scale": ("scale of every arm link's displaced volume (-)", 1.0, 0.0, 2.0),
 }
 """The calibratable parameters of a vehicle file: what, start value, bounds."""
 
@@ -68,6 +73,8 @@ def apply_parameters(spec: VehicleSpec, values: dict[str, float]) -> VehicleSpec
     """The vehicle file with the parameters' values applied (module docstring)."""
     data = spec.model_dump(by_alias=True)
     for name, value in values.items():
+        if name.startswith("arm_"):
+            continue  # the arm's: apply_arm_parameters
         if name[:3] in ("cb_", "cg_"):
             data[name[:2]]["xyz".index(name[3])] += float(value)
         elif name == "buoyancy_scale":
@@ -88,9 +95,45 @@ def apply_parameters(spec: VehicleSpec, values: dict[str, float]) -> VehicleSpec
         return VehicleSpec.model_validate(data)
 
 
+def apply_arm_parameters(arm, values: dict[str, float]):
+    """The arm (an :class:`~hydroarm.model.arm.Arm`) with ``arm_buoyancy_scale`` applied."""
+    scale = values.get("arm_buoyancy_scale")
+    if scale is None:
+        return arm
+    cylinders = tuple(dataclasses.replace(c, displaced_volume=c.displaced_volume * float(scale)) for c in arm.cylinders)
+    return dataclasses.replace(arm, cylinders=cylinders)
+
+
+def write_calibrated_arm(path: Path, arm_source: str, arm, scale: float) -> None:
+    """The mounted URDF arm's hydrodynamics file with every displaced volume times ``scale``."""
+    from hydroarm.model.loading import builtin_arm_path, is_urdf_source
+    from hydroarm.model.urdf_import import load_hydro_spec
+
+    if not is_urdf_source(arm_source):
+        raise ConfigError(f"arm_buoyancy_scale: the mounted arm {arm_source!r} is not a URDF arm with a hydro file")
+    source = builtin_arm_path(arm_source) if not Path(arm_source).exists() else Path(arm_source)
+    hydro = load_hydro_spec(source)
+    data = hydro.model_dump(exclude_none=True)
+    urdf = (source.parent / hydro.urdf).resolve()
+    data["urdf"] = os.path.relpath(urdf, path.absolute().parent)
+    data["name"] = f"{hydro.name or arm.name}-calibrated"
+    for link in data.get("links", []):
+        own = [c for c in arm.cylinders if c.name == link["link"] or c.name.startswith(link["link"] + "_")]
+        for cylinder in link.get("cylinders", []):
+            if "displaced_volume" in cylinder:
+                cylinder["displaced_volume"] *= scale
+        if "displaced_volume" in link or not link.get("cylinders"):
+            link["displaced_volume"] = float(sum(c.displaced_volume for c in own))  # already scaled
+    header = f"# {arm_source} with every displaced volume times {scale:.6g} (hydroarm calibrate)\n"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write(path, header + to_toml(data))
+
+
 # --- the residuals, in worker processes -------------------------------------------------
 
 _STATE: dict[str, Any] = {}
+DIVERGED = 90.0
+"""deg: the residual of every sample of a replay that diverged (the fit backs off from it)."""
 
 
 def _init(spec: VehicleSpec, arm: Any, config: ReplayConfig) -> None:
@@ -106,8 +149,14 @@ def _residual(task: tuple[str, dict[str, float]]) -> np.ndarray:
         _STATE["logs"][path] = load_trial(path, names)
         _STATE["motions"][path] = joint_motion(_STATE["logs"][path], _STATE["config"].cleaning)
     log = _STATE["logs"][path]
-    uvms = build_system(apply_parameters(_STATE["spec"], values), arm)
-    time, rpy = simulate(log, uvms, _STATE["config"], _STATE["motions"][path])
+    uvms = build_system(apply_parameters(_STATE["spec"], values), apply_arm_parameters(arm, values))
+    try:
+        time, rpy = simulate(log, uvms, _STATE["config"], _STATE["motions"][path])
+    except np.linalg.LinAlgError:  # a diverging vehicle: as bad as a residual gets, not a crash
+        time, rpy = None, None
+    if rpy is None or not np.all(np.isfinite(rpy)):
+        n = _STATE["measured"][path].shape[0] if path in _STATE["measured"] else 2
+        return np.full(2 * n, DIVERGED / np.sqrt(n))
     if path not in _STATE["measured"]:
         _STATE["measured"][path] = measured(log, time, _STATE["config"])[0]
     imu = _STATE["measured"][path]
@@ -191,11 +240,20 @@ def calibrate(
     )
 
 
-def write_calibrated_vehicle(path: Path, spec: VehicleSpec, calibration: Calibration, sources: list[str]) -> None:
-    """The calibrated vehicle file (TOML) with a header saying what was fitted on what."""
+def write_calibrated_vehicle(
+    path: Path, spec: VehicleSpec, calibration: Calibration, sources: list[str], arm=None
+) -> None:
+    """The calibrated vehicle file (TOML) with a header saying what was fitted on what (and, with
+    ``arm_buoyancy_scale``, the calibrated arm file ``<stem>.arm.hydro.toml`` beside it; ``arm``
+    the mounted :class:`~hydroarm.model.arm.Arm`)."""
     calibrated = apply_parameters(spec, calibration.values)
     data = calibrated.model_dump(by_alias=True, exclude_none=True)
     data["name"] = f"{spec.name}-calibrated"
+    if "arm_buoyancy_scale" in calibration.values:
+        arm_path = path.with_name(path.stem + ".arm.hydro.toml")
+        scale = calibration.values["arm_buoyancy_scale"]
+        write_calibrated_arm(arm_path, spec.mount.arm, apply_arm_parameters(arm, calibration.values), scale)
+        data["mount"]["arm"] = str(arm_path.absolute())
     arm = Path(data["mount"]["arm"])
     if arm.is_absolute() and arm.is_file():  # an arm file: relative to the calibrated file, as it was
         data["mount"]["arm"] = os.path.relpath(arm, path.absolute().parent)
@@ -229,7 +287,12 @@ def to_toml(data: dict[str, Any]) -> str:
     for key, value in data.items():
         if _tables(value):
             for row in value:
-                lines += ["", f"[[{key}]]"] + [f"{k} = {_value(v)}" for k, v in row.items() if v is not None]
+                lines += ["", f"[[{key}]]"]
+                lines += [f"{k} = {_value(v)}" for k, v in row.items() if v is not None and not _tables(v)]
+                for sub, rows in row.items():
+                    if _tables(rows):
+                        for inner in rows:
+                            lines += ["", f"[[{key}.{sub}]]"] + [f"{k} = {_value(v)}" for k, v in inner.items()]
     return "\n".join(lines) + "\n"
 
 
