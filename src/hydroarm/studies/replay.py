@@ -43,9 +43,7 @@ class ReplayConfig(FrozenModel):
     """How a replay runs (the physics is the vehicle and arm files')."""
 
     water_density: float = pydantic.Field(997.0, gt=0.0, le=2000.0, description="kg/m^3 (the tank's fresh water)")
-    inner_step: float = pydantic.Field(
-        0.05, ge=1e-4, le=0.1, description="s: the vehicle's longest RK4 step (the attitude is converged at 0.05)"
-    )
+    inner_step: float = pydantic.Field(0.05, ge=1e-4, le=0.1, description="s: the vehicle's longest RK4 step")
     output_period: float = pydantic.Field(0.05, ge=1e-3, le=1.0, description="s: the attitude.csv grid")
     rate_window: float = pydantic.Field(
         0.25, ge=0.0, le=5.0, description="s: the initial body rates are the IMU's mean over this window"
