@@ -66,18 +66,30 @@ def main() -> None:
     parser.add_argument("trials", type=Path)
     parser.add_argument("--out", type=Path, required=True)
     parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--arms", nargs="+", default=list(VEHICLES), choices=list(VEHICLES))
+    parser.add_argument("--params", default=None, help="comma-separated parameters for every arm (default: PARAMETERS)")
     args = parser.parse_args()
+    if args.params:
+        for arm in VEHICLES:
+            PARAMETERS[arm] = args.params.split(",")
     args.out.mkdir(parents=True, exist_ok=True)
     config = ReplayConfig()
     every = sorted(p for p in args.trials.glob("traj*_joint_states.csv") if "-test" not in p.name)
     by_name = {p.name.removesuffix("_joint_states.csv"): p for p in every}
     out: dict = {"n_trials": len(every), "settings": config.model_dump(), "arms": {}}
     for arm, vehicle_path in VEHICLES.items():
+        if arm not in args.arms:
+            continue
         spec = load_vehicle_quietly(vehicle_path)
         began = time.perf_counter()
         base = replay_many(every, spec, "mount", config, workers=args.workers)
         seconds = time.perf_counter() - began
-        record: dict = {"replay_all_seconds": seconds, "uncalibrated_all": _mean(base, set(by_name)), "splits": {}}
+        record: dict = {
+            "parameters": PARAMETERS[arm],
+            "replay_all_seconds": seconds,
+            "uncalibrated_all": _mean(base, set(by_name)),
+            "splits": {},
+        }
         record["uncalibrated_alt"] = _mean(base, set(ALT))
         print(f"{arm}: {len(every)} trials replayed in {seconds:.1f} s", flush=True)
         for split, (train, held) in SPLITS.items():
