@@ -65,7 +65,7 @@ def replay(
 ) -> None:
     """Replay each log: the vehicle's roll and pitch under the logged arm motion, from the logged
     initial attitude and rates, against the IMU and the motion capture."""
-    from hydroarm.sim.logs import find_trials
+    from hydroarm.sim.trials import find_trials
     from hydroarm.studies.outputs import dumps
     from hydroarm.studies.replay import load_vehicle_quietly, replay_many, summary, write_trial
 
@@ -106,8 +106,8 @@ def _write_run_bag(target: Path, log_path: Path, result) -> None:
 
     import pinocchio as pin
 
-    from hydroarm.sim.logs import load_trial
     from hydroarm.sim.rosbag import write_bag
+    from hydroarm.sim.trials import load_trial
 
     if target.exists():
         shutil.rmtree(target)
@@ -132,7 +132,7 @@ def calibrate(
     """Fit the chosen parameters of the vehicle file on the given (training) logs by least squares
     on the roll and pitch error against the IMU; write the calibrated vehicle file and, beside it,
     <out>.json (each parameter with its uncertainty, the residual)."""
-    from hydroarm.sim.logs import find_trials, load_trial
+    from hydroarm.sim.trials import find_trials, load_trial
     from hydroarm.studies.calibrate import calibrate as fit
     from hydroarm.studies.calibrate import check_parameters, write_calibrated_vehicle
     from hydroarm.studies.outputs import dumps

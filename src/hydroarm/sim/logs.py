@@ -10,7 +10,8 @@ The CSV layout (the Hinsdale 2023 dataset's, one file per stream beside each oth
 ``<trial>_joint_states.csv`` with ``time_secs`` and ``<joint>_pos`` (and ``<joint>_vel``)
 columns, ``<trial>_imu.csv`` with ``time_secs, x_ori, y_ori, z_ori, w_ori`` (and the angular
 velocity ``x_angvel..``), ``<trial>_mocap.csv`` with ``time_secs, x_ori..w_ori``. ROS 2 bags
-(:mod:`hydroarm.sim.rosbag`) give the same :class:`TrialLog`.
+(:mod:`hydroarm.sim.rosbag`) give the same :class:`TrialLog`; :mod:`hydroarm.sim.trials` reads
+either.
 
 Cleaning (:class:`CleaningConfig`, settings with defaults): the joints' republished readings
 (the same value repeated until the next reading) are reduced to the readings themselves; a
@@ -226,35 +227,6 @@ def load_csv_trial(path: str | Path, joint_names: tuple[str, ...] | None = None)
         mocap_quaternion=mocap_quaternion,
         source=str(joints_path),
     )
-
-
-def find_trials(paths: list[str | Path]) -> list[Path]:
-    """The trials named by ``paths``: a ``*_joint_states.csv`` file, a ROS 2 bag (``.mcap`` /
-    ``.db3`` file or a bag folder with ``metadata.yaml``), or a folder of ``*_joint_states.csv``."""
-    found: list[Path] = []
-    for raw in paths:
-        path = Path(raw)
-        if path.is_dir() and not (path / "metadata.yaml").is_file():
-            trials = sorted(path.glob("*_joint_states.csv")) + sorted(path.glob("*.mcap"))
-            if not trials:
-                raise LogError(f"{path}: no *_joint_states.csv or *.mcap log in this folder")
-            found.extend(trials)
-        elif path.exists():
-            found.append(path)
-        else:
-            raise LogError(f"{path}: no such file or folder")
-    return found
-
-
-def load_trial(path: str | Path, joint_names: tuple[str, ...] | None = None) -> TrialLog:
-    """A trial from a CSV trial or a ROS 2 bag (:func:`find_trials` says which)."""
-    path = Path(path)
-    if path.suffix in (".mcap", ".db3") or (path.is_dir() and (path / "metadata.yaml").is_file()):
-        from hydroarm.sim.rosbag import read_bag
-
-        log = read_bag(path)
-        return log.select_joints(joint_names) if joint_names else log
-    return load_csv_trial(path, joint_names)
 
 
 # --- cleaning -----------------------------------------------------------------------

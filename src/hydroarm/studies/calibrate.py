@@ -34,7 +34,8 @@ from scipy.optimize import least_squares
 from hydroarm.config import ConfigError
 from hydroarm.model.vehicle import VehicleSpec
 from hydroarm.sim.files import atomic_write
-from hydroarm.sim.logs import joint_motion, load_trial
+from hydroarm.sim.logs import joint_motion
+from hydroarm.sim.trials import load_trial
 from hydroarm.studies.replay import ReplayConfig, build_system, measured, simulate
 
 PARAMETERS: dict[str, tuple[str, float, float, float]] = {

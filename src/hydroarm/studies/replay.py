@@ -34,7 +34,8 @@ from hydroarm.model.uvms_prescribed import PrescribedUVMSPlant
 from hydroarm.model.vehicle import VehicleSpec, build_vehicle, load_vehicle_spec
 from hydroarm.model.water import Water
 from hydroarm.sim.files import atomic_write
-from hydroarm.sim.logs import CleaningConfig, TrialLog, clean_attitude, joint_motion, load_trial, roll_pitch_yaw
+from hydroarm.sim.logs import CleaningConfig, TrialLog, clean_attitude, joint_motion, roll_pitch_yaw
+from hydroarm.sim.trials import load_trial
 
 AXES = ("roll", "pitch")
 
