@@ -194,3 +194,13 @@ def test_tested_arm_weighs_its_published_weight():
     volume = sum(c.displaced_volume for c in arm.cylinders)
     assert mass == pytest.approx(1.462)
     assert mass - 997.0 * volume == pytest.approx(0.84, abs=0.005)
+
+
+def test_a_passive_vehicle_cannot_keep_station():
+    from hydroarm.sim.experiment import ExperimentConfig, build_experiment
+
+    config = ExperimentConfig.model_validate({"vehicle": {"name": str(VEHICLE)}})
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        with pytest.raises(ConfigError, match="passive vehicle"):
+            build_experiment(config, "pid")

@@ -444,6 +444,11 @@ def _build_vehicle_experiment(config: ExperimentConfig, controller: str | None, 
         raise ConfigError(f"vehicle.name = {vehicle.name!r} with arm = {config.arm!r}: {error}") from None
     if uvms.arm is None:
         raise ConfigError(f"arm = {config.arm!r}: a vehicle run needs an arm on the vehicle")
+    if uvms.vehicle.n_thrusters == 0:
+        raise ConfigError(
+            f"vehicle.name = {vehicle.name!r}: a passive vehicle (thrusters = []) cannot keep station; "
+            "give a vehicle with thrusters, or replay its logs (hydroarm replay)"
+        )
     n = uvms.n_arm
     if len(vehicle.home) != n:
         raise ConfigError(
