@@ -150,7 +150,7 @@ def test_cli_lists_vehicles_and_rejects_bad_vehicle_files(tmp_path):
     cases = {
         "mass": text.replace("mass = 13.5 ", "mass = -1.0 "),
         "allocation": text.replace("[hull]", "allocation = [[1, 2, 3], [1, 2, 3]]\n\n[hull]"),
-        "mount.position": text.replace("position = [0.2, 0.0, -0.12]", "position = [0.2, 0.0, -0.5]"),
+        "ballast.0.mass": text + "\n[[ballast]]\nmass = 0.0\nvolume = 1e-4\nposition = [0.0, 0.0, 0.0]\n",
         "thrusters.4.axis": text.replace("axis = [0.0, 0.0, 1.0]", "axis = [0.0, 0.0, 0.0]", 1),
     }
     for field, content in cases.items():

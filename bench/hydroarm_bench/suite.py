@@ -14,6 +14,7 @@ from hydroarm_bench.markdown import render_markdown
 from hydroarm_bench.mpc_peers import bench_mpc_peers
 from hydroarm_bench.plant import bench_plant
 from hydroarm_bench.profiling import profile_closed_loop
+from hydroarm_bench.replay import bench_replay, render_replay
 from hydroarm_bench.report import assemble, json_default, target_status
 from hydroarm_bench.scaling import bench_scaling
 from hydroarm_bench.stats import limit_threads
@@ -39,6 +40,7 @@ def run_benchmarks(out_dir: Path, quick: bool = False) -> dict:
         uvms = bench_uvms(quick)
         viewer = bench_viewer(quick)
         envs = bench_envs(quick)
+        replay = bench_replay(quick)
     finally:
         if limiter is not None:
             limiter.unregister()
@@ -47,11 +49,16 @@ def run_benchmarks(out_dir: Path, quick: bool = False) -> dict:
     report["uvms"] = uvms
     report["viewer"] = viewer
     report["envs"] = envs
+    report["replay"] = replay
     report["target_status"] = target_status(report)  # again, with the vehicle and viewer sections
     report["suite_wall_s"] = time.perf_counter() - started
     report = json.loads(json.dumps(report, default=json_default))  # plain JSON types only
     (out_dir / "bench.json").write_text(json.dumps(report, indent=2) + "\n")
     (out_dir / "bench.md").write_text(
-        render_markdown(report) + render_uvms(report["uvms"]) + render_viewer(report["viewer"]) + render_envs(envs)
+        render_markdown(report)
+        + render_uvms(report["uvms"])
+        + render_viewer(report["viewer"])
+        + render_envs(envs)
+        + render_replay(report["replay"])
     )
     return report

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Annotated, Self
+from typing import Annotated, Literal, Self
 
 import numpy as np
 import pydantic
@@ -88,11 +88,20 @@ class LinkHydroSpec(FrozenModel):
     displaced_volume: Volume | None = pydantic.Field(
         None, description="m^3 for the whole link; default: the cylinders' volume"
     )
+    buoyancy_center: Vector3 | None = pydantic.Field(
+        None,
+        description="m, link frame: the link's whole displaced_volume acts here as one point, independent "
+        "of its wetted cylinders (which then keep their drag and added mass only); default: each cylinder's midpoint",
+    )
 
     @pydantic.model_validator(mode="after")
     def _check(self) -> Self:
+        if self.buoyancy_center is not None and self.displaced_volume is None:
+            raise field_error(
+                "displaced_volume", None, "a buoyancy_center needs the link's displaced_volume (m^3) beside it"
+            )
         if self.collision is False or self.collision == []:
-            if not self.cylinders:
+            if not self.cylinders and self.buoyancy_center is None:
                 raise field_error("collision", self.collision, "no cylinders: set collision = true or give cylinders")
         return self
 
@@ -110,6 +119,14 @@ class HydroSpec(FrozenModel):
     )
     fixed_joints: dict[str, Annotated[float, pydantic.Field(ge=-100.0, le=100.0)]] = pydantic.Field(
         default_factory=dict, description="joint name -> locked position (rad or m)"
+    )
+    joint_offsets: dict[str, Annotated[float, pydantic.Field(ge=-10.0, le=10.0)]] = pydantic.Field(
+        default_factory=dict,
+        description="joint name -> zero offset o (rad): the URDF's angle is sign * (q - o), q the arm's (the "
+        "encoder's) angle",
+    )
+    joint_signs: dict[str, Literal[1, -1]] = pydantic.Field(
+        default_factory=dict, description="joint name -> sign (+1 or -1) of the arm's angle against the URDF's"
     )
     all_collision_cylinders: bool = False
     links: list[LinkHydroSpec] = pydantic.Field(default_factory=list, max_length=64)

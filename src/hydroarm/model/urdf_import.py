@@ -11,6 +11,8 @@ which parts of which links the water acts on::
     torque_limit = [20.0, 20.0, 10.0]   # N m, optional: default the URDF <limit effort>
     fixed_joints = { gripper = 0.0 }    # lock joints (e.g. a prismatic jaw) at a position
     all_collision_cylinders = false     # true: every <collision> cylinder of every link is wet
+    joint_offsets = { wrist = 2.879 }   # rad: the URDF angle is sign * (q - offset), q the encoder's
+    joint_signs = { elbow = -1 }        # +1 (default) or -1
 
     [[links]]
     link = "upper_arm"                  # a URDF link name
@@ -18,6 +20,7 @@ which parts of which links the water acts on::
     cd = 1.0                            # Morison drag coefficient (default: Water.cd)
     cm = 2.0                            # added-mass coefficient (default: Water.cm)
     displaced_volume = 1.2e-3           # m^3 for the whole link (default: the cylinders' volume)
+    buoyancy_center = [0.1, 0.0, 0.0]   # optional (m, link frame): the volume acts here, as a point
 
     [[links]]
     link = "forearm"
@@ -32,7 +35,12 @@ Only revolute (and continuous) joints may move: the water kernel handles
 revolute joints only, so any other joint (a prismatic jaw) must be listed in
 ``fixed_joints``. A continuous joint becomes a revolute joint with no position
 limit (``position_limit`` = +-inf). A link's ``displaced_volume`` is split
-over its cylinders in proportion to their volumes.
+over its cylinders in proportion to their volumes; with a ``buoyancy_center`` it acts at that
+point instead (a buoyancy-only element: no drag, no added mass) and the cylinders carry none.
+
+A joint's zero offset o and sign s make the arm's angle q the encoder's: the URDF's angle is
+s (q - o). They are applied to the URDF before Pinocchio reads it, exactly: the joint's origin
+becomes origin * R(axis, -s o), its axis s * axis, and its limits s * limit + o.
 
 Every wetted cylinder ends up as a :class:`~hydroarm.model.arm.WettedCylinder` in
 the body frame of the Pinocchio joint that carries the link: a URDF link hung
@@ -55,6 +63,9 @@ import pinocchio as pin
 from hydroarm.config import ConfigError, not_a_file, read_mapping, shown, validate
 from hydroarm.model.arm import Arm, WettedCylinder
 from hydroarm.model.hydro_spec import HYDRO_SUFFIXES, REVOLUTE_JOINTS, HydroSpec, LinkHydroSpec
+
+POINT_LENGTH = 1e-6
+"""m: length and diameter of a buoyancy-only element (no drag, no added mass: C_d = C_m = 0)."""
 
 __all__ = ["HydroSpec", "LinkHydroSpec", "arm_from_urdf", "hydro_spec_of", "load_hydro_spec", "load_urdf_arm"]
 
@@ -98,12 +109,50 @@ def urdf_collision_cylinders(root: ET.Element) -> dict[str, list[tuple[int, pin.
     return out
 
 
-def _prepare_urdf(root: ET.Element, fixed: dict[str, float], source: str) -> tuple[str, set[str]]:
-    """Rewrite continuous joints as revolute (placeholder limits); check joint types.
+def _apply_offset(joint: ET.Element, offset: float, sign: int) -> None:
+    """Re-zero and re-sign a revolute joint in place (module docstring)."""
+    axis_element = joint.find("axis")
+    axis = _floats(axis_element.get("xyz") if axis_element is not None else None, 3, 0.0)
+    if axis_element is None:
+        axis = np.array([1.0, 0.0, 0.0])
+        axis_element = ET.SubElement(joint, "axis")
+    unit = axis / np.linalg.norm(axis)
+    origin = _origin(joint.find("origin")) * pin.SE3(pin.exp3(-sign * offset * unit), np.zeros(3))
+    element = joint.find("origin")
+    if element is None:
+        element = ET.SubElement(joint, "origin")
+    element.set("xyz", " ".join(repr(float(x)) for x in origin.translation))
+    element.set("rpy", " ".join(repr(float(x)) for x in pin.rpy.matrixToRpy(origin.rotation)))
+    axis_element.set("xyz", " ".join(repr(float(x)) for x in sign * axis))
+    limit = joint.find("limit")
+    if limit is not None and limit.get("lower") is not None and limit.get("upper") is not None:
+        bounds = sorted(sign * float(limit.get(key)) + offset for key in ("lower", "upper"))
+        limit.set("lower", repr(bounds[0]))
+        limit.set("upper", repr(bounds[1]))
+
+
+def _prepare_urdf(
+    root: ET.Element,
+    fixed: dict[str, float],
+    source: str,
+    offsets: dict[str, float] | None = None,
+    signs: dict[str, int] | None = None,
+) -> tuple[str, set[str]]:
+    """Rewrite continuous joints as revolute (placeholder limits); apply the joints' zero
+    offsets and signs; check joint types.
 
     Returns the URDF text for Pinocchio and the names of the continuous joints.
     """
     joints = {joint.get("name"): joint for joint in root.findall("joint")}
+    offsets, signs = offsets or {}, signs or {}
+    for field, names in (("joint_offsets", offsets), ("joint_signs", signs)):
+        for name in names:
+            if name not in joints or joints[name].get("type") not in ("revolute", "continuous"):
+                movable = [n for n, j in joints.items() if j.get("type") in ("revolute", "continuous")]
+                raise ConfigError(
+                    f"{source}: {field}.{name}: no revolute joint {name!r} in the URDF: "
+                    f"give one of {', '.join(movable)}"
+                )
     for name in fixed:
         if name not in joints:
             raise ConfigError(
@@ -120,7 +169,9 @@ def _prepare_urdf(root: ET.Element, fixed: dict[str, float], source: str) -> tup
                 limit = ET.SubElement(joint, "limit", effort="0", velocity="0")
             limit.set("lower", repr(-math.pi))
             limit.set("upper", repr(math.pi))
-        elif kind in ("revolute", "fixed"):
+        if kind in ("revolute", "continuous") and (name in offsets or name in signs):
+            _apply_offset(joint, offsets.get(name, 0.0), signs.get(name, 1))
+        if kind in ("revolute", "fixed", "continuous"):
             continue
         elif name not in fixed:
             raise ConfigError(
@@ -150,7 +201,7 @@ def arm_from_urdf(urdf_xml: str, hydro: HydroSpec | dict | None = None, source: 
     if root.tag != "robot":
         raise ConfigError(f"URDF: the root element is <{root.tag}>, not <robot>")
     collisions = urdf_collision_cylinders(root)
-    prepared, continuous = _prepare_urdf(root, hydro.fixed_joints, source)
+    prepared, continuous = _prepare_urdf(root, hydro.fixed_joints, source, hydro.joint_offsets, hydro.joint_signs)
     try:
         model = pin.buildModelFromXML(prepared)
     except (RuntimeError, ValueError) as error:
@@ -266,8 +317,23 @@ def _wetted_cylinders(model: pin.Model, hydro: HydroSpec, collisions: dict, sour
         for cylinder in spec.cylinders:
             start, end = cylinder.endpoints()
             pieces.append((start, end, cylinder.diameter, cylinder.cd, cylinder.cm, cylinder.displaced_volume))
-        volumes = _split_volumes(pieces, spec.displaced_volume, where)
+        point = spec.buoyancy_center is not None
+        volumes = np.zeros(len(pieces)) if point else _split_volumes(pieces, spec.displaced_volume, where)
         placement = frame.placement
+        if point:
+            centre = np.asarray(spec.buoyancy_center, dtype=float)
+            out.append(
+                WettedCylinder(
+                    name=f"{spec.link}_buoyancy",
+                    joint_id=int(frame.parentJoint),
+                    start=placement.act(centre - [POINT_LENGTH / 2, 0.0, 0.0]),
+                    end=placement.act(centre + [POINT_LENGTH / 2, 0.0, 0.0]),
+                    diameter=POINT_LENGTH,
+                    displaced_volume=float(spec.displaced_volume),
+                    cd=0.0,
+                    cm=0.0,
+                )
+            )
         for k, ((start, end, diameter, cd, cm, _), volume) in enumerate(zip(pieces, volumes, strict=True)):
             out.append(
                 WettedCylinder(

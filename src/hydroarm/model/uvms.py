@@ -235,7 +235,7 @@ def floating_water_terms(
 
 
 @numba.njit(cache=True)
-def uvms_acceleration_kernel(
+def uvms_system_kernel(
     q, v, tau, thrust, water_velocity, mass_upper, nonlinear, jac, djac,
     allocation, added_mass, linear_damping, quadratic_damping, buoyancy, cb,
     root_rows, body_rotation, body_translation,
@@ -243,12 +243,9 @@ def uvms_acceleration_kernel(
     joint_ids, start, axis, length, support, drag_per_length, mass_per_length, buoyancy_force,
     nodes, weights, use_drag, use_added_mass, use_buoyancy, has_strips,
 ):  # fmt: skip  # pragma: no cover - compiled
-    """v' (nv,) of the floating system (see the module docstring).
-
-    ``tau`` (nv,): generalised force besides the water and thrusters (zero on the base, the
-    arm's joint torques); ``thrust`` (n_thr,) thruster forces (N) after saturation;
-    ``mass_upper``, ``nonlinear``: Pinocchio's CRBA (upper triangle) and NLE at (q, v).
-    """
+    """The floating system's equations of motion ``(mass (nv, nv), rhs (nv,))``: ``mass v' = rhs``
+    with the water's added mass in ``mass`` and every other force in ``rhs`` (arguments as
+    :func:`uvms_acceleration_kernel`)."""
     nv = v.shape[0]
     mass = np.empty((nv, nv))
     for a in range(nv):
@@ -277,6 +274,32 @@ def uvms_acceleration_kernel(
         if use_added_mass:
             for j in range(6):
                 mass[i, j] += added_mass[i, j]
+    return mass, rhs
+
+
+@numba.njit(cache=True)
+def uvms_acceleration_kernel(
+    q, v, tau, thrust, water_velocity, mass_upper, nonlinear, jac, djac,
+    allocation, added_mass, linear_damping, quadratic_damping, buoyancy, cb,
+    root_rows, body_rotation, body_translation,
+    parents, placement_rotation, placement_translation, axes, idx_v,
+    joint_ids, start, axis, length, support, drag_per_length, mass_per_length, buoyancy_force,
+    nodes, weights, use_drag, use_added_mass, use_buoyancy, has_strips,
+):  # fmt: skip  # pragma: no cover - compiled
+    """v' (nv,) of the floating system (see the module docstring).
+
+    ``tau`` (nv,): generalised force besides the water and thrusters (zero on the base, the
+    arm's joint torques); ``thrust`` (n_thr,) thruster forces (N) after saturation;
+    ``mass_upper``, ``nonlinear``: Pinocchio's CRBA (upper triangle) and NLE at (q, v).
+    """
+    mass, rhs = uvms_system_kernel(
+        q, v, tau, thrust, water_velocity, mass_upper, nonlinear, jac, djac,
+        allocation, added_mass, linear_damping, quadratic_damping, buoyancy, cb,
+        root_rows, body_rotation, body_translation,
+        parents, placement_rotation, placement_translation, axes, idx_v,
+        joint_ids, start, axis, length, support, drag_per_length, mass_per_length, buoyancy_force,
+        nodes, weights, use_drag, use_added_mass, use_buoyancy, has_strips,
+    )  # fmt: skip
     return np.linalg.solve(mass, rhs)
 
 
@@ -319,6 +342,15 @@ class UVMSDynamics:
         """v' (nv,) at time t under generalised force ``tau`` (nv,) and thruster forces ``thrust``."""
         mass, nonlinear, jac, djac = self.pinocchio_terms(q, v)
         return uvms_acceleration_kernel(
+            q, v, np.asarray(tau, dtype=float), np.asarray(thrust, dtype=float), self.current.at(t)[1],
+            mass, nonlinear, jac, djac, *self.kernel_constants, *self.flags,
+        )  # fmt: skip
+
+    def system(self, t: float, q: np.ndarray, v: np.ndarray, tau: np.ndarray, thrust: np.ndarray):
+        """``(mass (nv, nv), rhs (nv,))`` of ``mass v' = rhs`` at time t (the water's added mass in
+        ``mass``; gravity, buoyancy, drag, Coriolis, ``tau`` and the thrust in ``rhs``)."""
+        mass, nonlinear, jac, djac = self.pinocchio_terms(q, v)
+        return uvms_system_kernel(
             q, v, np.asarray(tau, dtype=float), np.asarray(thrust, dtype=float), self.current.at(t)[1],
             mass, nonlinear, jac, djac, *self.kernel_constants, *self.flags,
         )  # fmt: skip

@@ -14,7 +14,15 @@ built-in vehicle puts at its centre of gravity):
   ``allocation`` matrix of that shape), per-thruster limits ``[-max_reverse, max_forward]`` (N),
   and an optional first-order thrust lag ``thrust_time_constant`` (s, 0 = none);
 * ``hull``: the frame's bounding box (length x width x height, centred on the body origin);
-* ``mount``: where the arm sits (``arm``, ``position`` inside the hull box, ``rpy_deg``).
+* ``mount``: where the arm sits (``arm``, ``position``, ``rpy_deg``); a mount outside the hull
+  box is allowed with a warning (a real arm often sits on a bracket ahead of the frame);
+* ``[[ballast]]`` and ``[[float]]``: extra point loads as tested (weights, foam blocks, a DVL),
+  each a ``mass`` (kg, dry) and/or a ``volume`` (m^3, displaced) at a ``position`` (m). They are
+  lumped exactly into the rigid body (mass, CG and inertia of the point masses added) and the
+  buoyancy (volumes added, the centre of buoyancy their volume-weighted centroid); a ballast
+  needs a mass > 0, a float a volume > 0. A weight known only by its weight in water is a
+  ballast with ``mass`` = its water weight / g and no volume (the same force and moment);
+* ``thrusters`` may be empty: a passive vehicle (the allocation matrix is 6 x 0).
 
 Validation names the field and its allowed range (:class:`~hydroarm.config.ConfigError`).
 The equations and their sources are in ``docs/vehicle.md``; the forces are in
@@ -23,6 +31,7 @@ The equations and their sources are in ``docs/vehicle.md``; the forces are in
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
@@ -66,6 +75,16 @@ class ThrusterSpec(FrozenModel):
         return self
 
 
+class PointLoadSpec(FrozenModel):
+    """An extra point load on the vehicle: ``mass`` (kg, >= 0) and ``volume`` (m^3, >= 0,
+    displaced) at ``position`` (m, body frame)."""
+
+    name: str = ""
+    mass: float = pydantic.Field(0.0, ge=0.0, le=1e4, description="dry mass (kg)")
+    volume: float = pydantic.Field(0.0, ge=0.0, le=10.0, description="displaced volume (m^3)")
+    position: Vector3
+
+
 class HullSpec(FrozenModel):
     """The frame's bounding box, centred on the body origin: 0 < length, width, height <= 100 m."""
 
@@ -97,6 +116,8 @@ class MountSpec(FrozenModel):
 class VehicleSpec(FrozenModel):
     """A whole vehicle file (see the module docstring for every field and its units)."""
 
+    model_config = pydantic.ConfigDict(populate_by_name=True)
+
     name: str = pydantic.Field(min_length=1)
     description: str = ""
     source: str = ""
@@ -114,7 +135,11 @@ class VehicleSpec(FrozenModel):
     quadratic_damping: Six = pydantic.Field(description="d_q per DOF (N s^2/m^2, N m s^2/rad^2)")
     thrust_time_constant: float = pydantic.Field(0.0, ge=0.0, le=10.0, description="first-order thrust lag (s)")
     hull: HullSpec
-    thrusters: list[ThrusterSpec] = pydantic.Field(min_length=1, max_length=32)
+    thrusters: list[ThrusterSpec] = pydantic.Field(default_factory=list, max_length=32)
+    ballast: list[PointLoadSpec] = pydantic.Field(default_factory=list, max_length=64)
+    floats: list[PointLoadSpec] = pydantic.Field(
+        default_factory=list, max_length=64, alias="float", description="foam blocks and other floats"
+    )
     allocation: list[Row] | None = pydantic.Field(
         None, description="explicit 6 x n_thrusters allocation matrix (default: from positions and axes)"
     )
@@ -158,12 +183,17 @@ class VehicleSpec(FrozenModel):
             zip(self.mount.position, half.tolist(), ("length", "width", "height"))
         ):
             if abs(value) > limit + 1e-12:
-                raise field_error(
-                    "mount.position",
-                    self.mount.position,
-                    f"{'xyz'[axis]} = {value!r} m is outside the hull's frame range [{-limit!r}, {limit!r}] m "
-                    f"(+-hull.{size}/2): mount the arm on the frame",
+                warnings.warn(
+                    f"vehicle {self.name!r}: mount.position {'xyz'[axis]} = {value!r} m is outside the hull's "
+                    f"frame range [{-limit!r}, {limit!r}] m (+-hull.{size}/2): the arm sits off the frame",
+                    stacklevel=2,
                 )
+        for index, load in enumerate(self.ballast):
+            if load.mass <= 0.0:
+                raise field_error(f"ballast.{index}.mass", load.mass, "a ballast needs a mass > 0 (kg)")
+        for index, load in enumerate(self.floats):
+            if load.volume <= 0.0:
+                raise field_error(f"float.{index}.volume", load.volume, "a float needs a volume > 0 (m^3)")
         names = [t.name for t in self.thrusters]
         for index, name in enumerate(names):
             if name in names[:index]:
@@ -236,16 +266,22 @@ def build_vehicle(spec: VehicleSpec) -> Vehicle:
     inertia = inertia if inertia.ndim == 2 else np.diag(inertia)
     added = np.asarray(spec.added_mass, dtype=float)
     added = added if added.ndim == 2 else np.diag(added)
-    positions = np.asarray([t.position for t in spec.thrusters], dtype=float)
-    axes = np.asarray([t.axis for t in spec.thrusters], dtype=float)
-    allocation = allocation_matrix(positions, axes) if spec.allocation is None else np.asarray(spec.allocation)
+    positions = np.asarray([t.position for t in spec.thrusters], dtype=float).reshape(-1, 3)
+    axes = np.asarray([t.axis for t in spec.thrusters], dtype=float).reshape(-1, 3)
+    if spec.allocation is not None:
+        allocation = np.asarray(spec.allocation, dtype=float)
+    elif positions.shape[0]:
+        allocation = allocation_matrix(positions, axes)
+    else:
+        allocation = np.zeros((6, 0))
+    mass, cg, inertia, volume, cb = lump_point_loads(spec, inertia)
     return Vehicle(
         name=spec.name,
-        mass=spec.mass,
+        mass=mass,
         inertia=inertia,
-        cg=np.asarray(spec.cg, dtype=float),
-        cb=np.asarray(spec.cb, dtype=float),
-        displaced_volume=spec.displaced_volume,
+        cg=cg,
+        cb=cb,
+        displaced_volume=volume,
         added_mass=0.5 * (added + added.T),
         linear_damping=np.asarray(spec.linear_damping, dtype=float),
         quadratic_damping=np.asarray(spec.quadratic_damping, dtype=float),
@@ -258,6 +294,28 @@ def build_vehicle(spec: VehicleSpec) -> Vehicle:
         mount_arm=spec.mount.arm,
         spec=spec,
     )
+
+
+def lump_point_loads(spec: VehicleSpec, inertia: np.ndarray) -> tuple[float, np.ndarray, np.ndarray, float, np.ndarray]:
+    """``(mass, cg, inertia about cg, displaced volume, cb)`` of the hull with its ballast and
+    floats (every load's mass a point mass, its volume a point volume); without loads the
+    file's own numbers, unchanged."""
+    loads = [*spec.ballast, *spec.floats]
+    cg = np.asarray(spec.cg, dtype=float)
+    cb = np.asarray(spec.cb, dtype=float)
+    if not loads:
+        return spec.mass, cg, inertia, spec.displaced_volume, cb
+    body = pin.Inertia(spec.mass, cg, inertia)
+    volume = spec.displaced_volume
+    moment = volume * cb
+    for load in loads:
+        position = np.asarray(load.position, dtype=float)
+        if load.mass > 0.0:
+            body = body + pin.Inertia(load.mass, position, np.zeros((3, 3)))
+        volume += load.volume
+        moment = moment + load.volume * position
+    lumped_cb = moment / volume if volume > 0.0 else cb
+    return float(body.mass), np.array(body.lever), np.array(body.inertia), float(volume), lumped_cb
 
 
 def builtin_vehicle_name(source: str | Path) -> str | None:
@@ -284,7 +342,11 @@ def load_vehicle_spec(source: str | Path = "bluerov2-heavy") -> VehicleSpec:
         raise ConfigError(
             f"vehicle {str(source)!r}: neither a built-in vehicle ({', '.join(BUILTIN_VEHICLES)}) nor an existing file"
         )
-    return load_model(VehicleSpec, path)
+    spec = load_model(VehicleSpec, path)
+    beside = path.parent / spec.mount.arm
+    if not Path(spec.mount.arm).is_absolute() and beside.is_file():  # an arm file next to the vehicle file
+        spec = spec.model_copy(update={"mount": spec.mount.model_copy(update={"arm": str(beside.resolve())})})
+    return spec
 
 
 def load_vehicle(source: str | Path = "bluerov2-heavy") -> Vehicle:

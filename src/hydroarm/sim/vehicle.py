@@ -109,6 +109,11 @@ def vehicle_parts(vehicle: VehicleRun, arm: str | Arm, water: Water, torque_limi
         raise ConfigError(f"vehicle.name = {vehicle.name!r} with arm = {arm!r}: {error}") from None
     if uvms.arm is None:
         raise ConfigError(f"arm = {arm!r}: a vehicle run needs an arm on the vehicle")
+    if uvms.vehicle.n_thrusters == 0:
+        raise ConfigError(
+            f"vehicle.name = {vehicle.name!r}: a passive vehicle (thrusters = []) cannot keep station; "
+            "give a vehicle with thrusters, or replay its logs (hydroarm replay)"
+        )
     n = uvms.n_arm
     if len(vehicle.home) != n:
         raise ConfigError(

@@ -302,4 +302,19 @@ def settings_markdown() -> str:
     for row in settings_table(Mismatch, "mismatch."):
         allowed = f"{row.kind}; {row.allowed}" if row.allowed else row.kind
         lines.append(f"| `{row.key}` | `{_cell(_shown(row.default))}` | {_cell(allowed)} | {_cell(row.description)} |")
+    from hydroarm.studies.replay import ReplayConfig
+
+    lines += [
+        "",
+        "## Replaying logs: `hydroarm replay` and `hydroarm calibrate`",
+        "",
+        "`hydroarm replay LOGS --set cleaning.smoothing=1e-3` (the physics is the vehicle and arm files';",
+        "docs/validation-real.md).",
+        "",
+        "| key | default | allowed | description |",
+        "|---|---|---|---|",
+    ]
+    for row in settings_table(ReplayConfig):
+        allowed = f"{row.kind}; {row.allowed}" if row.allowed else row.kind
+        lines.append(f"| `{row.key}` | `{_cell(_shown(row.default))}` | {_cell(allowed)} | {_cell(row.description)} |")
     return "\n".join(lines) + "\n"

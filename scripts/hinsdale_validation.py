@@ -1,0 +1,134 @@
+"""The real-water validation campaign of docs/validation-real.md: replay and calibrate the tested
+BlueROV2 with the tested Alpha and with hydroarm's built-in Alpha 5 on the Hinsdale 2023 trials.
+
+    python scripts/hinsdale_validation.py PATH/TO/hinsdale-2023/trials --out docs/results/validation-real
+
+For each arm: the uncalibrated replay of every arm-motion trial (timed), then for each split
+(training and held-out trials, listed below) a calibration on the training trials (timed) and the
+replays of both sets with the calibrated file. Writes ``results.json`` (every number of the page)
+and the figures of a few held-out trials. Nothing here is hard-coded into hydroarm: the splits are
+this campaign's arguments to ``calibrate``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from hydroarm.studies.calibrate import calibrate, write_calibrated_vehicle
+from hydroarm.studies.replay import ReplayConfig, build_system, load_vehicle_quietly, replay_many, summary, write_trial
+
+ROOT = Path(__file__).resolve().parents[1]
+VEHICLES = {
+    "tested_alpha": ROOT / "examples" / "hinsdale" / "bluerov2_hinsdale.toml",
+    "builtin_alpha5": ROOT / "examples" / "hinsdale" / "bluerov2_hinsdale_alpha5.toml",
+}
+PARAMETERS = {
+    "tested_alpha": ["cb_x", "cb_y", "cb_z", "rotational_damping_scale"],
+    "builtin_alpha5": ["cb_x", "cb_y", "cb_z", "arm_buoyancy_scale", "rotational_damping_scale"],
+}
+ALT = [f"traj_alt_{c}" for c in ("001-0", "001-1", "001-2", "002-0", "002-1", "008-0", "008-1", "008-2",
+                                 "009-0", "009-1", "011-0", "011-1", "011-2")]  # fmt: skip
+SPLITS = {
+    "A: 6 alt / 7 alt": (
+        ["traj_alt_001-0", "traj_alt_001-1", "traj_alt_002-0", "traj_alt_008-0", "traj_alt_009-1", "traj_alt_011-0"],
+        None,
+    ),
+    "B: 6 alt / 7 alt (other pick)": (
+        ["traj_alt_001-2", "traj_alt_002-1", "traj_alt_008-1", "traj_alt_008-2", "traj_alt_009-0", "traj_alt_011-1"],
+        None,
+    ),
+    "C: family, 6 traj0NN / 13 alt": (
+        ["traj004-0", "traj006-0", "traj012-0", "traj015-0", "traj020-0", "traj026-0"],
+        ALT,
+    ),
+    "D: family, 6 alt / 44 traj0NN": (
+        ["traj_alt_001-0", "traj_alt_001-1", "traj_alt_002-0", "traj_alt_008-0", "traj_alt_009-1", "traj_alt_011-0"],
+        "traj0",
+    ),
+}
+KEYS = ("pitch_rmse_imu_deg", "roll_rmse_imu_deg", "pitch_rmse_mocap_deg", "roll_rmse_mocap_deg",
+        "pitch_rmse_hold_deg", "roll_rmse_hold_deg", "pitch_imu_vs_mocap_deg", "roll_imu_vs_mocap_deg",
+        "pitch_peak_abs_error_imu_deg", "roll_peak_abs_error_imu_deg")  # fmt: skip
+
+
+def _mean(results, names):
+    table = summary([r for r in results if r.name in names])
+    return {k: table["mean"].get(k) for k in KEYS} | {"n_trials": table["n_trials"]}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("trials", type=Path)
+    parser.add_argument("--out", type=Path, required=True)
+    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--arms", nargs="+", default=list(VEHICLES), choices=list(VEHICLES))
+    parser.add_argument("--params", default=None, help="comma-separated parameters for every arm (default: PARAMETERS)")
+    args = parser.parse_args()
+    if args.params:
+        for arm in VEHICLES:
+            PARAMETERS[arm] = args.params.split(",")
+    args.out.mkdir(parents=True, exist_ok=True)
+    config = ReplayConfig()
+    every = sorted(p for p in args.trials.glob("traj*_joint_states.csv") if "-test" not in p.name)
+    by_name = {p.name.removesuffix("_joint_states.csv"): p for p in every}
+    out: dict = {"n_trials": len(every), "settings": config.model_dump(), "arms": {}}
+    for arm, vehicle_path in VEHICLES.items():
+        if arm not in args.arms:
+            continue
+        spec = load_vehicle_quietly(vehicle_path)
+        began = time.perf_counter()
+        base = replay_many(every, spec, "mount", config, workers=args.workers)
+        seconds = time.perf_counter() - began
+        record: dict = {
+            "parameters": PARAMETERS[arm],
+            "replay_all_seconds": seconds,
+            "uncalibrated_all": _mean(base, set(by_name)),
+            "splits": {},
+        }
+        record["uncalibrated_alt"] = _mean(base, set(ALT))
+        print(f"{arm}: {len(every)} trials replayed in {seconds:.1f} s", flush=True)
+        for split, (train, held) in SPLITS.items():
+            if held is None:
+                held = [n for n in ALT if n not in train]
+            elif isinstance(held, str):
+                held = [n for n in by_name if n.startswith(held)]
+            fit = calibrate([by_name[n] for n in train], spec, "mount", PARAMETERS[arm], config, workers=args.workers)
+            slug = split.split(":")[0]
+            calibrated_path = args.out / f"{arm}_{slug}.toml"
+            write_calibrated_vehicle(calibrated_path, spec, fit, train, build_system(spec).arm)
+            calibrated = load_vehicle_quietly(calibrated_path)
+            replays = replay_many([by_name[n] for n in train + held], calibrated, "mount", config, args.workers)
+            record["splits"][split] = {
+                "train": train,
+                "held_out": held,
+                "parameters": {n: [fit.values[n], fit.uncertainty[n]] for n in fit.names},
+                "cost_deg2": [fit.initial_cost, fit.cost],
+                "calibrate_seconds": fit.seconds,
+                "evaluations": fit.evaluations,
+                "uncalibrated_train": _mean(base, set(train)),
+                "uncalibrated_held_out": _mean(base, set(held)),
+                "calibrated_train": _mean(replays, set(train)),
+                "calibrated_held_out": _mean(replays, set(held)),
+            }
+            if slug == "A" and arm == "tested_alpha":
+                for result in replays:
+                    if result.name in ("traj_alt_002-1", "traj_alt_009-0", "traj_alt_011-1"):
+                        write_trial(args.out / "figures", result)
+            held_out = record["splits"][split]["calibrated_held_out"]
+            print(
+                f"{arm} {split}: held-out pitch {held_out['pitch_rmse_imu_deg']:.2f} roll "
+                f"{held_out['roll_rmse_imu_deg']:.2f} deg; fit {fit.seconds:.0f} s",
+                flush=True,
+            )
+        out["arms"][arm] = record
+        (args.out / "results.json").write_text(json.dumps(out, indent=1, default=float) + "\n")
+    np.set_printoptions(precision=3)
+
+
+if __name__ == "__main__":
+    main()

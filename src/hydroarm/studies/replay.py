@@ -1,0 +1,247 @@
+"""Replay a real vehicle + arm from its logs: the vehicle's response to the logged arm motion.
+
+For each trial: the joints' logged motion is cleaned and smoothed
+(:func:`hydroarm.sim.logs.joint_motion`); the vehicle starts from the IMU's attitude and rates
+at the first common instant; the prescribed-motion plant
+(:class:`hydroarm.model.uvms_prescribed.PrescribedUVMSPlant`) integrates the vehicle only; the
+simulated roll and pitch are compared with the IMU's and the motion capture's (RMSE and the
+peak-excursion error, the largest departure from the initial value, simulated minus measured).
+
+Outputs (:func:`write_replay`): ``DIR/<trial>/attitude.csv`` (time_s, simulated roll, pitch,
+yaw, the IMU's and the motion capture's, rad, on the output grid), ``DIR/<trial>/attitude.png``
+and ``DIR/summary.json`` (per trial and means, in degrees).
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pinocchio as pin
+import pydantic
+
+from hydroarm.config import FrozenModel
+from hydroarm.model.loading import load_arm
+from hydroarm.model.plant import inner_steps
+from hydroarm.model.uvms import build_uvms
+from hydroarm.model.uvms_plant import UVMSPlantConfig
+from hydroarm.model.uvms_prescribed import PrescribedUVMSPlant
+from hydroarm.model.vehicle import VehicleSpec, build_vehicle, load_vehicle_spec
+from hydroarm.model.water import Water
+from hydroarm.sim.files import atomic_write
+from hydroarm.sim.logs import CleaningConfig, TrialLog, clean_attitude, joint_motion, roll_pitch_yaw
+from hydroarm.sim.trials import load_trial
+
+AXES = ("roll", "pitch")
+
+
+class ReplayConfig(FrozenModel):
+    """How a replay runs (the physics is the vehicle and arm files')."""
+
+    water_density: float = pydantic.Field(997.0, gt=0.0, le=2000.0, description="kg/m^3 (the tank's fresh water)")
+    inner_step: float = pydantic.Field(0.05, ge=1e-4, le=0.1, description="s: the vehicle's longest RK4 step")
+    output_period: float = pydantic.Field(0.05, ge=1e-3, le=1.0, description="s: the attitude.csv grid")
+    rate_window: float = pydantic.Field(
+        0.25, ge=0.0, le=5.0, description="s: the initial body rates are the IMU's mean over this window"
+    )
+    cleaning: CleaningConfig = pydantic.Field(CleaningConfig(), description="the logs' cleaning (section)")
+
+
+@dataclass
+class ReplayResult:
+    """One trial replayed: ``time`` (k,) s; ``simulated``, ``imu``, ``mocap`` (k, 3) roll pitch
+    yaw (rad; mocap NaN where absent); ``metrics`` in degrees."""
+
+    name: str
+    time: np.ndarray
+    simulated: np.ndarray
+    imu: np.ndarray
+    mocap: np.ndarray
+    metrics: dict[str, Any]
+
+
+def load_vehicle_quietly(source: str | Path) -> VehicleSpec:
+    """A vehicle file, its off-hull mount warning silenced (it is known for the tested vehicles)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        return load_vehicle_spec(source)
+
+
+def build_system(vehicle: VehicleSpec, arm: Any = "mount"):
+    """The floating system of a vehicle spec and an arm (an Arm, a name/file, or ``"mount"``)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        built = build_vehicle(vehicle)
+    if isinstance(arm, str):
+        arm = load_arm(built.mount_arm if arm == "mount" else arm)
+    return build_uvms(built, arm)
+
+
+def _interp_angles(t: np.ndarray, time: np.ndarray, angles: np.ndarray) -> np.ndarray:
+    """Angles (k, 3) at times t, unwrapped before interpolating."""
+    unwrapped = np.unwrap(angles, axis=0)
+    return np.column_stack([np.interp(t, time, unwrapped[:, i]) for i in range(angles.shape[1])])
+
+
+def simulate(log: TrialLog, uvms, config: ReplayConfig, motion=None) -> tuple[np.ndarray, np.ndarray]:
+    """``(time (k,), simulated roll pitch yaw (k, 3))`` of one log on one system (``motion``: the
+    log's cleaned joint motion, if already made)."""
+    names = tuple(uvms.arm.model.names[1:])
+    motion = motion if motion is not None else joint_motion(log.select_joints(names), config.cleaning)
+    t0 = max(float(log.joint_time[0]), float(log.imu_time[0]))
+    t1 = min(float(log.joint_time[-1]), float(log.imu_time[-1]))
+    first = int(np.searchsorted(log.imu_time, t0))
+    quaternion = log.imu_quaternion[min(first, log.imu_time.size - 1)]
+    pose = np.concatenate([np.zeros(3), quaternion / np.linalg.norm(quaternion)])
+    twist = np.zeros(6)
+    if log.imu_angular_velocity is not None and config.rate_window > 0.0:
+        window = (log.imu_time >= t0) & (log.imu_time <= t0 + config.rate_window)
+        if window.any():
+            twist[3:] = log.imu_angular_velocity[window].mean(axis=0)
+    water = Water(rho=config.water_density, current={"model": "none"})
+    steps = int(math.floor((t1 - t0) / config.output_period + 1e-9))
+    time = t0 + config.output_period * np.arange(steps + 1)
+    inner, h = inner_steps(config.output_period, config.inner_step)
+    grid = motion.tabulate(t0, 0.5 * h, 2 * inner * steps + 1)  # every RK4 stage time
+    plant = PrescribedUVMSPlant(uvms, grid, water, UVMSPlantConfig(inner_step=config.inner_step))
+    x = plant.initial_state(t0, pose, twist)
+    rpy = np.empty((time.size, 3))
+    for k in range(time.size):
+        rpy[k] = pin.rpy.matrixToRpy(pin.Quaternion(x[3:7]).normalized().toRotationMatrix())
+        if k < steps:
+            x, _ = plant.step(float(time[k]), x, None, config.output_period)
+    return time, rpy
+
+
+def measured(log: TrialLog, time: np.ndarray, config: ReplayConfig) -> tuple[np.ndarray, np.ndarray]:
+    """``(imu, mocap)`` roll pitch yaw (k, 3) at ``time`` (mocap NaN without motion capture)."""
+    imu_t, imu_rpy = clean_attitude(log.imu_time, roll_pitch_yaw(log.imu_quaternion), config.cleaning)
+    imu = _interp_angles(time, imu_t, imu_rpy)
+    mocap = np.full_like(imu, np.nan)
+    if log.mocap_time is not None and log.mocap_time.size > 5:
+        mocap_t, mocap_rpy = clean_attitude(log.mocap_time, roll_pitch_yaw(log.mocap_quaternion), config.cleaning)
+        mocap = _interp_angles(time, mocap_t, mocap_rpy)
+        outside = (time < mocap_t[0]) | (time > mocap_t[-1])
+        mocap[outside] = np.nan
+    return imu, mocap
+
+
+def attitude_metrics(simulated: np.ndarray, imu: np.ndarray, mocap: np.ndarray) -> dict[str, Any]:
+    """Per axis (roll, pitch), in degrees: RMSE and peak-excursion error of the simulation against
+    the IMU and the motion capture, the hold baseline (the initial value held) against the IMU,
+    and the IMU-mocap disagreement (the measurement floor)."""
+    out: dict[str, Any] = {}
+    for i, axis in enumerate(AXES):
+        sim = np.degrees(simulated[:, i])
+        for name, reference in (("imu", imu), ("mocap", mocap)):
+            ref = np.degrees(reference[:, i])
+            ok = np.isfinite(ref)
+            if ok.sum() < 2:
+                out[f"{axis}_rmse_{name}_deg"] = None
+                out[f"{axis}_peak_error_{name}_deg"] = None
+                continue
+            out[f"{axis}_rmse_{name}_deg"] = float(np.sqrt(np.mean((sim[ok] - ref[ok]) ** 2)))
+            excursion_sim = float(np.max(np.abs(sim[ok] - sim[0])))
+            excursion_ref = float(np.max(np.abs(ref[ok] - ref[ok][0])))
+            out[f"{axis}_peak_error_{name}_deg"] = excursion_sim - excursion_ref
+        ref = np.degrees(imu[:, i])
+        out[f"{axis}_rmse_hold_deg"] = float(np.sqrt(np.mean((ref - ref[0]) ** 2)))
+        both = np.isfinite(mocap[:, i])
+        out[f"{axis}_imu_vs_mocap_deg"] = (
+            float(np.sqrt(np.mean((np.degrees(mocap[both, i]) - ref[both]) ** 2))) if both.sum() > 1 else None
+        )
+    return out
+
+
+def replay_log(log: TrialLog, uvms, config: ReplayConfig) -> ReplayResult:
+    time, rpy = simulate(log, uvms, config)
+    imu, mocap = measured(log, time, config)
+    return ReplayResult(log.name, time, rpy, imu, mocap, attitude_metrics(rpy, imu, mocap))
+
+
+# --- many trials, in parallel ----------------------------------------------------------
+
+_WORKER: dict[str, Any] = {}
+
+
+def _init(vehicle: VehicleSpec, arm: Any, config: ReplayConfig) -> None:
+    _WORKER["uvms"] = build_system(vehicle, arm)
+    _WORKER["config"] = config
+
+
+def _replay_path(path: str) -> ReplayResult:
+    uvms = _WORKER["uvms"]
+    log = load_trial(path, tuple(uvms.arm.model.names[1:]))
+    return replay_log(log, uvms, _WORKER["config"])
+
+
+def replay_many(
+    paths: list[Path], vehicle: VehicleSpec, arm: Any, config: ReplayConfig, workers: int = 2, progress=None
+) -> list[ReplayResult]:
+    """Replay every log of ``paths`` (in their order); ``workers`` processes (0 or 1: this one);
+    ``progress(done, total, name)`` after each trial. Bad logs raise LogError before any run."""
+    uvms = build_system(vehicle, arm)
+    names = tuple(uvms.arm.model.names[1:])
+    for path in paths:  # read and check every log first: one clear message, nothing half done
+        load_trial(path, names)
+    results: list[ReplayResult] = []
+    if workers <= 1 or len(paths) == 1:
+        _init(vehicle, arm, config)
+        for path in paths:
+            results.append(_replay_path(str(path)))
+            if progress:
+                progress(len(results), len(paths), results[-1].name)
+        return results
+    with ProcessPoolExecutor(workers, initializer=_init, initargs=(vehicle, arm, config)) as pool:
+        for result in pool.map(_replay_path, [str(p) for p in paths]):
+            results.append(result)
+            if progress:
+                progress(len(results), len(paths), result.name)
+    return results
+
+
+def summary(results: list[ReplayResult]) -> dict[str, Any]:
+    """Per-trial metrics and their means over the trials (degrees)."""
+    trials = {r.name: r.metrics for r in results}
+    keys = sorted({k for r in results for k in r.metrics})
+    means = {}
+    for key in keys:
+        values = [r.metrics[key] for r in results if r.metrics.get(key) is not None]
+        means[key] = float(np.mean(values)) if values else None
+        if "peak_error" in key and values:
+            means[key.replace("peak_error", "peak_abs_error")] = float(np.mean(np.abs(values)))
+    return {"trials": trials, "mean": means, "n_trials": len(results)}
+
+
+def write_trial(out: Path, result: ReplayResult, figures: bool = True) -> None:
+    """``out/<trial>/attitude.csv`` (and ``attitude.png``)."""
+    folder = out / result.name
+    folder.mkdir(parents=True, exist_ok=True)
+    header = "time_s,sim_roll,sim_pitch,sim_yaw,imu_roll,imu_pitch,imu_yaw,mocap_roll,mocap_pitch,mocap_yaw"
+    table = np.column_stack([result.time, result.simulated, result.imu, result.mocap])
+    lines = [header] + [",".join("" if not np.isfinite(v) else repr(float(v)) for v in row) for row in table]
+    atomic_write(folder / "attitude.csv", "\n".join(lines) + "\n")
+    if figures:
+        plot_trial(folder / "attitude.png", result)
+
+
+def plot_trial(path: Path, result: ReplayResult) -> None:
+    from matplotlib.figure import Figure
+
+    figure = Figure(figsize=(8, 4.5), layout="constrained")
+    axes = figure.subplots(2, 1, sharex=True)
+    for i, (ax, axis) in enumerate(zip(axes, AXES, strict=True)):
+        ax.plot(result.time, np.degrees(result.imu[:, i]), color="k", lw=1.2, label="IMU")
+        ax.plot(result.time, np.degrees(result.mocap[:, i]), color="0.6", lw=1.0, label="mocap")
+        ax.plot(result.time, np.degrees(result.simulated[:, i]), color="C0", lw=1.4, ls="--", label="hydroarm")
+        rmse = result.metrics[f"{axis}_rmse_imu_deg"]
+        ax.set_ylabel(f"{axis} (deg)")
+        ax.set_title(f"{result.name}: {axis} RMSE vs IMU {rmse:.2f} deg", fontsize=9)
+    axes[0].legend(fontsize=8, ncols=3)
+    axes[-1].set_xlabel("time (s)")
+    figure.savefig(path, dpi=110)
