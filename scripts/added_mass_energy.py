@@ -38,6 +38,5 @@ def energy_ratio(added_mass: bool, inner_step: float, steps: int = 100) -> tuple
 if __name__ == "__main__":
     for added, inner in ((False, 1e-3), (True, 1e-3), (True, 1e-4)):
         end, peak = energy_ratio(added, inner)
-        print(
-            f"added mass {'on ' if added else 'off'}, RK4 step {inner * 1e3:g} ms: E(1 s)/E0 = {end:.6f}, max {peak:.4f}"
-        )
+        state = "on " if added else "off"
+        print(f"added mass {state}, RK4 step {inner * 1e3:g} ms: E(1 s)/E0 = {end:.6f}, max {peak:.4f}")
