@@ -119,21 +119,9 @@ def _check_out(out: Path) -> None:
     """``--out`` must be a folder or not exist yet (it is created only once the settings are
     valid), and writable: a probe folder is made and removed in it or, if it does not exist
     yet, in its nearest existing parent (which must be a folder)."""
-    import shutil
-    import tempfile
-
     if out.exists() and not out.is_dir():
         _fail(f"--out '{out}': exists and is not a folder")
-    parent = out.absolute()
-    while not parent.exists():
-        parent = parent.parent
-    if not parent.is_dir():
-        _fail(f"--out '{out}': '{parent}' is not a folder")
-    try:
-        shutil.rmtree(tempfile.mkdtemp(prefix=".hydroarm-probe-", dir=parent))
-    except OSError as error:
-        reason = error.strerror or str(error)
-        _fail(f"--out '{out}': cannot write in '{parent}' ({reason}); choose a writable folder")
+    _require_writable("--out", out, out.absolute())
 
 
 def _check_file_out(out: Path, option: str = "--out") -> None:
@@ -141,14 +129,20 @@ def _check_file_out(out: Path, option: str = "--out") -> None:
     commands do): the same probe as :func:`_check_out`, on the file's folder."""
     if out.is_dir():
         _fail(f"{option} '{out}': a folder, not a file")
-    parent = out.absolute().parent
+    _require_writable(option, out, out.absolute().parent)
+
+
+def _require_writable(option: str, out: Path, folder: Path) -> None:
+    """``folder`` (or, if it does not exist yet, its nearest existing parent, which must be a
+    folder) takes a probe folder, made and removed; else one line naming ``option`` and exit 2."""
+    import shutil
+    import tempfile
+
+    parent = folder
     while not parent.exists():
         parent = parent.parent
     if not parent.is_dir():
         _fail(f"{option} '{out}': '{parent}' is not a folder")
-    import shutil
-    import tempfile
-
     try:
         shutil.rmtree(tempfile.mkdtemp(prefix=".hydroarm-probe-", dir=parent))
     except OSError as error:

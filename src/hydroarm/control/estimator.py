@@ -212,26 +212,14 @@ def steady_state_covariance(
     period: float, measurement_variance: float, acceleration_variance: float,
     tolerance: float = 1e-14, max_iterations: int = 1_000_000,
 ) -> np.ndarray:  # fmt: skip
-    """The steady-state prior covariance Sigma (2, 2) of the filter (module docstring), by
-    fixed-point iteration of the Riccati recursion from Sigma = Q_w.
+    """The steady-state prior covariance Sigma (2, 2) of the filter (module docstring) measuring
+    q and v with noise ``measurement_variance`` each: :func:`riccati_covariance` with C = I
+    (the same arithmetic: products with the identity are exact).
 
     Raises :class:`ConfigError` if it does not converge (it does for any positive variances:
     the pair (A, I) is observable and (A, B) controllable)."""
-    a_mat, b_vec = double_integrator(period)
-    process = acceleration_variance * np.outer(b_vec, b_vec)
     noise = measurement_variance * np.eye(2)
-    sigma = process.copy()
-    for _ in range(max_iterations):
-        gain = sigma @ np.linalg.inv(sigma + noise)
-        posterior = (np.eye(2) - gain) @ sigma
-        updated = a_mat @ posterior @ a_mat.T + process
-        if np.all(np.abs(updated - sigma) <= tolerance * np.abs(updated)):
-            return 0.5 * (updated + updated.T)
-        sigma = updated
-    raise ConfigError(
-        f"estimator: the Kalman covariance did not converge in {max_iterations} iterations "
-        f"(measurement_variance = {measurement_variance!r}, acceleration_variance = {acceleration_variance!r})"
-    )
+    return riccati_covariance(period, np.eye(2), noise, acceleration_variance, tolerance, max_iterations)
 
 
 class JointKalmanFilter:

@@ -101,17 +101,14 @@ def task_for_arm(arm: Arm) -> tuple[SinusoidReference, np.ndarray]:
 class ReachReturn:
     """Joint reference: from ``home`` to ``reach`` (n,) rad and back every ``period`` s (cosine
     blends, continuous acceleration at the ends of each leg), after ``start`` s at home.
-    ``sample(t)`` returns ``(q, v, a)``: each (n,) for a scalar time t (s), (m, n) for m times
-    (as :meth:`SinusoidReference.sample`, which the horizon of an MPC asks for)."""
+    ``sample(t)`` takes a scalar time t (s) and returns ``(q, v, a)``, each (n,) (a controller
+    that needs a horizon of times asks :func:`hydroarm.control.interface.sample_times`)."""
 
     def __init__(self, home, reach, period: float = 6.0, start: float = 1.0):
         self.home, self.reach = np.asarray(home, float), np.asarray(reach, float)
         self.period, self.start = period, start
 
-    def sample(self, t: float | np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        if np.ndim(t) > 0:
-            rows = [self.sample(float(time)) for time in np.ravel(t)]
-            return tuple(np.array([row[i] for row in rows]).reshape(*np.shape(t), -1) for i in range(3))
+    def sample(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         tau = max(0.0, t - self.start) % self.period
         w = 2.0 * math.pi / self.period
         s = 0.5 * (1.0 - math.cos(w * tau))
