@@ -8,7 +8,7 @@ frame have run, which a headless screenshot does not wait for.
 
 Every chart shares one horizontal geometry (:data:`LEFT`, :data:`PLOT_WIDTH`) and the run's
 time span, so one CSS variable places the time cursor of all of them: ``--hydroarm-cursor-x``,
-the cursor's offset in viewBox units from the plot's left edge (:func:`cursor_offset`). The
+the cursor's offset in viewBox units from the plot's left edge (:meth:`Chart.cursor_offset`). The
 live viewer sets it with a ``<style>`` rule each time it shows a sample; the recording's script
 sets it from the playback bar's time. No plotting library is imported (the viewer starts
 without matplotlib).
