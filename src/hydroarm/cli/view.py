@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import contextlib
+import io
 from pathlib import Path
 from typing import Annotated
 
@@ -51,7 +53,8 @@ def serve_run(
     server = None
     if out is None:
         try:
-            server = viser.ViserServer(host=host, port=port, label="hydroarm", verbose=False)
+            with contextlib.redirect_stdout(io.StringIO()):  # viser's own banner: the line below says it
+                server = viser.ViserServer(host=host, port=port, label="hydroarm", verbose=False)
         except OSError as error:
             _fail(f"cannot serve on {host}:{port}: {error}")
         url = f"http://{host}:{server.get_port()}"

@@ -35,7 +35,7 @@ from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 from hydroarm.config import ConfigError
 from hydroarm.model.arm import Arm
 from hydroarm.sim.runner import Trajectory
-from hydroarm.studies.playback import as_arm, as_trajectory, reach  # noqa: F401 (reach: public here too)
+from hydroarm.studies.playback import VehicleMotion, as_arm, as_trajectory, reach, vehicle_motion
 
 SIDES = 10  # facets per tube
 HULL_COLOUR = (1.0, 0.78, 0.05, 0.5)  # translucent amber: no link's colour
@@ -43,62 +43,10 @@ HULL_FACES = ((0, 1, 3, 2), (4, 5, 7, 6), (0, 1, 5, 4), (2, 3, 7, 6), (0, 2, 6, 
 LINK_COLOURS = ("tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple", "tab:brown", "tab:pink", "tab:olive")
 
 
-class _Vehicle:
-    """What a vehicle-manipulator run adds to the drawing: the hull's half extents (3,) m, the
-    arm's mount in the body frame, the base poses (K, 7: position, quaternion x y z w) and the
-    station-keeping target's position (3,)."""
-
-    def __init__(self, traj: Trajectory):
-        from hydroarm.model.vehicle import load_vehicle
-
-        vehicle = load_vehicle(traj.meta["vehicle"])
-        self.name = vehicle.name
-        self.half = np.asarray(vehicle.hull, dtype=float) / 2.0
-        self.mount_rotation = np.asarray(vehicle.mount.rotation, dtype=float)
-        self.mount_translation = np.asarray(vehicle.mount.translation, dtype=float)
-        self.poses = np.asarray(traj.extra["base_pose"], dtype=float)
-        if self.poses.shape != (len(traj.t), 7):
-            raise ConfigError(f"base_pose has shape {self.poses.shape}, expected ({len(traj.t)}, 7)")
-        self.target = np.asarray(traj.meta.get("target_pose", self.poses[0]), dtype=float)[:3]
-
-    def arm_frame(self, pose: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Rotation and origin of the arm's base frame in the world at base ``pose``."""
-        rotation = _rotation(pose[3:7])
-        return rotation @ self.mount_rotation, pose[:3] + rotation @ self.mount_translation
-
-    def hull(self, pose: np.ndarray) -> list[np.ndarray]:
-        """The six faces of the hull box at ``pose``."""
-        signs = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], dtype=float)
-        corners = (signs * self.half) @ _rotation(pose[3:7]).T + pose[:3]
-        return [corners[list(face)] for face in HULL_FACES]
-
-    def extent(self, arm: Arm, frames: np.ndarray, configurations: np.ndarray) -> float:
-        """Half width of the view about the target: the farthest drift, plus the farther of
-        the hull's corner and the arm's reach from the body origin."""
-        drift = float(np.max(np.linalg.norm(self.poses[frames, :3] - self.target, axis=1)))
-        body = max(
-            float(np.linalg.norm(self.half)), float(np.linalg.norm(self.mount_translation)) + reach(arm, configurations)
-        )
-        return drift + body
-
-
-def _rotation(quaternion: np.ndarray) -> np.ndarray:
-    """Rotation matrix of the unit quaternion (x, y, z, w) (Pinocchio's order)."""
-    x, y, z, w = np.asarray(quaternion, dtype=float) / np.linalg.norm(quaternion)
-    return np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-        ]
-    )
-
-
-def _vehicle_of(traj: Trajectory) -> _Vehicle | None:
-    """The vehicle of a vehicle-manipulator run, None for an arm-only one."""
-    if traj.meta.get("vehicle") is None or "base_pose" not in traj.extra:
-        return None
-    return _Vehicle(traj)
+def _hull_faces(vehicle: VehicleMotion, pose: np.ndarray) -> list[np.ndarray]:
+    """The six faces of the hull box at ``pose``."""
+    corners = vehicle.corners(pose)
+    return [corners[list(face)] for face in HULL_FACES]
 
 
 def _tube(start: np.ndarray, end: np.ndarray, radius: float, ring: np.ndarray) -> list[np.ndarray]:
@@ -127,7 +75,7 @@ class _Scene:
         extent: float,
         size: tuple[float, float],
         title: str,
-        vehicle: _Vehicle | None = None,
+        vehicle: VehicleMotion | None = None,
     ):
         self.arm = arm
         self.vehicle = vehicle
@@ -206,7 +154,7 @@ class _Scene:
         polygons, colours, joints = self._polygons(q, pose)
         text = f"t = {t:5.2f} s\n|q_r - q| = {float(np.linalg.norm(q_ref - q)):6.3f} rad"
         if pose is not None:
-            hull = self.vehicle.hull(pose)
+            hull = _hull_faces(self.vehicle, pose)
             polygons, colours = polygons + hull, colours + [HULL_COLOUR] * len(hull)
             text += f"\ndrift = {float(np.linalg.norm(pose[:3] - self.vehicle.target)):6.3f} m"
         self.solid.set_verts(polygons)
@@ -230,7 +178,7 @@ def _frames(traj: Trajectory, fps: float, stride: int | None, start: float, dura
     return chosen[::stride]
 
 
-def _title(arm: Arm, traj: Trajectory, title: str | None, vehicle: _Vehicle | None = None) -> str:
+def _title(arm: Arm, traj: Trajectory, title: str | None, vehicle: VehicleMotion | None = None) -> str:
     if title is not None:
         return title
     controller = traj.meta.get("controller", "")
@@ -238,15 +186,17 @@ def _title(arm: Arm, traj: Trajectory, title: str | None, vehicle: _Vehicle | No
     return f"{name}: {controller}".rstrip(": ")
 
 
-def _scene(traj: Trajectory, arm: Arm, frames: np.ndarray, size, title: str | None) -> tuple[_Scene, _Vehicle | None]:
+def _scene(
+    traj: Trajectory, arm: Arm, frames: np.ndarray, size, title: str | None
+) -> tuple[_Scene, VehicleMotion | None]:
     """The scene of ``frames`` (sample indices): axes fixed from the arm's reach (and the vehicle's drift)."""
-    vehicle = _vehicle_of(traj)
+    vehicle = vehicle_motion(traj)
     configurations = np.concatenate([traj.q[frames], traj.q_ref[frames]])
     extent = reach(arm, configurations) if vehicle is None else vehicle.extent(arm, frames, configurations)
     return _Scene(arm, traj, extent, size, _title(arm, traj, title, vehicle), vehicle), vehicle
 
 
-def _draw(scene: _Scene, vehicle: _Vehicle | None, traj: Trajectory, k: int) -> None:
+def _draw(scene: _Scene, vehicle: VehicleMotion | None, traj: Trajectory, k: int) -> None:
     scene.update(float(traj.t[k]), traj.q[k], traj.q_ref[k], None if vehicle is None else vehicle.poses[k])
 
 
