@@ -51,18 +51,19 @@ def aspect_factor(length_over_diameter: np.ndarray | float) -> np.ndarray:
     return np.interp(np.asarray(length_over_diameter, dtype=float), ASPECT_RATIO, ASPECT_FACTOR)
 
 
-@numba.njit(cache=True)
-def interpolate(x, xs, ys):  # pragma: no cover - compiled
-    """Linear interpolation of the points (xs, ys) at x, held constant beyond the ends (the
-    compiled :func:`numpy.interp`; the drag of :mod:`hydroarm.model.water_effects` evaluates
-    :data:`CD_SMOOTH` with it at every Gauss node)."""
-    if x <= xs[0]:
-        return ys[0]
-    last = xs.shape[0] - 1
-    if x >= xs[last]:
-        return ys[last]
+@numba.njit(cache=True, inline="always")
+def interpolate(x, table, row_x, row_y, count):  # pragma: no cover - compiled
+    """Linear interpolation at x of the ``count`` points (``table[row_x, i]``, ``table[row_y, i]``),
+    held constant beyond the ends (the compiled :func:`numpy.interp`; the drag of
+    :mod:`hydroarm.model.water_effects` evaluates :data:`CD_SMOOTH` with it at every Gauss node, from
+    the rows of its frame)."""
+    if x <= table[row_x, 0]:
+        return table[row_y, 0]
+    last = count - 1
+    if x >= table[row_x, last]:
+        return table[row_y, last]
     i = 0
-    while xs[i + 1] < x:
+    while table[row_x, i + 1] < x:
         i += 1
-    w = (x - xs[i]) / (xs[i + 1] - xs[i])
-    return ys[i] + w * (ys[i + 1] - ys[i])
+    w = (x - table[row_x, i]) / (table[row_x, i + 1] - table[row_x, i])
+    return table[row_y, i] + w * (table[row_y, i + 1] - table[row_y, i])

@@ -27,13 +27,25 @@ from hydroarm.model.arm import Arm, revolute_axes
 from hydroarm.model.current import CurrentField, current_at
 from hydroarm.model.reynolds import CD_SMOOTH, LOG_RE, aspect_factor
 from hydroarm.model.water_effects import (
+    COLUMNS,
+    CYL,
+    DA,
+    DL,
     DRAG_CONSTANT,
     DRAG_REYNOLDS,
+    FLOW,
+    J0,
+    JR,
+    JW,
     KIRCHHOFF,
     MORISON,
-    StripFrame,
-    apply_placement,
+    OM,
+    P0,
+    VEL0,
+    VELR,
+    E,
     cylinder_water,
+    new_frame,
 )
 
 __all__ = ["Strips", "StripGeometry", "forward_kinematics", "rotation_into", "underwater_dynamics", "water_terms"]
@@ -42,11 +54,11 @@ _F1, _F2, _F3, _I1 = types.float64[::1], types.float64[:, ::1], types.float64[:,
 
 CHAIN_FIELDS = ("parents", "placement_rotation", "placement_translation", "axes", "idx_v")
 FLOATING_FIELDS = ("floating", "root_rows", "body_rotation", "body_translation")
-CYLINDER_FIELDS = ("joint_ids", "start", "axis", "length", "support")
-COEFFICIENT_FIELDS = (
-    "drag_per_length", "mass_per_length", "buoyancy_force", "axial_drag", "reynolds_drag", "diameter",
-    "viscosity", "curve_log_re", "curve_cd",
-)  # fmt: skip
+CYLINDER_FIELDS = ("joint_ids", "start", "axis", "support")
+COEFFICIENT_FIELDS = ("table", "viscosity", "curve_log_re", "curve_cd")
+TABLE_FIELDS = ("length", "drag_per_length", "mass_per_length", "buoyancy_force", "axial_drag", "reynolds_drag",
+                "diameter")  # fmt: skip
+"""The columns of ``Strips.table``, in order (:data:`hydroarm.model.water_effects.LENGTH` ...)."""
 QUADRATURE_FIELDS = ("nodes", "weights")
 SWITCH_FIELDS = ("drag", "added_mass", "buoyancy", "axial", "drag_model", "added_mass_model")
 CURRENT_FIELDS = ("current_joint", "current_world")
@@ -73,12 +85,9 @@ STRIPS_TYPE = StripsType([
     ("parents", _I1), ("placement_rotation", _F3), ("placement_translation", _F2), ("axes", _F2), ("idx_v", _I1),
     # floating base: the chain rows hung on the universe and their placement in the vehicle frame
     ("floating", types.boolean), ("root_rows", _I1), ("body_rotation", _F3), ("body_translation", _F2),
-    # cylinders (C rows)
-    ("joint_ids", _I1), ("start", _F2), ("axis", _F2), ("length", _F1), ("support", _F2),
-    # coefficients per cylinder
-    ("drag_per_length", _F1), ("mass_per_length", _F1), ("buoyancy_force", _F1), ("axial_drag", _F1),
-    ("reynolds_drag", _F1), ("diameter", _F1), ("viscosity", types.float64), ("curve_log_re", _F1),
-    ("curve_cd", _F1),
+    # cylinders (C rows) and their coefficients (C, 7): TABLE_FIELDS
+    ("joint_ids", _I1), ("start", _F2), ("axis", _F2), ("support", _F2),
+    ("table", _F2), ("viscosity", types.float64), ("curve_log_re", _F1), ("curve_cd", _F1),
     # quadrature on [0, 1]
     ("nodes", _F1), ("weights", _F1),
     # switches
@@ -94,9 +103,8 @@ def _new_strips(chain, floating, cylinders, coefficients, quadrature, switches, 
     s = structref.new(STRIPS_TYPE)
     s.parents, s.placement_rotation, s.placement_translation, s.axes, s.idx_v = chain
     s.floating, s.root_rows, s.body_rotation, s.body_translation = floating
-    s.joint_ids, s.start, s.axis, s.length, s.support = cylinders
-    (s.drag_per_length, s.mass_per_length, s.buoyancy_force, s.axial_drag, s.reynolds_drag, s.diameter,
-     s.viscosity, s.curve_log_re, s.curve_cd) = coefficients  # fmt: skip
+    s.joint_ids, s.start, s.axis, s.support = cylinders
+    s.table, s.viscosity, s.curve_log_re, s.curve_cd = coefficients
     s.nodes, s.weights = quadrature
     s.drag, s.added_mass, s.buoyancy, s.axial, s.drag_model, s.added_mass_model = switches
     s.current_joint, s.current_world = current
@@ -212,6 +220,7 @@ class StripGeometry:
         """A shallow copy with some fields replaced (the arrays not named are shared)."""
         out = copy.copy(self)
         out.__dict__.pop("_switched", None)
+        out.__dict__.pop("table", None)
         for name, value in fields.items():
             if not hasattr(self, name):
                 raise AttributeError(f"StripGeometry has no field {name!r}")
@@ -219,7 +228,11 @@ class StripGeometry:
         return out
 
     def compile(self) -> Strips:
-        """These arrays and switches as one :class:`Strips` (shares the arrays)."""
+        """These arrays and switches as one :class:`Strips` (shares the arrays but the per-cylinder
+        coefficients, which it packs into ``table`` (C, 7): the columns of :data:`TABLE_FIELDS`;
+        an owner that changes coefficients between calls writes into that table)."""
+        self.table = np.column_stack([np.asarray(getattr(self, name), dtype=float) for name in TABLE_FIELDS])
+        self.table = np.ascontiguousarray(self.table.reshape(-1, COLUMNS))
 
         def pack(names):
             out = []
@@ -232,7 +245,7 @@ class StripGeometry:
 
         values = [pack(group) for group in GROUPS]
         values[1] = (bool(self.floating), *values[1][1:])
-        values[3] = (*values[3][:6], float(self.viscosity), *values[3][7:])
+        values[3] = (values[3][0], float(self.viscosity), *values[3][2:])
         values[5] = (bool(self.drag), bool(self.added_mass), bool(self.buoyancy), bool(self.axial),
                      int(self.drag_model), int(self.added_mass_model))  # fmt: skip
         return _new_strips(*values)
@@ -263,6 +276,13 @@ def _matmul3(a, b, out):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True)
+def _apply(rot, pos, local, out):  # pragma: no cover - compiled
+    """out = pos + rot @ local for 3-vectors."""
+    for i in range(3):
+        out[i] = pos[i] + rot[i, 0] * local[0] + rot[i, 1] * local[1] + rot[i, 2] * local[2]
+
+
+@numba.njit(cache=True)
 def forward_kinematics(strips, q):  # pragma: no cover - compiled
     """World placement of every joint frame of the strips' chain at angles q: (R (nj, 3, 3), p (nj, 3)).
 
@@ -282,13 +302,14 @@ def forward_kinematics(strips, q):  # pragma: no cover - compiled
         rotation_into(axes[i], q[idx_v[i]], joint_rot)
         _matmul3(strips.placement_rotation[i], joint_rot, local_rot)
         _matmul3(rot[par], local_rot, rot[i])
-        apply_placement(rot[par], pos[par], strips.placement_translation[i], pos[i])
+        _apply(rot[par], pos[par], strips.placement_translation[i], pos[i])
     return rot, pos
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline="always")
 def jacobian_frame(strips, k, rot, pos, jac, djac, v, frame):  # pragma: no cover - compiled
-    """Fill ``frame`` with cylinder k's kinematics in the world frame from the joint Jacobian.
+    """Fill ``frame`` (:mod:`hydroarm.model.water_effects`' rows) with cylinder k's kinematics in
+    the world frame from the joint Jacobian, and its coefficients.
 
     ``jac``/``djac``: Pinocchio's world joint Jacobian (6, n) and its time derivative at (q, v),
     rows (linear, angular) at the world origin. Along the cylinder ``p(s) = p0 + s e``,
@@ -299,10 +320,14 @@ def jacobian_frame(strips, k, rot, pos, jac, djac, v, frame):  # pragma: no cove
     """
     n = v.shape[0]
     j = strips.joint_ids[k]
-    p0, e, j0, jr = frame.p0, frame.e, frame.j0, frame.jr
-    apply_placement(rot[j], pos[j], strips.start[k], p0)
-    apply_placement(rot[j], frame.zero, strips.axis[k], e)
-    support = strips.support
+    start, axis, support, table = strips.start, strips.axis, strips.support, strips.table
+    for c in range(COLUMNS):
+        frame[CYL, c] = table[k, c]
+    for i in range(3):
+        frame[P0, i] = pos[j, i] + rot[j, i, 0] * start[k, 0] + rot[j, i, 1] * start[k, 1] + rot[j, i, 2] * start[k, 2]
+        frame[E, i] = 0.0 + rot[j, i, 0] * axis[k, 0] + rot[j, i, 1] * axis[k, 1] + rot[j, i, 2] * axis[k, 2]
+    p0, p1, p2 = frame[P0, 0], frame[P0, 1], frame[P0, 2]
+    e0, e1, e2 = frame[E, 0], frame[E, 1], frame[E, 2]
     om0 = om1 = om2 = 0.0
     dl0 = dl1 = dl2 = 0.0
     da0 = da1 = da2 = 0.0
@@ -318,48 +343,42 @@ def jacobian_frame(strips, k, rot, pos, jac, djac, v, frame):  # pragma: no cove
             da0 += djac[3, c] * vc
             da1 += djac[4, c] * vc
             da2 += djac[5, c] * vc
-            j0[0, c] = jac[0, c] + jac[4, c] * p0[2] - jac[5, c] * p0[1]
-            j0[1, c] = jac[1, c] + jac[5, c] * p0[0] - jac[3, c] * p0[2]
-            j0[2, c] = jac[2, c] + jac[3, c] * p0[1] - jac[4, c] * p0[0]
-            jr[0, c] = jac[4, c] * e[2] - jac[5, c] * e[1]
-            jr[1, c] = jac[5, c] * e[0] - jac[3, c] * e[2]
-            jr[2, c] = jac[3, c] * e[1] - jac[4, c] * e[0]
+            frame[J0, c] = jac[0, c] + jac[4, c] * p2 - jac[5, c] * p1
+            frame[J0 + 1, c] = jac[1, c] + jac[5, c] * p0 - jac[3, c] * p2
+            frame[J0 + 2, c] = jac[2, c] + jac[3, c] * p1 - jac[4, c] * p0
+            frame[JR, c] = jac[4, c] * e2 - jac[5, c] * e1
+            frame[JR + 1, c] = jac[5, c] * e0 - jac[3, c] * e2
+            frame[JR + 2, c] = jac[3, c] * e1 - jac[4, c] * e0
         else:
             for i in range(3):
-                j0[i, c] = 0.0
-                jr[i, c] = 0.0
-    frame.om[0], frame.om[1], frame.om[2] = om0, om1, om2
-    frame.dl[0], frame.dl[1], frame.dl[2] = dl0, dl1, dl2
-    frame.da[0], frame.da[1], frame.da[2] = da0, da1, da2
-    vel0, velr = frame.vel0, frame.velr
+                frame[J0 + i, c] = 0.0
+                frame[JR + i, c] = 0.0
+    frame[OM, 0], frame[OM, 1], frame[OM, 2] = om0, om1, om2
+    frame[DL, 0], frame[DL, 1], frame[DL, 2] = dl0, dl1, dl2
+    frame[DA, 0], frame[DA, 1], frame[DA, 2] = da0, da1, da2
     for i in range(3):
-        vel0[i] = 0.0
-        velr[i] = 0.0
-    for i in range(3):
+        vel0 = 0.0
+        velr = 0.0
         for c in range(n):
-            vel0[i] += j0[i, c] * v[c]
-            velr[i] += jr[i, c] * v[c]
+            vel0 += frame[J0 + i, c] * v[c]
+            velr += frame[JR + i, c] * v[c]
+        frame[VEL0, i] = vel0
+        frame[VELR, i] = velr
     if strips.added_mass_model == KIRCHHOFF:
         for c in range(n):
             on = support[k, c] != 0.0
             for i in range(3):
-                frame.jw[i, c] = jac[3 + i, c] if on else 0.0
+                frame[JW + i, c] = jac[3 + i, c] if on else 0.0
 
 
 @numba.njit(cache=True)
-def world_frame(n, water_velocity):  # pragma: no cover - compiled
-    """A :data:`~hydroarm.model.water_effects.StripFrame` workspace for n generalised velocities in
-    the world frame (up = +z, the water moving at ``water_velocity`` (3,) m/s)."""
-    flow = np.empty(3)
+def world_frame(strips, n, water_velocity):  # pragma: no cover - compiled
+    """A world frame (:func:`~hydroarm.model.water_effects.new_frame`) for n generalised
+    velocities, the strips' quadrature and curve, the water moving at ``water_velocity`` (3,) m/s."""
+    frame = new_frame(n, False, strips.nodes, strips.weights, strips.curve_log_re, strips.curve_cd)
     for i in range(3):
-        flow[i] = water_velocity[i]
-    up = np.zeros(3)
-    up[2] = 1.0
-    return StripFrame(
-        False, np.empty((3, n)), np.empty((3, n)), np.zeros((3, n)), np.empty((3, n)), np.empty((3, n)),
-        np.empty(3), np.empty(3), np.zeros(3), np.zeros(3), np.empty(3), np.empty(3), np.empty(3),
-        flow, up, np.zeros(3), np.empty(3), np.empty(3), np.empty(3), np.empty(3),
-    )  # fmt: skip
+        frame[FLOW, i] = water_velocity[i]
+    return frame
 
 
 @numba.njit(cache=True)
@@ -380,10 +399,10 @@ def water_terms(strips, q, v, water_velocity, jac, djac):  # pragma: no cover - 
     force = np.zeros(n)
     tau_force = np.zeros(n)
     drag_force = force if strips.drag_model == DRAG_CONSTANT else tau_force
-    frame = world_frame(n, water_velocity)
+    frame = world_frame(strips, n, water_velocity)
     for k in range(strips.joint_ids.shape[0]):
         jacobian_frame(strips, k, rot, pos, jac, djac, v, frame)
-        cylinder_water(strips, k, frame, mass, bias, force, drag_force)
+        cylinder_water(strips, frame, mass, bias, force, drag_force)
     for a in range(n):
         for b in range(a + 1, n):
             mass[b, a] = mass[a, b]

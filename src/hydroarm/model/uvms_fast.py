@@ -35,7 +35,7 @@ from hydroarm.model.plant import inner_steps
 from hydroarm.model.strips import StripGeometry
 from hydroarm.model.uvms import UVMS, vehicle_water
 from hydroarm.model.uvms_fast_kernels import evaluate, new_rigid_tree, workspace
-from hydroarm.model.uvms_plant import UVMSPlant, UVMSStepInfo, new_rkmk4_work, rkmk4_advance, thrust_at
+from hydroarm.model.uvms_plant import UVMSPlant, UVMSStepInfo, integrate_configuration, rkmk4_update, thrust_at
 from hydroarm.model.water import Water
 
 
@@ -145,7 +145,7 @@ class FastUVMSDynamics:
         water_velocity = CurrentField(self.water.current, 0).at(t)[1]
         nv = self.uvms.nv
         out = np.empty(nv)
-        work = workspace(self.parents.shape[0], nv)
+        work = workspace(self.parents.shape[0], nv, self.strips)
         evaluate(np.asarray(q, float), np.asarray(v, float), np.asarray(tau, float), np.asarray(thrust, float),
                  water_velocity, self.tree, self.vehicle, self.strips, work, out)  # fmt: skip
         return out
@@ -153,20 +153,24 @@ class FastUVMSDynamics:
 
 @numba.njit(cache=True)
 def fast_step_kernel(t, x, u_tau, target, steps, h, tree, vehicle, strips):  # pragma: no cover - compiled
-    """The whole control step: ``steps`` RKMK4 steps of h; returns (x_next, thrust wrench sum)."""
+    """The whole control step: ``steps`` RKMK4 steps of h (the floating plant's arithmetic,
+    :func:`~hydroarm.model.uvms_plant.rkmk4_update` and
+    :func:`~hydroarm.model.uvms_plant.integrate_configuration`); returns (x_next, thrust wrench sum)."""
     nv = u_tau.shape[0]
     nq = nv + 1
     nj = tree.parents.shape[0]
-    n_thr = vehicle.allocation.shape[1]
-    work = workspace(nj, nv)
+    allocation, lag, current_world = vehicle.allocation, vehicle.lag, vehicle.current_world
+    n_thr = allocation.shape[1]
+    work = workspace(nj, nv, strips)
+    q0 = x[:nq].copy()
+    v0 = x[nq : nq + nv].copy()
     thrust0 = x[nq + nv :].copy()
-    rkmk4 = new_rkmk4_work((
-        x[:nq].copy(), x[nq : nq + nv].copy(), x[:nq].copy(), x[nq : nq + nv].copy(), np.empty((4, nv)),
-        np.empty((4, nv)), np.empty(nv), np.zeros(6), u_tau, thrust0, target,
-    ))  # fmt: skip
-    q0, v0, qs, vs = rkmk4.q0, rkmk4.v0, rkmk4.qs, rkmk4.vs
+    qs, vs = q0.copy(), v0.copy()
+    slopes = np.empty((4, nv))
+    accelerations = np.empty((4, nv))
+    increment = np.empty(nv)
     acc = np.empty(nv)
-    wrench = rkmk4.wrench
+    wrench = np.zeros(6)
     water_velocity = np.empty(3)
     none = np.empty(0)
     joints = np.zeros((3, 0))
@@ -174,23 +178,24 @@ def fast_step_kernel(t, x, u_tau, target, steps, h, tree, vehicle, strips):  # p
     for _ in range(steps):
         for stage in range(4):
             stage_time = time + (0.0 if stage == 0 else (h if stage == 3 else 0.5 * h))
-            thrust = thrust_at(target, thrust0, stage_time - t, vehicle.lag)
-            current_at(stage_time, joints, vehicle.current_world, none, water_velocity)
+            thrust = thrust_at(target, thrust0, stage_time - t, lag)
+            current_at(stage_time, joints, current_world, none, water_velocity)
             evaluate(qs, vs, u_tau, thrust, water_velocity, tree, vehicle, strips, work, acc)
             weight = 1.0 if stage == 0 or stage == 3 else 2.0
             for i in range(6):
                 s = 0.0
                 for b in range(n_thr):
-                    s += vehicle.allocation[i, b] * thrust[b]
+                    s += allocation[i, b] * thrust[b]
                 wrench[i] += weight * s
-            rkmk4_advance(stage, h, rkmk4, acc)
+            rkmk4_update(stage, h, v0, vs, acc, slopes, accelerations, increment)
+            integrate_configuration(q0, increment, qs)
         q0[:] = qs
         v0[:] = vs
         time += h
     out = np.empty(x.shape[0])
     out[:nq] = q0
     out[nq : nq + nv] = v0
-    out[nq + nv :] = thrust_at(target, thrust0, time - t, vehicle.lag)
+    out[nq + nv :] = thrust_at(target, thrust0, time - t, lag)
     return out, wrench
 
 

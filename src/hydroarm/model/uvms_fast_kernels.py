@@ -17,7 +17,21 @@ from numba.experimental import structref
 
 from hydroarm.model.strips import rotation_into
 from hydroarm.model.vehicle import quaternion_matrix, vehicle_generalised_force
-from hydroarm.model.water_effects import StripFrame, cylinder_water
+from hydroarm.model.water_effects import (
+    COLUMNS,
+    CYL,
+    DA,
+    DL,
+    FLOW,
+    OM,
+    P0,
+    UP,
+    VEL0,
+    VELR,
+    E,
+    cylinder_water,
+    new_frame,
+)
 
 
 @structref.register
@@ -52,14 +66,11 @@ def new_rigid_tree(arrays, gravity, arm_current):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True)
-def workspace(nj, nv):  # pragma: no cover - compiled
+def workspace(nj, nv, strips):  # pragma: no cover - compiled
     """Scratch arrays of :func:`evaluate` (allocated once per control step), the last two the
-    strip water's: a body-frame :data:`~hydroarm.model.water_effects.StripFrame` and a (6,)."""
-    frame = StripFrame(
-        True, np.zeros((3, 6)), np.zeros((3, 6)), np.zeros((3, 6)), np.zeros((3, 6)), np.zeros((3, 6)),
-        np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3),
-        np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3),
-    )  # fmt: skip
+    strip water's: a body frame (:func:`~hydroarm.model.water_effects.new_frame`, the strips'
+    quadrature and curve) and a (6,)."""
+    frame = new_frame(6, True, strips.nodes, strips.weights, strips.curve_log_re, strips.curve_cd)
     return (
         np.zeros((nj, 3, 3)), np.zeros((nj, 3)), np.zeros((nj, 3, 3)), np.zeros((nj, 6)), np.zeros((nj, 6)),
         np.zeros((nj, 6)), np.zeros((nj, 6, 6)), np.zeros((nv, nv)), np.zeros(nv), np.zeros(6), np.zeros(6),
@@ -109,35 +120,39 @@ def _motion_matrix(rot, pos, x):  # pragma: no cover - compiled
         x[i, 5] = -(rot[0, i] * pos[1] - rot[1, i] * pos[0])
 
 
-@numba.njit(cache=True)
-def body_frame(strips, k, vel, acc, rot_world, water_velocity, arm_current, frame):  # pragma: no cover
-    """Fill ``frame`` with cylinder k's kinematics in the frame of its body: ``vel`` (6,) the body
-    twist, ``acc`` (6,) its velocity-product acceleration, ``rot_world`` (3, 3) its orientation,
-    the water moving at ``water_velocity`` (3,, world; seen only if ``arm_current``)."""
-    p0, e = frame.p0, frame.e
+@numba.njit(cache=True, inline="always")
+def body_frame(start, axis, table, k, vel, acc, rot_world, water_velocity, arm_current, frame):  # pragma: no cover
+    """Fill ``frame`` with cylinder k's kinematics in the frame of its body and its coefficients
+    (``start``, ``axis``, ``table``: the body-frame strips' arrays): ``vel`` (6,) the body twist,
+    ``acc`` (6,) its velocity-product acceleration, ``rot_world`` (3, 3) its orientation, the
+    water moving at ``water_velocity`` (3,, world; seen only if ``arm_current``)."""
+    for c in range(COLUMNS):
+        frame[CYL, c] = table[k, c]
     for i in range(3):
-        p0[i] = strips.start[k, i]
-        e[i] = strips.axis[k, i]
-        frame.om[i] = vel[3 + i]
-        frame.dl[i] = acc[i]
-        frame.da[i] = acc[3 + i]
-        frame.up[i] = rot_world[2, i]
+        frame[P0, i] = start[k, i]
+        frame[E, i] = axis[k, i]
+        frame[OM, i] = vel[3 + i]
+        frame[DL, i] = acc[i]
+        frame[DA, i] = acc[3 + i]
+        frame[UP, i] = rot_world[2, i]
+    p0, p1, p2 = frame[P0, 0], frame[P0, 1], frame[P0, 2]
+    e0, e1, e2 = frame[E, 0], frame[E, 1], frame[E, 2]
     w0, w1, w2 = vel[3], vel[4], vel[5]
-    frame.vel0[0] = vel[0] + (w1 * p0[2] - w2 * p0[1])
-    frame.vel0[1] = vel[1] + (w2 * p0[0] - w0 * p0[2])
-    frame.vel0[2] = vel[2] + (w0 * p0[1] - w1 * p0[0])
-    frame.velr[0] = w1 * e[2] - w2 * e[1]
-    frame.velr[1] = w2 * e[0] - w0 * e[2]
-    frame.velr[2] = w0 * e[1] - w1 * e[0]
+    frame[VEL0, 0] = vel[0] + (w1 * p2 - w2 * p1)
+    frame[VEL0, 1] = vel[1] + (w2 * p0 - w0 * p2)
+    frame[VEL0, 2] = vel[2] + (w0 * p1 - w1 * p0)
+    frame[VELR, 0] = w1 * e2 - w2 * e1
+    frame[VELR, 1] = w2 * e0 - w0 * e2
+    frame[VELR, 2] = w0 * e1 - w1 * e0
     for i in range(3):
         cur = 0.0
         if arm_current:
             cur = rot_world[0, i] * water_velocity[0] + rot_world[1, i] * water_velocity[1]
             cur += rot_world[2, i] * water_velocity[2]
-        frame.flow[i] = cur
+        frame[FLOW, i] = cur
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline="always")
 def evaluate(q, v, tau, thrust, water_velocity, tree, vehicle, strips, work, out):  # pragma: no cover - compiled
     """v' (nv,) into ``out``: RNEA bias with the water's body wrenches, CRBA with the added
     inertias, Cholesky solve. ``tau`` (nv,): generalised force (base: body wrench); ``tree`` the
@@ -207,12 +222,20 @@ def evaluate(q, v, tau, thrust, water_velocity, tree, vehicle, strips, work, out
         force[i, 4] += w2 * tmp2[3] - w0 * tmp2[5] + vel[i, 2] * tmp2[0] - vel[i, 0] * tmp2[2]
         force[i, 5] += w0 * tmp2[4] - w1 * tmp2[3] + vel[i, 0] * tmp2[1] - vel[i, 1] * tmp2[0]
     no_inertia = tmp6[:0, :0]  # the added inertia is in ``total``
-    for k in range(strips.joint_ids.shape[0]):
-        i = strips.joint_ids[k]
+    bodies, start, axis, table, arm_current = (
+        strips.joint_ids,
+        strips.start,
+        strips.axis,
+        strips.table,
+        tree.arm_current,
+    )
+    wet = strips.drag or strips.axial or strips.added_mass or strips.buoyancy
+    for k in range(bodies.shape[0] if wet else 0):
+        i = bodies[k]
         for a in range(6):
             tmp[a] = 0.0
-        body_frame(strips, k, vel[i], acc[i], rot_world[i], water_velocity, tree.arm_current, frame)
-        cylinder_water(strips, k, frame, no_inertia, unused, tmp, tmp)
+        body_frame(start, axis, table, k, vel[i], acc[i], rot_world[i], water_velocity, arm_current, frame)
+        cylinder_water(strips, frame, no_inertia, unused, tmp, tmp)
         for a in range(6):
             force[i, a] -= tmp[a]
     body = vehicle_generalised_force(

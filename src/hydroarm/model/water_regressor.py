@@ -34,8 +34,20 @@ from hydroarm.model.arm import Arm
 from hydroarm.model.strips import StripGeometry, forward_kinematics, jacobian_frame, water_terms, world_frame
 from hydroarm.model.water import Water
 from hydroarm.model.water_effects import (
+    BIAS0,
+    BIAS1,
+    BUOYANCY,
+    CYL,
+    DRAG,
     DRAG_CONSTANT,
+    KIND,
     KIRCHHOFF,
+    LENGTH,
+    MASS,
+    NJ0,
+    NJR,
+    NODES,
+    WEIGHTS,
     acceleration_bias,
     buoyancy,
     drag,
@@ -67,10 +79,9 @@ class WaterRegressor:
         # the regressor's own strips: constant C_d, no axial drag, every effect on; the terms' coefficients
         # are written into _theta (owned here) before each call, the basis' are ones
         regressor = geometry.replace(drag=True, added_mass=True, buoyancy=True, axial=False, drag_model=DRAG_CONSTANT)
-        self._theta = (np.zeros(c), np.zeros(c), np.zeros(c))
-        self._terms_strips = regressor.replace(
-            drag_per_length=self._theta[0], mass_per_length=self._theta[1], buoyancy_force=self._theta[2]
-        ).compile()
+        terms = regressor.replace(drag_per_length=np.zeros(c), mass_per_length=np.zeros(c), buoyancy_force=np.zeros(c))
+        self._terms_strips = terms.compile()
+        self._table = terms.table  # the compiled coefficients, written before each call of terms()
         ones = np.ones(c)
         unit = regressor.replace(drag_per_length=ones, mass_per_length=ones, buoyancy_force=ones)
         self._unit_strips = unit.compile()
@@ -92,8 +103,8 @@ class WaterRegressor:
         q = np.ascontiguousarray(q, dtype=float)
         v = np.ascontiguousarray(v, dtype=float)
         theta = np.maximum(np.asarray(theta, dtype=float), 0.0)
-        for block, values in zip(self._theta, (theta[:c], theta[c : 2 * c], theta[2 * c :]), strict=True):
-            block[:] = values
+        table = self._table
+        table[:, DRAG], table[:, MASS], table[:, BUOYANCY] = theta[:c], theta[c : 2 * c], theta[2 * c :]
         data = self.data
         pin.computeJointJacobiansTimeVariation(self.arm.model, data, q, v)
         mass, bias, force, _ = water_terms(
@@ -174,44 +185,43 @@ def basis_kernel(strips, q, v, a, jac, djac):  # pragma: no cover - compiled
     c_count = strips.joint_ids.shape[0]
     phi = np.zeros((n, 3 * c_count))
     rot, pos = forward_kinematics(strips, q)
-    frame = world_frame(n, np.zeros(3))
+    frame = world_frame(strips, n, np.zeros(3))
     column = np.empty(n)
-    nodes, weights = strips.nodes, strips.weights
+    kirchhoff = strips.added_mass_model == KIRCHHOFF
     for k in range(c_count):
         jacobian_frame(strips, k, rot, pos, jac, djac, v, frame)
-        L = strips.length[k]
+        L = frame[CYL, LENGTH]
         column[:] = 0.0
-        drag(strips, k, frame, column)
+        drag(strips, frame, column)
         for c in range(n):
             phi[c, k] = column[c]
         # added mass, unit coefficient: -(M_A,k a + h_A,k)
         acceleration_bias(frame)
         normal_jacobian(frame)
-        nj0, njr, bias0, bias1 = frame.nj0, frame.njr, frame.bias0, frame.bias1
-        for m in range(nodes.shape[0]):
-            s = L * nodes[m]
-            w = L * weights[m]
+        for m in range(int(frame[KIND, 1])):
+            s = L * frame[NODES, m]
+            w = L * frame[WEIGHTS, m]
             # normal acceleration at s: sum_b N_b(s) a_b + bias(s)
-            acc0 = bias0[0] + s * bias1[0]
-            acc1 = bias0[1] + s * bias1[1]
-            acc2 = bias0[2] + s * bias1[2]
+            acc0 = frame[BIAS0, 0] + s * frame[BIAS1, 0]
+            acc1 = frame[BIAS0, 1] + s * frame[BIAS1, 1]
+            acc2 = frame[BIAS0, 2] + s * frame[BIAS1, 2]
             for b in range(n):
-                acc0 += (nj0[0, b] + s * njr[0, b]) * a[b]
-                acc1 += (nj0[1, b] + s * njr[1, b]) * a[b]
-                acc2 += (nj0[2, b] + s * njr[2, b]) * a[b]
+                acc0 += (frame[NJ0, b] + s * frame[NJR, b]) * a[b]
+                acc1 += (frame[NJ0 + 1, b] + s * frame[NJR + 1, b]) * a[b]
+                acc2 += (frame[NJ0 + 2, b] + s * frame[NJR + 2, b]) * a[b]
             for c in range(n):
                 phi[c, c_count + k] -= w * (
-                    (nj0[0, c] + s * njr[0, c]) * acc0 + (nj0[1, c] + s * njr[1, c]) * acc1
-                    + (nj0[2, c] + s * njr[2, c]) * acc2
+                    (frame[NJ0, c] + s * frame[NJR, c]) * acc0 + (frame[NJ0 + 1, c] + s * frame[NJR + 1, c]) * acc1
+                    + (frame[NJ0 + 2, c] + s * frame[NJR + 2, c]) * acc2
                 )  # fmt: skip
-        if strips.added_mass_model == KIRCHHOFF:
+        if kirchhoff:
             column[:] = 0.0
-            kirchhoff_bias(strips, k, frame, L, column)
+            kirchhoff_bias(frame, L, column)
             for c in range(n):
                 phi[c, c_count + k] -= column[c]
         # buoyancy, unit coefficient: the midpoint's vertical Jacobian row
         column[:] = 0.0
-        buoyancy(strips, k, frame, column)
+        buoyancy(strips, frame, column)
         for c in range(n):
             phi[c, 2 * c_count + k] = column[c]
     return phi
