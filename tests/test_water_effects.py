@@ -335,3 +335,22 @@ def test_a_bad_axial_coefficient_in_a_hydrodynamics_file_names_its_field():
     hydro["links"][0]["cylinders"][0]["cd_axial"] = 0.7
     arm = arm_from_urdf(generated_urdf(4, seed=1), hydro, source="gen.hydro.toml")
     assert [c.cd_axial for c in arm.cylinders] == [0.7]
+
+
+def test_the_reynolds_drag_runs_on_the_vehicle_paths_alike():
+    """The same strip kernel everywhere: the Reynolds drag, once refused on a floating base, gives
+    the same accelerations on the fast and the Pinocchio vehicle paths, and another than C_d = 1."""
+    system = build_uvms()
+    current = CurrentConfig(model="uniform", mean=[0.3, -0.1, 0.05])
+    water = Water(drag_model="reynolds", current=current)
+    exact, fast = UVMSDynamics(system, water), FastUVMSDynamics(system, water, FastUVMSConfig(drag_points=8))
+    constant = UVMSDynamics(system, Water(current=current))
+    rng = np.random.default_rng(8)
+    for _ in range(5):
+        q = pin.integrate(system.model, system.neutral(), rng.normal(size=system.nv))
+        v, tau, thrust = rng.normal(size=system.nv), rng.normal(size=system.nv), 10.0 * rng.normal(size=8)
+        reference = exact.acceleration(0.3, q, v, tau, thrust)
+        assert np.abs(fast.acceleration(0.3, q, v, tau, thrust) - reference).max() < 1e-12 * (
+            1.0 + np.abs(reference).max()
+        )
+        assert np.abs(constant.acceleration(0.3, q, v, tau, thrust) - reference).max() > 1e-6
