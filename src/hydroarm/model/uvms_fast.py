@@ -145,7 +145,7 @@ class FastUVMSDynamics:
         water_velocity = CurrentField(self.water.current, 0).at(t)[1]
         nv = self.uvms.nv
         out = np.empty(nv)
-        work = workspace(self.parents.shape[0], nv, self.strips)
+        work = workspace(nv, self.tree, self.vehicle, self.strips)
         evaluate(np.asarray(q, float), np.asarray(v, float), np.asarray(tau, float), np.asarray(thrust, float),
                  water_velocity, self.tree, self.vehicle, self.strips, work, out)  # fmt: skip
         return out
@@ -161,7 +161,7 @@ def fast_step_kernel(t, x, u_tau, target, steps, h, tree, vehicle, strips):  # p
     nj = tree.parents.shape[0]
     allocation, lag, current_world = vehicle.allocation, vehicle.lag, vehicle.current_world
     n_thr = allocation.shape[1]
-    work = workspace(nj, nv, strips)
+    work = workspace(nv, tree, vehicle, strips)
     q0 = x[:nq].copy()
     v0 = x[nq : nq + nv].copy()
     thrust0 = x[nq + nv :].copy()

@@ -66,16 +66,23 @@ def new_rigid_tree(arrays, gravity, arm_current):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True)
-def workspace(nj, nv, strips):  # pragma: no cover - compiled
-    """Scratch arrays of :func:`evaluate` (allocated once per control step), the last two the
-    strip water's: a body frame (:func:`~hydroarm.model.water_effects.new_frame`, the strips'
-    quadrature and curve) and a (6,)."""
+def workspace(nv, tree, vehicle, strips):  # pragma: no cover - compiled
+    """What :func:`evaluate` works with, built once per control step: scratch arrays, the strip
+    water's body frame (:func:`~hydroarm.model.water_effects.new_frame`) and a (6,), then the
+    arrays of ``tree``, ``vehicle`` and ``strips`` it reads (taken out of the structures here,
+    once, rather than at every evaluation)."""
+    nj = tree.parents.shape[0]
     frame = new_frame(6, True, strips.nodes, strips.weights, strips.curve_log_re, strips.curve_cd)
-    return (
+    scratch = (
         np.zeros((nj, 3, 3)), np.zeros((nj, 3)), np.zeros((nj, 3, 3)), np.zeros((nj, 6)), np.zeros((nj, 6)),
         np.zeros((nj, 6)), np.zeros((nj, 6, 6)), np.zeros((nv, nv)), np.zeros(nv), np.zeros(6), np.zeros(6),
         np.zeros((6, 6)), np.zeros((6, 6)), frame, np.zeros(6),
     )  # fmt: skip
+    tree_arrays = (tree.parents, tree.place_rotation, tree.place_translation, tree.axes, tree.rigid, tree.total)
+    vehicle_arrays = (vehicle.allocation, vehicle.added_mass, vehicle.linear_damping, vehicle.quadratic_damping,
+                      vehicle.cb)  # fmt: skip
+    strip_arrays = (strips.joint_ids, strips.start, strips.axis, strips.table)
+    return scratch, tree_arrays, vehicle_arrays, strip_arrays
 
 
 @numba.njit(cache=True, inline="always")
@@ -157,16 +164,14 @@ def evaluate(q, v, tau, thrust, water_velocity, tree, vehicle, strips, work, out
     """v' (nv,) into ``out``: RNEA bias with the water's body wrenches, CRBA with the added
     inertias, Cholesky solve. ``tau`` (nv,): generalised force (base: body wrench); ``tree`` the
     :class:`RigidTree`, ``vehicle`` the :class:`~hydroarm.model.uvms.VehicleWater`, ``strips`` the
-    arm's body-frame strips, ``work`` :func:`workspace`'s arrays."""
-    rot, pos, rot_world, vel, acc, force, composite, mass, rhs, tmp, tmp2, tmp6, xm, frame, unused = work
-    parents, place_rotation, place_translation, axes = (
-        tree.parents,
-        tree.place_rotation,
-        tree.place_translation,
-        tree.axes,
-    )
-    rigid, total, gravity = tree.rigid, tree.total, tree.gravity
-    allocation = vehicle.allocation
+    arm's body-frame strips (their scalars and switches; their arrays, as the tree's and the
+    vehicle's, come in ``work``: :func:`workspace`)."""
+    scratch, tree_arrays, vehicle_arrays, strip_arrays = work
+    rot, pos, rot_world, vel, acc, force, composite, mass, rhs, tmp, tmp2, tmp6, xm, frame, unused = scratch
+    parents, place_rotation, place_translation, axes, rigid, total = tree_arrays
+    allocation, added_mass, linear_damping, quadratic_damping, cb = vehicle_arrays
+    bodies, start, axis, table = strip_arrays
+    gravity = tree.gravity
     rj = tmp6[:3, :3].copy()
     nj = parents.shape[0]
     nv = v.shape[0]
@@ -222,13 +227,7 @@ def evaluate(q, v, tau, thrust, water_velocity, tree, vehicle, strips, work, out
         force[i, 4] += w2 * tmp2[3] - w0 * tmp2[5] + vel[i, 2] * tmp2[0] - vel[i, 0] * tmp2[2]
         force[i, 5] += w0 * tmp2[4] - w1 * tmp2[3] + vel[i, 0] * tmp2[1] - vel[i, 1] * tmp2[0]
     no_inertia = tmp6[:0, :0]  # the added inertia is in ``total``
-    bodies, start, axis, table, arm_current = (
-        strips.joint_ids,
-        strips.start,
-        strips.axis,
-        strips.table,
-        tree.arm_current,
-    )
+    arm_current = tree.arm_current
     wet = strips.drag or strips.axial or strips.added_mass or strips.buoyancy
     for k in range(bodies.shape[0] if wet else 0):
         i = bodies[k]
@@ -239,8 +238,8 @@ def evaluate(q, v, tau, thrust, water_velocity, tree, vehicle, strips, work, out
         for a in range(6):
             force[i, a] -= tmp[a]
     body = vehicle_generalised_force(
-        v[:6], rot_world[1], water_velocity, vehicle.added_mass, vehicle.linear_damping, vehicle.quadratic_damping,
-        vehicle.buoyancy, vehicle.cb, vehicle.added_mass_on, vehicle.drag_on, vehicle.buoyancy_on,
+        v[:6], rot_world[1], water_velocity, added_mass, linear_damping, quadratic_damping,
+        vehicle.buoyancy, cb, vehicle.added_mass_on, vehicle.drag_on, vehicle.buoyancy_on,
     )  # fmt: skip
     for a in range(6):
         s = body[a]

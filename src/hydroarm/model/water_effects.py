@@ -159,26 +159,37 @@ def _drag_piece(reynolds, viscosity, s0, s1, frame, out):  # pragma: no cover - 
     p00, p01, p02 = frame[P0, 0], frame[P0, 1], frame[P0, 2]  # read once: ``out`` may alias ``frame``
     e0, e1, e2 = frame[E, 0], frame[E, 1], frame[E, 2]
     width = s1 - s0
+    # body frames sum the wrench in registers (the same additions in the same order as into ``out``)
+    w0, w1, w2, w3, w4, w5 = (
+        (out[0], out[1], out[2], out[3], out[4], out[5]) if body else (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    )
     for m in range(int(frame[KIND, 1])):
         s = s0 + width * frame[NODES, m]
-        w = width * frame[WEIGHTS, m]
+        weight = frame[WEIGHTS, m]
         v0 = a0 + s * b0
         v1 = a1 + s * b1
         v2 = a2 + s * b2
         speed = np.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
+        coefficient = constant
         if reynolds:
             if speed <= 0.0:
                 continue
-            log_re = np.log10(speed * diameter / viscosity)
-            coefficient = per_cd * interpolate(log_re, frame, CURVE_X, CURVE_Y, curve)
-        else:
-            coefficient = constant
+            coefficient = per_cd * interpolate(np.log10(speed * diameter / viscosity), frame, CURVE_X, CURVE_Y, curve)
         if body:  # the fast vehicle path's order of the products (its numbers, bit for bit)
-            scale = -coefficient * width * frame[WEIGHTS, m] * speed
-            add_wrench(p00 + s * e0, p01 + s * e1, p02 + s * e2, scale * v0, scale * v1, scale * v2, out)
+            scale = -coefficient * width * weight * speed
+            f0, f1, f2 = scale * v0, scale * v1, scale * v2
+            r0, r1, r2 = p00 + s * e0, p01 + s * e1, p02 + s * e2
+            w0 += f0
+            w1 += f1
+            w2 += f2
+            w3 += r1 * f2 - r2 * f1
+            w4 += r2 * f0 - r0 * f2
+            w5 += r0 * f1 - r1 * f0
         else:
-            scale = -coefficient * w * speed
+            scale = -coefficient * (width * weight) * speed
             project_force(frame, s, scale * v0, scale * v1, scale * v2, out)
+    if body:
+        out[0], out[1], out[2], out[3], out[4], out[5] = w0, w1, w2, w3, w4, w5
 
 
 @numba.njit(cache=True, inline="always")
