@@ -158,7 +158,6 @@ def fast_step_kernel(t, x, u_tau, target, steps, h, tree, vehicle, strips):  # p
     :func:`~hydroarm.model.uvms_plant.integrate_configuration`); returns (x_next, thrust wrench sum)."""
     nv = u_tau.shape[0]
     nq = nv + 1
-    nj = tree.parents.shape[0]
     allocation, lag, current_world = vehicle.allocation, vehicle.lag, vehicle.current_world
     n_thr = allocation.shape[1]
     work = workspace(nv, tree, vehicle, strips)
