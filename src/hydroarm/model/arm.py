@@ -45,7 +45,7 @@ class LinkSpec(FrozenModel):
     """One DH row with the link's dry inertial data and wetted cylinder.
 
     Ranges: |a|, |d|, |com| <= 100 m; 0 < mass <= 1e5 kg; inertias in kg m^2
-    up to 1e6; 0 < cylinder_diameter <= 10 m; 0 <= buoyancy_kg <= 1e6.
+    up to 1e6; 0 < cylinder_diameter <= 10 m; 0 <= buoyancy_kg <= 1e6; 0 <= cd_axial <= 10.
     """
 
     name: str = pydantic.Field(min_length=1)
@@ -70,6 +70,9 @@ class LinkSpec(FrozenModel):
     cylinder_diameter: float = pydantic.Field(gt=0.0, le=10.0, description="wetted cylinder diameter (m)")
     buoyancy_kg: float | None = pydantic.Field(
         None, ge=0.0, le=1e6, description="displaced water mass at 1000 kg/m^3; default: the cylinder's volume"
+    )
+    cd_axial: float = pydantic.Field(
+        0.0, ge=0.0, le=10.0, description="axial drag coefficient C_a of the cylinder, on its end area; 0 = none (-)"
     )
 
     @pydantic.model_validator(mode="after")
@@ -181,7 +184,8 @@ class WettedCylinder:
 
     ``start`` and ``end`` are in the body frame of Pinocchio joint ``joint_id``
     (m); ``diameter`` in m; ``displaced_volume`` in m^3 (buoyancy acts at the
-    midpoint); ``cd``/``cm`` override the water's coefficients when not None.
+    midpoint); ``cd``/``cm`` override the water's coefficients when not None; ``cd_axial`` the
+    axial drag coefficient C_a on the end area (0: no axial drag).
     """
 
     name: str
@@ -192,6 +196,7 @@ class WettedCylinder:
     displaced_volume: float
     cd: float | None = None
     cm: float | None = None
+    cd_axial: float = 0.0
 
     @property
     def length(self) -> float:
@@ -395,6 +400,7 @@ def build_arm(spec: ArmSpec) -> Arm:
                 end=link.cylinder_end,
                 diameter=link.cylinder_diameter,
                 displaced_volume=volume,
+                cd_axial=link.cd_axial,
             )
         )
         placement = link.dh_transform()  # joint i+1 sits at DH frame i

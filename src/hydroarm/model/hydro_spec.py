@@ -24,9 +24,9 @@ class CylinderSpec(FrozenModel):
 
     Give ``start`` and ``end`` (m), or ``length`` (m), ``axis`` (a direction,
     normalised here) and ``offset`` (the centre, m; default the link origin).
-    ``cd``/``cm`` override the link's coefficients; ``displaced_volume`` (m^3)
+    ``cd``/``cm``/``cd_axial`` override the link's coefficients; ``displaced_volume`` (m^3)
     its share of the link's. Ranges: 0 < diameter <= 10 m, 1e-6 <= length <= 100 m,
-    coordinates within +-100 m, 0 <= displaced_volume <= 1000 m^3.
+    coordinates within +-100 m, 0 <= displaced_volume <= 1000 m^3, coefficients in [0, 10].
     """
 
     diameter: float = pydantic.Field(gt=0.0, le=10.0, description="m")
@@ -37,6 +37,9 @@ class CylinderSpec(FrozenModel):
     offset: Vector3 | None = None
     cd: Coefficient | None = None
     cm: Coefficient | None = None
+    cd_axial: Coefficient | None = pydantic.Field(
+        None, description="axial drag coefficient C_a on the end area (-); default: the link's"
+    )
     displaced_volume: Volume | None = pydantic.Field(
         None, description="m^3; default: its share of the link's displaced_volume, or its own volume"
     )
@@ -85,6 +88,9 @@ class LinkHydroSpec(FrozenModel):
     cylinders: list[CylinderSpec] = pydantic.Field(default_factory=list, max_length=64)
     cd: Coefficient | None = None
     cm: Coefficient | None = None
+    cd_axial: Coefficient = pydantic.Field(
+        0.0, description="axial drag coefficient C_a of the link's cylinders on their end area; 0 = none (-)"
+    )
     displaced_volume: Volume | None = pydantic.Field(
         None, description="m^3 for the whole link; default: the cylinders' volume"
     )

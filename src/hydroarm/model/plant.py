@@ -30,6 +30,8 @@ import numpy as np
 import pinocchio as pin
 import pydantic
 import scipy.linalg
+from numba.core import types
+from numba.experimental import structref
 
 from hydroarm.config import ConfigError, FrozenModel, per_joint
 from hydroarm.model.arm import Arm
@@ -37,8 +39,9 @@ from hydroarm.model.current import current_at
 from hydroarm.model.friction import FrictionConfig, friction_torque
 from hydroarm.model.integrator import rk4_second_order_stage, rk4_step
 from hydroarm.model.sensing import Actuator, ActuatorConfig, Sensor, SensorConfig
-from hydroarm.model.strips import underwater_dynamics_kernel
+from hydroarm.model.strips import solve_underwater, water_terms
 from hydroarm.model.water import Water, WaterModel, added_mass_matrix
+from hydroarm.model.water_effects import DRAG_REYNOLDS
 
 STIFFNESS_LIMIT = 2.5
 """Bound on ``friction * inner_step / lambda_min(M + M_A)`` (classic RK4 is stable on the
@@ -137,6 +140,10 @@ class UnderwaterPlant:
         else:
             zero = np.zeros(self.n)
             self._friction_arrays = (zero, zero, zero, np.ones(self.n), np.ones(self.n))
+        self._joints = _new_joint_friction(float(self.config.friction), self.joint_friction, self._friction_arrays)
+        self._work_arrays = (np.empty(2 * self.n), np.empty(2 * self.n), np.empty((4, 2 * self.n)),
+                             np.empty((4, self.n)), np.empty(self.n))  # fmt: skip
+        self._work = _new_rk4_work(self._work_arrays)
         for name, values in (("actuator.torque_limit", self.actuator.torque_limit),
                              ("actuator.rate_limit", self.actuator.rate_limit),
                              ("actuator.bandwidth", self.actuator.bandwidth)):  # fmt: skip
@@ -215,25 +222,15 @@ class UnderwaterPlant:
         """
         n = self.n
         steps, h = inner_steps(dt, self.inner_step)
-        state = np.array(x, dtype=float)  # a copy: the kernel updates it in place
+        state, stage_state, _, disturbances, average = self._work_arrays
+        state[:] = x  # the kernel updates the state in place
+        stage_state[:] = state
+        average[:] = 0.0
         tau = np.ascontiguousarray(tau, dtype=float)
-        stage_state = state.copy()
         q, v = stage_state[:n], stage_state[n:]
-        derivatives = np.empty((4, 2 * n))
-        disturbances = np.empty((4, n))
-        average = np.zeros(n)
         start = None
         model, data = self.arm.model, self.data
-        wm, water = self.water_model, self.water_model.water
-        constants = wm.kernel_constants
-        current_joint, current_world = wm.current.joint, wm.current.world
-        friction = float(self.config.friction)
-        joint_friction, joint_arrays = self.joint_friction, self._friction_arrays
-        drag, added_mass, buoyancy = water.drag, water.added_mass, water.buoyancy
-        reynolds = wm.reynolds  # drag_model = "reynolds": the drag joins tau, stage by stage
-        if reynolds is not None:
-            drag = False
-            stage_tau = tau.copy()
+        strips, joints, work = self.water_model.strips, self._joints, self._work
         live = self._views
         time = t
         for _ in range(steps):
@@ -243,33 +240,18 @@ class UnderwaterPlant:
                 nonlinear = pin.nonLinearEffects(model, data, q, v)
                 pin.computeJointJacobiansTimeVariation(model, data, q, v)
                 mass, jac, djac = live if live is not None else (data.M, data.J, data.dJ)
-                applied = tau
-                if reynolds is not None:
-                    reynolds_drag = reynolds.force(q, v, wm.current.at(stage_time)[1], data.J.reshape(6, n))
-                    np.add(tau, reynolds_drag, out=stage_tau)
-                    applied = stage_tau
                 try:
-                    rk4_stage_kernel(
-                        stage, stage_time, h, state, stage_state, derivatives, disturbances, average, applied,
-                        friction, mass, nonlinear, jac, djac,
-                        current_joint, current_world, *constants, drag, added_mass, buoyancy,
-                        joint_friction, *joint_arrays,
-                    )  # fmt: skip
+                    rk4_stage_kernel(stage, stage_time, h, tau, mass, nonlinear, jac, djac, strips, joints, work)
                 except np.linalg.LinAlgError:  # the solve met an infinite force: diverged
                     stage_state[:] = np.nan
                     break
-                if reynolds is not None:  # the drag is part of the disturbance (stage 3: of its average too)
-                    disturbances[stage] += reynolds_drag
-                    if stage == 3:
-                        average += reynolds_drag
             if not np.all(np.isfinite(stage_state)):  # diverged: NaN out, the caller reports it
                 nan = np.full(n, np.nan)
                 return np.full(2 * n, np.nan), StepInfo(disturbance=nan, disturbance_start=nan.copy())
             if start is None:
                 start = disturbances[0].copy()
             time += h
-        average /= 6.0 * steps
-        return state, StepInfo(disturbance=average, disturbance_start=start)
+        return state.copy(), StepInfo(disturbance=average / (6.0 * steps), disturbance_start=start)
 
     def step_numpy(self, t: float, x: np.ndarray, tau: np.ndarray, dt: float) -> tuple[np.ndarray, StepInfo]:
         """:meth:`step` in plain NumPy: :func:`~hydroarm.model.integrator.rk4_step` over
@@ -345,54 +327,100 @@ class UnderwaterPlant:
         return self.arm.kinetic_energy(x[:n], x[n:], data=self.data) + self.arm.potential_energy(x[:n], data=self.data)
 
 
+@structref.register
+class JointFrictionType(types.StructRef):
+    """numba type of the plant's joint friction constants (:func:`_new_joint_friction`)."""
+
+
+@structref.register
+class RK4WorkType(types.StructRef):
+    """numba type of the plant's RK4 workspace (:func:`_new_rk4_work`)."""
+
+
+class JointFriction(structref.StructRefProxy):
+    """The joint friction of one plant, as :func:`rk4_stage_kernel` reads it: ``uniform`` the
+    viscous ``plant.friction`` (N m s/rad), ``on`` and the five (n,) arrays of
+    :func:`~hydroarm.model.friction.friction_torque` (``coulomb``, ``breakaway``, ``viscous``,
+    ``stribeck_velocity``, ``width``)."""
+
+
+class RK4Work(structref.StructRefProxy):
+    """The workspace of one plant's RK4 step: the state ``x`` (2n,), the stage state ``xs``
+    (2n,), the stage slopes ``ks`` (4, 2n), the stage disturbances ``dists`` (4, n) and their
+    weighted sum ``average`` (n,)."""
+
+
+structref.define_boxing(JointFrictionType, JointFriction)
+structref.define_boxing(RK4WorkType, RK4Work)
+_F1, _F2 = types.float64[::1], types.float64[:, ::1]
+JOINT_FRICTION_TYPE = JointFrictionType([
+    ("uniform", types.float64), ("on", types.boolean), ("coulomb", _F1), ("breakaway", _F1), ("viscous", _F1),
+    ("stribeck_velocity", _F1), ("width", _F1),
+])  # fmt: skip
+RK4_WORK_TYPE = RK4WorkType([("x", _F1), ("xs", _F1), ("ks", _F2), ("dists", _F2), ("average", _F1)])
+
+
 @numba.njit(cache=True)
-def rk4_stage_kernel(
-    stage, t, h, x, xs, ks, dists, average, tau, friction, mass_upper, nonlinear, jac, djac,
-    current_joint, current_world,
-    parents, placement_rotation, placement_translation, axes, idx_v,
-    joint_ids, start, axis, length, support, drag_per_length, mass_per_length, buoyancy_force,
-    nodes, weights, use_drag, use_added_mass, use_buoyancy,
-    use_joint_friction, coulomb, breakaway, viscous, stribeck_velocity, width,
-):  # fmt: skip  # pragma: no cover - compiled
+def _new_joint_friction(uniform, on, arrays):  # pragma: no cover - compiled
+    s = structref.new(JOINT_FRICTION_TYPE)
+    s.uniform, s.on = uniform, on
+    s.coulomb, s.breakaway, s.viscous, s.stribeck_velocity, s.width = arrays
+    return s
+
+
+@numba.njit(cache=True)
+def _new_rk4_work(arrays):  # pragma: no cover - compiled
+    s = structref.new(RK4_WORK_TYPE)
+    s.x, s.xs, s.ks, s.dists, s.average = arrays
+    return s
+
+
+@numba.njit(cache=True)
+def rk4_stage_kernel(stage, t, h, tau, mass_upper, nonlinear, jac, djac, strips, joints, work):  # pragma: no cover
     """One stage of a classic RK4 step of the true plant, everything but Pinocchio compiled.
 
     The caller evaluates Pinocchio (CRBA -> ``mass_upper``, NLE -> ``nonlinear``,
     Jacobians and their time variation -> ``jac``, ``djac``) at the stage state
-    ``xs = [q, v]`` (2n,) and time ``t``; this evaluates the current at ``t`` and
-    :func:`~hydroarm.model.strips.underwater_dynamics_kernel`, stores the disturbance ``dists[stage]`` and
-    leaves the RK4 bookkeeping to :func:`hydroarm.model.integrator.rk4_second_order_stage`
-    (``ks[stage] = [v, q'']``, ``xs`` the next stage's state); after the last stage
-    (3) ``x`` itself becomes ``x + h/6 (k1 + 2 k2 + 2 k3 + k4)`` (``xs`` too) and
-    ``average`` gets ``d1 + 2 d2 + 2 d3 + d4``. Same operations, in the same order,
+    ``work.xs = [q, v]`` (2n,) and time ``t``; this evaluates the current at ``t``, the water
+    (:func:`~hydroarm.model.strips.water_terms` on ``strips``) and the solve
+    (:func:`~hydroarm.model.strips.solve_underwater`), stores the disturbance ``work.dists[stage]``
+    and leaves the RK4 bookkeeping to :func:`hydroarm.model.integrator.rk4_second_order_stage`
+    (``work.ks[stage] = [v, q'']``, ``work.xs`` the next stage's state); after the last stage
+    (3) ``work.x`` itself becomes ``x + h/6 (k1 + 2 k2 + 2 k3 + k4)`` (``xs`` too) and
+    ``work.average`` gets ``d1 + 2 d2 + 2 d3 + d4``. Same operations, in the same order,
     as :meth:`UnderwaterPlant.step_numpy` (a test compares them bit for bit).
-    ``current_joint``, ``current_world``: :class:`~hydroarm.model.current.CurrentField`'s arrays.
-    ``use_joint_friction`` and the five (n,) arrays after it: the joint friction model
-    (:func:`~hydroarm.model.friction.friction_torque`), subtracted from tau; the disturbance
-    then includes it.
+    ``joints``: :class:`JointFriction`; the joint friction model's torque is subtracted from tau
+    and the disturbance then includes it. The Reynolds drag joins tau before the friction and
+    the disturbance after the average's update (the order the numbers were first made in).
     """
     n = tau.shape[0]
+    x, xs, dists, average = work.x, work.xs, work.dists, work.average
     joint_acceleration = np.empty(n)
     water_velocity = np.empty(3)
-    current_at(t, current_joint, current_world, joint_acceleration, water_velocity)
-    applied = tau
+    current_at(t, strips.current_joint, strips.current_world, joint_acceleration, water_velocity)
+    q, v = xs[:n], xs[n:]
+    added, bias, force, tau_force = water_terms(strips, q, v, water_velocity, jac, djac)
+    reynolds = strips.drag_model == DRAG_REYNOLDS
+    applied = tau + tau_force if reynolds else tau
     joint_friction = tau  # a placeholder of the same type, replaced when the friction model is on
-    if use_joint_friction:
-        joint_friction = friction_torque(xs[n:], coulomb, breakaway, viscous, stribeck_velocity, width)
-        applied = tau - joint_friction
-    acc, disturbance = underwater_dynamics_kernel(
-        xs[:n], xs[n:], applied, water_velocity, joint_acceleration, friction, mass_upper, nonlinear, jac, djac,
-        parents, placement_rotation, placement_translation, axes, idx_v,
-        joint_ids, start, axis, length, support, drag_per_length, mass_per_length, buoyancy_force,
-        nodes, weights, use_drag, use_added_mass, use_buoyancy,
-    )  # fmt: skip
-    if use_joint_friction:
+    if joints.on:
+        joint_friction = friction_torque(v, joints.coulomb, joints.breakaway, joints.viscous,
+                                         joints.stribeck_velocity, joints.width)  # fmt: skip
+        applied = applied - joint_friction
+    rigid = (mass_upper, nonlinear, jac, djac)
+    acc, disturbance = solve_underwater(v, applied, joint_acceleration, joints.uniform, rigid, added, bias, force)
+    if joints.on:
         disturbance = disturbance - joint_friction
     for i in range(n):
         dists[stage, i] = disturbance[i]
-    rk4_second_order_stage(stage, h, x, xs, ks, acc)
-    if stage < 3:
-        return
-    for i in range(2 * n):
-        x[i] = xs[i]
-    for i in range(n):
-        average[i] += dists[0, i] + 2.0 * dists[1, i] + 2.0 * dists[2, i] + dists[3, i]
+    rk4_second_order_stage(stage, h, x, xs, work.ks, acc)
+    if stage == 3:
+        for i in range(2 * n):
+            x[i] = xs[i]
+        for i in range(n):
+            average[i] += dists[0, i] + 2.0 * dists[1, i] + 2.0 * dists[2, i] + dists[3, i]
+    if reynolds:
+        for i in range(n):
+            dists[stage, i] += tau_force[i]
+            if stage == 3:
+                average[i] += tau_force[i]

@@ -293,7 +293,7 @@ def _wetted_cylinders(model: pin.Model, hydro: HydroSpec, collisions: dict, sour
         frame = _link_frame(model, spec.link)
         if frame is None:
             raise ConfigError(f"{where}.link = {spec.link!r}: Pinocchio has no body frame for this link")
-        pieces = []  # (start, end, diameter, cd, cm, own displaced volume or None) in the link frame
+        pieces = []  # (start, end, diameter, cd, cm, own displaced volume or None, cd_axial) in the link frame
         if spec.collision is not False:
             rows = collisions[spec.link]
             wanted = [row[0] for row in rows if row is not None] if spec.collision is True else list(spec.collision)
@@ -313,10 +313,13 @@ def _wetted_cylinders(model: pin.Model, hydro: HydroSpec, collisions: dict, sour
                     )
                 axis = origin.rotation[:, 2]
                 half = 0.5 * length * axis
-                pieces.append((origin.translation - half, origin.translation + half, 2.0 * radius, None, None, None))
+                pieces.append(
+                    (origin.translation - half, origin.translation + half, 2.0 * radius, None, None, None, None)
+                )
         for cylinder in spec.cylinders:
             start, end = cylinder.endpoints()
-            pieces.append((start, end, cylinder.diameter, cylinder.cd, cylinder.cm, cylinder.displaced_volume))
+            pieces.append((start, end, cylinder.diameter, cylinder.cd, cylinder.cm, cylinder.displaced_volume,
+                           cylinder.cd_axial))  # fmt: skip
         point = spec.buoyancy_center is not None
         volumes = np.zeros(len(pieces)) if point else _split_volumes(pieces, spec.displaced_volume, where)
         placement = frame.placement
@@ -334,7 +337,7 @@ def _wetted_cylinders(model: pin.Model, hydro: HydroSpec, collisions: dict, sour
                     cm=0.0,
                 )
             )
-        for k, ((start, end, diameter, cd, cm, _), volume) in enumerate(zip(pieces, volumes, strict=True)):
+        for k, ((start, end, diameter, cd, cm, _, cd_axial), volume) in enumerate(zip(pieces, volumes, strict=True)):
             out.append(
                 WettedCylinder(
                     name=spec.link if len(pieces) == 1 else f"{spec.link}_{k}",
@@ -345,6 +348,7 @@ def _wetted_cylinders(model: pin.Model, hydro: HydroSpec, collisions: dict, sour
                     displaced_volume=float(volume),
                     cd=cd if cd is not None else spec.cd,
                     cm=cm if cm is not None else spec.cm,
+                    cd_axial=cd_axial if cd_axial is not None else spec.cd_axial,
                 )
             )
     return out
@@ -444,12 +448,16 @@ def hydro_spec_of(arm: Arm, use_collision: bool = True) -> dict[str, Any]:
                 "displaced_volume": c.displaced_volume,
             }
             entry.update({key: value for key, value in (("cd", c.cd), ("cm", c.cm)) if value is not None})
+            if c.cd_axial > 0.0:
+                entry["cd_axial"] = c.cd_axial
         else:
             entry = {"link": f"link{joint_id}", "cylinders": []}
             for c in cylinders:
                 row = {"diameter": c.diameter, "start": c.start.tolist(), "end": c.end.tolist()}
                 row["displaced_volume"] = c.displaced_volume
                 row.update({key: value for key, value in (("cd", c.cd), ("cm", c.cm)) if value is not None})
+                if c.cd_axial > 0.0:
+                    row["cd_axial"] = c.cd_axial
                 entry["cylinders"].append(row)
         links.append(entry)
     return {"name": arm.name, "gravity": arm.gravity_acceleration, "links": links}

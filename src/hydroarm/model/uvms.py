@@ -13,7 +13,7 @@ Equations of motion (docs/vehicle.md), solved for v' at every RK4 stage:
 * ``M``, ``nle`` (Coriolis + weight of vehicle and arm): Pinocchio (CRBA, NLE);
 * ``M_A,arm``, ``h_A,arm``, ``f_arm`` (drag on the velocity relative to the current, buoyancy):
   the arm's Morison strips, by the same compiled kernel as the fixed-base arm
-  (:func:`hydroarm.model.strips.water_terms_kernel`). It works from the world joint Jacobian
+  (:func:`hydroarm.model.strips.water_terms`). It works from the world joint Jacobian
   of the whole system (6 + n columns: the base's 6 DOF move every cylinder) and from the
   world placements of the arm's joints, which its revolute-only forward kinematics computes
   once the joints hung on the base are given the base's current world placement
@@ -35,14 +35,16 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 import pinocchio as pin
+from numba.core import types
+from numba.experimental import structref
 
-from hydroarm.config import ConfigError
 from hydroarm.model.arm import Arm
 from hydroarm.model.current import CurrentField
 from hydroarm.model.loading import load_arm
-from hydroarm.model.strips import StripGeometry, water_terms_kernel
+from hydroarm.model.strips import StripGeometry, Strips, water_terms
 from hydroarm.model.vehicle import Vehicle, load_vehicle, quaternion_matrix, vehicle_generalised_force
 from hydroarm.model.water import Water
+from hydroarm.model.water_effects import DRAG_REYNOLDS
 
 ROOT_JOINT = 1
 """Pinocchio joint id of the free-flyer root (the vehicle)."""
@@ -136,64 +138,51 @@ def mounted_arm(uvms: UVMS) -> Arm:
     return dataclasses.replace(arm, model=model)
 
 
-class FloatingStrips:
+def floating_strips(uvms: UVMS, water: Water) -> StripGeometry:
     """The arm's strip geometry on a floating base: the fixed-base :class:`StripGeometry` with
     (i) one pseudo joint appended to its chain (parent: the universe, axis z, angle 0) that
-    carries the cylinders the arm file fixes to its base, and (ii) the placements of the
-    joints hung on the universe replaced at every call by their world placement
-    (:func:`floating_placements`). ``support`` gains the base's 6 columns (all ones: the
-    base moves every cylinder)."""
-
-    def __init__(self, uvms: UVMS, water: Water):
-        if water.drag_model != "constant":
-            raise ConfigError(
-                "water.drag_model = 'reynolds': only the fixed-base plant (UnderwaterPlant) has it; "
-                "use water.drag_model = 'constant' here"
-            )
-        arm = uvms.arm
-        geometry = StripGeometry(arm, water)
-        nj = geometry.parents.shape[0]
-        mount = uvms.mount
-        self.parents = np.append(geometry.parents, 0).astype(np.int64)
-        self.axes = np.vstack([geometry.axes, [0.0, 0.0, 1.0]])
-        self.idx_v = np.append(geometry.idx_v, arm.n_joints).astype(np.int64)
-        rotations = np.vstack([geometry.placement_rotation, np.eye(3)[None]])
-        translations = np.vstack([geometry.placement_translation, np.zeros((1, 3))])
-        # rows hung on the universe: their placement in the vehicle body frame (mount * X)
-        self.root_rows = np.asarray([i for i in range(1, nj + 1) if self.parents[i] == 0], dtype=np.int64)
-        self.body_rotation = rotations.copy()
-        self.body_translation = translations.copy()
-        for i in self.root_rows:
-            placement = mount * pin.SE3(rotations[i], translations[i])
-            self.body_rotation[i] = placement.rotation
-            self.body_translation[i] = placement.translation
-        self.placement_rotation = rotations
-        self.placement_translation = translations
-        self.joint_ids = np.where(geometry.joint_ids == 0, nj, geometry.joint_ids).astype(np.int64)
-        n_cyl = geometry.joint_ids.shape[0]
-        self.support = np.hstack([np.ones((n_cyl, 6)), geometry.support]).reshape(n_cyl, 6 + arm.n_joints)
-        self.geometry = geometry
-
-    def constants(self) -> tuple:
-        """Arguments of :func:`floating_water_terms` after the state, in their order."""
-        g = self.geometry
-        return (
-            self.root_rows, self.body_rotation, self.body_translation,
-            self.parents, self.placement_rotation, self.placement_translation, self.axes, self.idx_v,
-            self.joint_ids, g.start, g.axis, g.length, self.support,
-            g.drag_per_length, g.mass_per_length, g.buoyancy_force, g.nodes, g.weights,
-        )  # fmt: skip
+    carries the cylinders the arm file fixes to its base, and (ii) ``floating`` set: the
+    placements of the joints hung on the universe (``root_rows``) are replaced at every call by
+    their world placement, the root's placement times ``body_rotation``/``body_translation``
+    (their placement in the vehicle frame, :func:`floating_placements`). ``support`` gains the
+    base's 6 columns (all ones: the base moves every cylinder). An arm without wetted cylinders
+    (or none) gives :meth:`StripGeometry.empty`."""
+    arm = uvms.arm
+    if arm is None or not arm.cylinders:
+        return StripGeometry.empty(uvms.nv, water)
+    geometry = StripGeometry(arm, water)
+    nj = geometry.parents.shape[0]
+    mount = uvms.mount
+    parents = np.append(geometry.parents, 0).astype(np.int64)
+    rotations = np.vstack([geometry.placement_rotation, np.eye(3)[None]])
+    translations = np.vstack([geometry.placement_translation, np.zeros((1, 3))])
+    root_rows = np.asarray([i for i in range(1, nj + 1) if parents[i] == 0], dtype=np.int64)
+    body_rotation, body_translation = rotations.copy(), translations.copy()
+    for i in root_rows:
+        placement = mount * pin.SE3(rotations[i], translations[i])
+        body_rotation[i] = placement.rotation
+        body_translation[i] = placement.translation
+    n_cyl = geometry.joint_ids.shape[0]
+    return geometry.replace(
+        parents=parents, axes=np.vstack([geometry.axes, [0.0, 0.0, 1.0]]),
+        idx_v=np.append(geometry.idx_v, arm.n_joints).astype(np.int64),
+        placement_rotation=rotations, placement_translation=translations,
+        floating=True, root_rows=root_rows, body_rotation=body_rotation, body_translation=body_translation,
+        joint_ids=np.where(geometry.joint_ids == 0, nj, geometry.joint_ids).astype(np.int64),
+        support=np.hstack([np.ones((n_cyl, 6)), geometry.support]).reshape(n_cyl, 6 + arm.n_joints),
+        current_joint=np.zeros((3, 0)), current_world=CurrentField(water.current, 0).world,
+    )  # fmt: skip
 
 
 @numba.njit(cache=True)
-def floating_placements(
-    q, root_rows, body_rotation, body_translation, placement_rotation, placement_translation
-):  # pragma: no cover - compiled
-    """Write the world placement of every chain row hung on the universe: root placement
-    (q[:3], quaternion q[3:7]) times its placement in the body frame."""
+def floating_placements(strips, q):  # pragma: no cover - compiled
+    """Write the world placement of every chain row hung on the universe into the strips' chain:
+    root placement (q[:3], quaternion q[3:7]) times its placement in the body frame."""
     rot = quaternion_matrix(q[3], q[4], q[5], q[6])
-    for k in range(root_rows.shape[0]):
-        i = root_rows[k]
+    body_rotation, body_translation = strips.body_rotation, strips.body_translation
+    placement_rotation, placement_translation = strips.placement_rotation, strips.placement_translation
+    for k in range(strips.root_rows.shape[0]):
+        i = strips.root_rows[k]
         for a in range(3):
             placement_translation[i, a] = q[a] + (
                 rot[a, 0] * body_translation[i, 0] + rot[a, 1] * body_translation[i, 1]
@@ -208,14 +197,9 @@ def floating_placements(
 
 
 @numba.njit(cache=True)
-def floating_water_terms(
-    q, v, water_velocity, jac, djac,
-    root_rows, body_rotation, body_translation,
-    parents, placement_rotation, placement_translation, axes, idx_v,
-    joint_ids, start, axis, length, support, drag_per_length, mass_per_length, buoyancy_force,
-    nodes, weights, use_drag, use_added_mass, use_buoyancy,
-):  # fmt: skip  # pragma: no cover - compiled
-    """The arm's strip integrals on the floating system: ``(M_A (nv, nv), h_A (nv,), f (nv,))``.
+def floating_water_terms(strips, q, v, water_velocity, jac, djac):  # pragma: no cover - compiled
+    """The arm's strip integrals on the floating system: ``(M_A, h_A, f, f_tau)`` as
+    :func:`~hydroarm.model.strips.water_terms` ((nv, nv), (nv,) x 3).
 
     ``q`` (7 + n), ``v`` (6 + n), ``jac``/``djac`` Pinocchio's world Jacobian of the whole
     system and its time derivative (6, nv). The chain's forward kinematics runs on the arm
@@ -225,24 +209,61 @@ def floating_water_terms(
     angles = np.zeros(n_arm + 1)
     for i in range(n_arm):
         angles[i] = q[7 + i]
-    floating_placements(q, root_rows, body_rotation, body_translation, placement_rotation, placement_translation)
-    return water_terms_kernel(
-        angles, v, water_velocity, jac, djac,
-        parents, placement_rotation, placement_translation, axes, idx_v,
-        joint_ids, start, axis, length, support, drag_per_length, mass_per_length, buoyancy_force,
-        nodes, weights, use_drag, use_added_mass, use_buoyancy,
+    floating_placements(strips, q)
+    return water_terms(strips, angles, v, water_velocity, jac, djac)
+
+
+@structref.register
+class VehicleWaterType(types.StructRef):
+    """numba type of :class:`VehicleWater`."""
+
+
+class VehicleWater(structref.StructRefProxy):
+    """The vehicle's constants as the floating kernels read them: ``allocation`` (6, n_thr),
+    ``added_mass`` (6, 6), ``linear_damping``/``quadratic_damping`` (6,), ``buoyancy`` (N),
+    ``cb`` (3,) m, the water's switches on the vehicle (``added_mass_on``, ``drag_on``,
+    ``buoyancy_on``), the current (``current_world``, :class:`~hydroarm.model.current.CurrentField`'s)
+    and the thrusters' ``lag`` (s)."""
+
+
+structref.define_boxing(VehicleWaterType, VehicleWater)
+VEHICLE_WATER_TYPE = VehicleWaterType([
+    ("allocation", types.float64[:, ::1]), ("added_mass", types.float64[:, ::1]),
+    ("linear_damping", types.float64[::1]), ("quadratic_damping", types.float64[::1]),
+    ("buoyancy", types.float64), ("cb", types.float64[::1]),
+    ("added_mass_on", types.boolean), ("drag_on", types.boolean), ("buoyancy_on", types.boolean),
+    ("current_world", types.float64[::1]), ("lag", types.float64),
+])  # fmt: skip
+
+
+@numba.njit(cache=True)
+def _new_vehicle_water(arrays, scalars, switches, current_world):  # pragma: no cover - compiled
+    s = structref.new(VEHICLE_WATER_TYPE)
+    s.allocation, s.added_mass, s.linear_damping, s.quadratic_damping, s.cb = arrays
+    s.buoyancy, s.lag = scalars
+    s.added_mass_on, s.drag_on, s.buoyancy_on = switches
+    s.current_world = current_world
+    return s
+
+
+def vehicle_water(vehicle: Vehicle, water: Water) -> VehicleWater:
+    """The :class:`VehicleWater` of ``vehicle`` in ``water`` (the current taken as is)."""
+    arrays = tuple(
+        np.ascontiguousarray(a, dtype=float)
+        for a in (vehicle.allocation, vehicle.added_mass, vehicle.linear_damping, vehicle.quadratic_damping,
+                  vehicle.cb)
+    )  # fmt: skip
+    buoyancy = water.rho * water.gravity * vehicle.displaced_volume
+    return _new_vehicle_water(
+        arrays, (float(buoyancy), float(vehicle.thrust_time_constant)),
+        (bool(water.added_mass), bool(water.drag), bool(water.buoyancy)), CurrentField(water.current, 0).world,
     )  # fmt: skip
 
 
 @numba.njit(cache=True)
 def uvms_system_kernel(
-    q, v, tau, thrust, water_velocity, mass_upper, nonlinear, jac, djac,
-    allocation, added_mass, linear_damping, quadratic_damping, buoyancy, cb,
-    root_rows, body_rotation, body_translation,
-    parents, placement_rotation, placement_translation, axes, idx_v,
-    joint_ids, start, axis, length, support, drag_per_length, mass_per_length, buoyancy_force,
-    nodes, weights, use_drag, use_added_mass, use_buoyancy, has_strips,
-):  # fmt: skip  # pragma: no cover - compiled
+    q, v, tau, thrust, water_velocity, mass_upper, nonlinear, jac, djac, vehicle, strips
+):  # pragma: no cover
     """The floating system's equations of motion ``(mass (nv, nv), rhs (nv,))``: ``mass v' = rhs``
     with the water's added mass in ``mass`` and every other force in ``rhs`` (arguments as
     :func:`uvms_acceleration_kernel`)."""
@@ -253,53 +274,38 @@ def uvms_system_kernel(
             mass[a, b] = mass_upper[a, b]
             mass[b, a] = mass_upper[a, b]
     rhs = tau - nonlinear
-    if has_strips:
-        added, bias, force = floating_water_terms(
-            q, v, water_velocity, jac, djac,
-            root_rows, body_rotation, body_translation,
-            parents, placement_rotation, placement_translation, axes, idx_v,
-            joint_ids, start, axis, length, support, drag_per_length, mass_per_length, buoyancy_force,
-            nodes, weights, use_drag, use_added_mass, use_buoyancy,
-        )  # fmt: skip
+    if strips.joint_ids.shape[0] > 0:
+        added, bias, force, tau_force = floating_water_terms(strips, q, v, water_velocity, jac, djac)
         mass += added
         rhs += force - bias
+        if strips.drag_model == DRAG_REYNOLDS:
+            rhs += tau_force
     rot = quaternion_matrix(q[3], q[4], q[5], q[6])
     body = vehicle_generalised_force(
-        v[:6], rot, water_velocity, added_mass, linear_damping, quadratic_damping, buoyancy, cb,
-        use_added_mass, use_drag, use_buoyancy,
+        v[:6], rot, water_velocity, vehicle.added_mass, vehicle.linear_damping, vehicle.quadratic_damping,
+        vehicle.buoyancy, vehicle.cb, vehicle.added_mass_on, vehicle.drag_on, vehicle.buoyancy_on,
     )  # fmt: skip
-    wrench = allocation @ thrust
+    wrench = vehicle.allocation @ thrust
     for i in range(6):
         rhs[i] += body[i] + wrench[i]
-        if use_added_mass:
+        if vehicle.added_mass_on:
             for j in range(6):
-                mass[i, j] += added_mass[i, j]
+                mass[i, j] += vehicle.added_mass[i, j]
     return mass, rhs
 
 
 @numba.njit(cache=True)
 def uvms_acceleration_kernel(
-    q, v, tau, thrust, water_velocity, mass_upper, nonlinear, jac, djac,
-    allocation, added_mass, linear_damping, quadratic_damping, buoyancy, cb,
-    root_rows, body_rotation, body_translation,
-    parents, placement_rotation, placement_translation, axes, idx_v,
-    joint_ids, start, axis, length, support, drag_per_length, mass_per_length, buoyancy_force,
-    nodes, weights, use_drag, use_added_mass, use_buoyancy, has_strips,
-):  # fmt: skip  # pragma: no cover - compiled
+    q, v, tau, thrust, water_velocity, mass_upper, nonlinear, jac, djac, vehicle, strips
+):  # pragma: no cover
     """v' (nv,) of the floating system (see the module docstring).
 
     ``tau`` (nv,): generalised force besides the water and thrusters (zero on the base, the
     arm's joint torques); ``thrust`` (n_thr,) thruster forces (N) after saturation;
-    ``mass_upper``, ``nonlinear``: Pinocchio's CRBA (upper triangle) and NLE at (q, v).
+    ``mass_upper``, ``nonlinear``: Pinocchio's CRBA (upper triangle) and NLE at (q, v);
+    ``vehicle``: :class:`VehicleWater`; ``strips``: the arm's floating :class:`Strips`.
     """
-    mass, rhs = uvms_system_kernel(
-        q, v, tau, thrust, water_velocity, mass_upper, nonlinear, jac, djac,
-        allocation, added_mass, linear_damping, quadratic_damping, buoyancy, cb,
-        root_rows, body_rotation, body_translation,
-        parents, placement_rotation, placement_translation, axes, idx_v,
-        joint_ids, start, axis, length, support, drag_per_length, mass_per_length, buoyancy_force,
-        nodes, weights, use_drag, use_added_mass, use_buoyancy, has_strips,
-    )  # fmt: skip
+    mass, rhs = uvms_system_kernel(q, v, tau, thrust, water_velocity, mass_upper, nonlinear, jac, djac, vehicle, strips)
     return np.linalg.solve(mass, rhs)
 
 
@@ -309,6 +315,8 @@ class UVMSDynamics:
     ``water``: the water (rho, coefficients, switches, current; the ``paper`` current is a
     fixed-base joint disturbance and is rejected here); the vehicle's damping and added mass
     follow ``water.drag`` / ``water.added_mass``, its buoyancy ``water.buoyancy``.
+    ``geometry``/``strips``: the arm's floating strips (:func:`floating_strips`), ``vehicle``
+    the :class:`VehicleWater`.
     """
 
     def __init__(self, uvms: UVMS, water: Water | None = None):
@@ -319,16 +327,9 @@ class UVMSDynamics:
         self.water = water
         self.data = uvms.create_data()
         self.current = CurrentField(water.current, 0)
-        vehicle = uvms.vehicle
-        self.strips = FloatingStrips(uvms, water) if uvms.arm is not None and uvms.arm.cylinders else None
-        strip_constants = self.strips.constants() if self.strips is not None else _empty_strip_constants(uvms)
-        buoyancy = water.rho * water.gravity * vehicle.displaced_volume
-        self.vehicle_constants = (
-            vehicle.allocation, vehicle.added_mass, vehicle.linear_damping, vehicle.quadratic_damping,
-            float(buoyancy), vehicle.cb,
-        )  # fmt: skip
-        self.kernel_constants = (*self.vehicle_constants, *strip_constants)
-        self.flags = (water.drag, water.added_mass, water.buoyancy, self.strips is not None)
+        self.geometry = floating_strips(uvms, water)
+        self.strips: Strips = self.geometry.compiled
+        self.vehicle = vehicle_water(uvms.vehicle, water)
 
     def pinocchio_terms(self, q: np.ndarray, v: np.ndarray):
         """``(M upper, nle, J, dJ)`` from Pinocchio at (q, v) (three calls)."""
@@ -343,7 +344,7 @@ class UVMSDynamics:
         mass, nonlinear, jac, djac = self.pinocchio_terms(q, v)
         return uvms_acceleration_kernel(
             q, v, np.asarray(tau, dtype=float), np.asarray(thrust, dtype=float), self.current.at(t)[1],
-            mass, nonlinear, jac, djac, *self.kernel_constants, *self.flags,
+            mass, nonlinear, jac, djac, self.vehicle, self.strips,
         )  # fmt: skip
 
     def system(self, t: float, q: np.ndarray, v: np.ndarray, tau: np.ndarray, thrust: np.ndarray):
@@ -352,29 +353,22 @@ class UVMSDynamics:
         mass, nonlinear, jac, djac = self.pinocchio_terms(q, v)
         return uvms_system_kernel(
             q, v, np.asarray(tau, dtype=float), np.asarray(thrust, dtype=float), self.current.at(t)[1],
-            mass, nonlinear, jac, djac, *self.kernel_constants, *self.flags,
+            mass, nonlinear, jac, djac, self.vehicle, self.strips,
         )  # fmt: skip
 
     def arm_water_terms(self, q: np.ndarray, v: np.ndarray, t: float = 0.0, *, drag=None, added_mass=None,
-                        buoyancy=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+                        buoyancy=None, axial=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
         """The arm's strip integrals ``(M_A (nv, nv), h_A (nv,), f (nv,))`` on the floating system;
-        each effect defaults to the water's switch."""
+        each effect defaults to the water's switch (the axial drag follows ``drag`` unless given)."""
         w = self.water
-        _, _, jac, djac = self.pinocchio_terms(q, v)
-        return floating_water_terms(
-            q, v, self.current.at(t)[1], jac, djac, *self.strips.constants(),
-            w.drag if drag is None else drag, w.added_mass if added_mass is None else added_mass,
-            w.buoyancy if buoyancy is None else buoyancy,
+        drag = w.drag if drag is None else drag
+        axial = (w.axial_drag and drag) if axial is None else axial
+        strips = self.geometry.switched(
+            drag, w.added_mass if added_mass is None else added_mass, w.buoyancy if buoyancy is None else buoyancy,
+            axial,
         )  # fmt: skip
-
-
-def _empty_strip_constants(uvms: UVMS) -> tuple:
-    """Placeholder strip arguments (typed like the real ones) for a system without wetted cylinders."""
-    nv = uvms.nv
-    i3 = np.eye(3)[None]
-    return (
-        np.zeros(0, dtype=np.int64), i3.copy(), np.zeros((1, 3)),
-        np.zeros(1, dtype=np.int64), i3.copy(), np.zeros((1, 3)), np.zeros((1, 3)), np.zeros(1, dtype=np.int64),
-        np.zeros(0, dtype=np.int64), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), np.zeros((0, nv)),
-        np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(1), np.ones(1),
-    )  # fmt: skip
+        _, _, jac, djac = self.pinocchio_terms(q, v)
+        mass, bias, force, tau_force = floating_water_terms(strips, q, v, self.current.at(t)[1], jac, djac)
+        if drag and w.drag_model == "reynolds":
+            force = force + tau_force
+        return mass, bias, force

@@ -6,14 +6,15 @@ the bodies' own frames instead of through Pinocchio's world Jacobians:
 * rigid body: Featherstone's RNEA (bias forces: Coriolis, gravity, external wrenches) and CRBA
   (mass matrix) on the free-flyer + revolute tree of the Pinocchio model, compiled; a 10 x 10
   Cholesky solve;
-* the arm's added mass: the Morison added-mass density ``rho C_m A (I - e e^T)`` of a cylinder
-  is constant in its body's frame, so its line integral is a constant 6 x 6 body inertia
-  (``J_b^T I_A J_b`` = the strips' ``M_A``), added to the body's inertia in the CRBA; the
-  velocity term (``h_A``: the normal part of each point's classical acceleration at q'' = 0) is
-  affine along the cylinder and integrated in closed form;
-* buoyancy at the midpoint (exact); drag ``-1/2 rho C_d D |v_n| v_n`` split at its kink and
-  integrated by Gauss-Legendre with ``drag_points`` per piece (the only approximation against
-  the exact path; 8 points reproduce it to round-off, tests/test_uvms_fast.py);
+* the arm's water: the strip water of every plant (:func:`hydroarm.model.water_effects.cylinder_water`),
+  each cylinder in the frame of its body (:func:`~hydroarm.model.uvms_fast_kernels.body_frame`),
+  with ``drag_points`` Gauss points per cylinder (per drag piece) instead of the water's
+  ``quadrature_points``. The added-mass density ``rho C_m A (I - e e^T)`` of a cylinder is
+  constant in its body's frame, so its line integral is a constant 6 x 6 body inertia
+  (``J_b^T I_A J_b`` = the strips' ``M_A``), added to the body's inertia in the CRBA; the kernel
+  adds the velocity term (exact with >= 2 points, a polynomial of degree 2). Buoyancy at the
+  midpoint (exact); the drag split at the kink of ``|v_n|`` (the only approximation against the
+  exact path; 8 points reproduce it to round-off, tests/test_uvms_fast.py);
 * the vehicle's water (:func:`~hydroarm.model.vehicle.vehicle_generalised_force`), thrusters
   and their lag: as :class:`~hydroarm.model.uvms_plant.UVMSPlant`.
 
@@ -28,12 +29,12 @@ import numba
 import numpy as np
 import pydantic
 
-from hydroarm.config import ConfigError, FrozenModel
+from hydroarm.config import FrozenModel
 from hydroarm.model.current import current_at
 from hydroarm.model.plant import inner_steps
 from hydroarm.model.strips import StripGeometry
-from hydroarm.model.uvms import UVMS
-from hydroarm.model.uvms_fast_kernels import evaluate, workspace
+from hydroarm.model.uvms import UVMS, vehicle_water
+from hydroarm.model.uvms_fast_kernels import evaluate, new_rigid_tree, workspace
 from hydroarm.model.uvms_plant import UVMSPlant, UVMSStepInfo, integrate_configuration, rkmk4_update, thrust_at
 from hydroarm.model.water import Water
 
@@ -67,7 +68,11 @@ def cylinder_added_inertia(start: np.ndarray, axis: np.ndarray, length: float, m
 
 
 class FastUVMSDynamics:
-    """Constant arrays of the compiled path for one (system, water, settings) triple."""
+    """Constant structures of the compiled path for one (system, water, settings) triple: the
+    rigid tree (``tree``, its inertias ``rigid`` and with the added inertias ``total``, (nj, 6,
+    6)), the vehicle (``vehicle``, :class:`~hydroarm.model.uvms.VehicleWater`) and the arm's
+    strips in its bodies' frames (``geometry``/``strips``: ``joint_ids`` the body carrying each
+    cylinder, ``start``/``axis`` in its frame; the arm switches of ``config`` applied)."""
 
     def __init__(self, uvms: UVMS, water: Water | None = None, config: FastUVMSConfig | None = None):
         water = water if water is not None else Water()
@@ -92,16 +97,18 @@ class FastUVMSDynamics:
                 raise ValueError(f"joint {model.names[i]}: type {name} is not supported (revolute only)")
         self.rigid = np.stack([model.inertias[i].matrix() for i in range(nj)])
         total = self.rigid.copy()
-        rows = []
+        arm_water = water.model_copy(update={
+            "quadrature_points": config.drag_points,
+            "drag": water.drag and config.arm_drag,
+            "axial_drag": water.axial_drag and config.arm_drag,
+            "added_mass": water.added_mass and config.arm_added_mass,
+            "buoyancy": water.buoyancy and config.arm_buoyancy,
+        })  # fmt: skip
         arm = uvms.arm
         if arm is not None and arm.cylinders:
-            if water.drag_model != "constant":
-                raise ConfigError(
-                    "water.drag_model = 'reynolds': only the fixed-base plant (UnderwaterPlant) has it; "
-                    "use water.drag_model = 'constant' here"
-                )
-            geometry = StripGeometry(arm, water)
+            geometry = StripGeometry(arm, arm_water)
             mount = uvms.mount
+            bodies, starts, axes = [], [], []
             for k in range(geometry.joint_ids.shape[0]):
                 j = int(geometry.joint_ids[k])
                 start, axis = geometry.start[k], geometry.axis[k]
@@ -109,31 +116,27 @@ class FastUVMSDynamics:
                 if j == 0:
                     start = mount.rotation @ start + mount.translation
                     axis = mount.rotation @ axis
-                rows.append((body, start, axis, geometry.length[k], geometry.drag_per_length[k],
-                             geometry.mass_per_length[k], geometry.buoyancy_force[k]))  # fmt: skip
-                if water.added_mass and config.arm_added_mass:
+                bodies.append(body)
+                starts.append(start)
+                axes.append(axis)
+                if arm_water.added_mass:
                     total[body] += cylinder_added_inertia(start, axis, geometry.length[k], geometry.mass_per_length[k])
+            geometry = geometry.replace(
+                joint_ids=np.asarray(bodies, dtype=np.int64), start=np.asarray(starts, dtype=float).reshape(-1, 3),
+                axis=np.asarray(axes, dtype=float).reshape(-1, 3), support=np.ones((len(bodies), 6)),
+            )  # fmt: skip
+        else:
+            geometry = StripGeometry.empty(6, arm_water)
         if water.added_mass:
             total[1] += vehicle.added_mass
         self.total = total
-        self.cyl_body = np.asarray([r[0] for r in rows], dtype=np.int64)
-        self.cyl_start = np.asarray([r[1] for r in rows], dtype=float).reshape(-1, 3)
-        self.cyl_axis = np.asarray([r[2] for r in rows], dtype=float).reshape(-1, 3)
-        self.cyl_values = np.asarray([r[3:] for r in rows], dtype=float).reshape(-1, 4)  # L, drag, mass, buoyancy
-        nodes, weights = np.polynomial.legendre.leggauss(config.drag_points)
-        self.nodes, self.weights = 0.5 * (nodes + 1.0), 0.5 * weights
-        buoyancy = water.rho * water.gravity * vehicle.displaced_volume
-        self.constants = (
-            self.parents, self.place_rotation, self.place_translation, self.axes, self.rigid, self.total,
-            self.cyl_body, self.cyl_start, self.cyl_axis, self.cyl_values, self.nodes, self.weights,
-            vehicle.allocation, vehicle.added_mass, vehicle.linear_damping, vehicle.quadratic_damping,
-            float(buoyancy), vehicle.cb, float(-model.gravity.linear[2]),
-        )  # fmt: skip
-        self.flags = np.array(
-            [water.added_mass, water.drag, water.buoyancy, water.drag and config.arm_drag,
-             water.added_mass and config.arm_added_mass, water.buoyancy and config.arm_buoyancy,
-             config.arm_current], dtype=np.bool_,
-        )  # fmt: skip
+        self.geometry = geometry
+        self.strips = geometry.compiled
+        self.vehicle = vehicle_water(vehicle, water)
+        arrays = (self.parents, self.place_rotation, self.place_translation, self.axes, self.rigid, self.total)
+        self.tree = new_rigid_tree(
+            tuple(np.ascontiguousarray(a) for a in arrays), float(-model.gravity.linear[2]), bool(config.arm_current)
+        )
 
     def acceleration(self, t: float, q: np.ndarray, v: np.ndarray, tau: np.ndarray, thrust: np.ndarray) -> np.ndarray:
         """v' (nv,) at time t under generalised force ``tau`` (nv; its base part a body wrench)."""
@@ -142,23 +145,22 @@ class FastUVMSDynamics:
         water_velocity = CurrentField(self.water.current, 0).at(t)[1]
         nv = self.uvms.nv
         out = np.empty(nv)
+        work = workspace(nv, self.tree, self.vehicle, self.strips)
         evaluate(np.asarray(q, float), np.asarray(v, float), np.asarray(tau, float), np.asarray(thrust, float),
-                 water_velocity, *self.constants, self.flags, workspace(self.parents.shape[0], nv), out)  # fmt: skip
+                 water_velocity, self.tree, self.vehicle, self.strips, work, out)  # fmt: skip
         return out
 
 
 @numba.njit(cache=True)
-def fast_step_kernel(
-    t, x, u_tau, target, steps, h, lag, n_thr, current_world,
-    parents, place_rotation, place_translation, axes, rigid, total,
-    cyl_body, cyl_start, cyl_axis, cyl_values, nodes, weights,
-    allocation, added_mass, linear_damping, quadratic_damping, buoyancy, cb, gravity, flags,
-):  # fmt: skip  # pragma: no cover - compiled
-    """The whole control step: ``steps`` RKMK4 steps of h; returns (x_next, thrust wrench sum)."""
+def fast_step_kernel(t, x, u_tau, target, steps, h, tree, vehicle, strips):  # pragma: no cover - compiled
+    """The whole control step: ``steps`` RKMK4 steps of h (the floating plant's arithmetic,
+    :func:`~hydroarm.model.uvms_plant.rkmk4_update` and
+    :func:`~hydroarm.model.uvms_plant.integrate_configuration`); returns (x_next, thrust wrench sum)."""
     nv = u_tau.shape[0]
     nq = nv + 1
-    nj = parents.shape[0]
-    work = workspace(nj, nv)
+    allocation, lag, current_world = vehicle.allocation, vehicle.lag, vehicle.current_world
+    n_thr = allocation.shape[1]
+    work = workspace(nv, tree, vehicle, strips)
     q0 = x[:nq].copy()
     v0 = x[nq : nq + nv].copy()
     thrust0 = x[nq + nv :].copy()
@@ -177,35 +179,7 @@ def fast_step_kernel(
             stage_time = time + (0.0 if stage == 0 else (h if stage == 3 else 0.5 * h))
             thrust = thrust_at(target, thrust0, stage_time - t, lag)
             current_at(stage_time, joints, current_world, none, water_velocity)
-            evaluate(
-                qs,
-                vs,
-                u_tau,
-                thrust,
-                water_velocity,
-                parents,
-                place_rotation,
-                place_translation,
-                axes,
-                rigid,
-                total,
-                cyl_body,
-                cyl_start,
-                cyl_axis,
-                cyl_values,
-                nodes,
-                weights,
-                allocation,
-                added_mass,
-                linear_damping,
-                quadratic_damping,
-                buoyancy,
-                cb,
-                gravity,
-                flags,
-                work,
-                acc,
-            )
+            evaluate(qs, vs, u_tau, thrust, water_velocity, tree, vehicle, strips, work, acc)
             weight = 1.0 if stage == 0 or stage == 3 else 2.0
             for i in range(6):
                 s = 0.0
@@ -233,7 +207,6 @@ class FastUVMSPlant(UVMSPlant):
         super().__init__(uvms, water)
         self.config = config
         self.fast = FastUVMSDynamics(uvms, self.water, config)
-        self._world = self.dynamics.current.world
         self._tau = np.zeros(self.nv)
 
     def step(self, t: float, x: np.ndarray, u: np.ndarray, dt: float) -> tuple[np.ndarray, UVMSStepInfo]:
@@ -243,10 +216,10 @@ class FastUVMSPlant(UVMSPlant):
         u = np.asarray(u, dtype=float)
         self._tau[6:] = u[: self.n_arm]
         target = np.clip(u[self.n_arm :], vehicle.thrust_min, vehicle.thrust_max)
+        fast = self.fast
         x_next, wrench = fast_step_kernel(
-            float(t), np.asarray(x, dtype=float), self._tau, target, steps, h, float(vehicle.thrust_time_constant),
-            self.n_thr, self._world, *self.fast.constants, self.fast.flags,
-        )  # fmt: skip
+            float(t), np.asarray(x, dtype=float), self._tau, target, steps, h, fast.tree, fast.vehicle, fast.strips
+        )
         return x_next, UVMSStepInfo(thrust_wrench=wrench / (6.0 * steps), disturbance=self._unknown.copy())
 
     def acceleration(self, t: float, x: np.ndarray, u: np.ndarray) -> np.ndarray:

@@ -1,25 +1,88 @@
 """Compiled kernels of :mod:`hydroarm.model.uvms_fast`: one evaluation of the floating system's
 v' (RNEA with the water's body wrenches, CRBA with the added inertias, Cholesky), in the bodies'
-own frames. Spatial vectors are (linear, angular), Pinocchio's order."""
+own frames. Spatial vectors are (linear, angular), Pinocchio's order.
+
+The arm's water is the strip water of every plant (:func:`hydroarm.model.water_effects.cylinder_water`
+on the body-frame :class:`~hydroarm.model.strips.Strips` of :class:`~hydroarm.model.uvms_fast.FastUVMSDynamics`),
+evaluated in the frame of the body that carries each cylinder (:func:`body_frame`): the body
+wrench about the body origin. Its added-mass inertia is constant there and sits in the CRBA's
+``total`` inertias; the kernel adds only the velocity term."""
 
 from __future__ import annotations
 
 import numba
 import numpy as np
+from numba.core import types
+from numba.experimental import structref
 
 from hydroarm.model.strips import rotation_into
 from hydroarm.model.vehicle import quaternion_matrix, vehicle_generalised_force
+from hydroarm.model.water_effects import (
+    COLUMNS,
+    CYL,
+    DA,
+    DL,
+    FLOW,
+    OM,
+    P0,
+    UP,
+    VEL0,
+    VELR,
+    E,
+    cylinder_water,
+    new_frame,
+)
+
+
+@structref.register
+class RigidTreeType(types.StructRef):
+    """numba type of :class:`RigidTree`."""
+
+
+class RigidTree(structref.StructRefProxy):
+    """The free-flyer + revolute tree of the fast path: ``parents`` (nj,), ``place_rotation``
+    (nj, 3, 3) / ``place_translation`` (nj, 3) (Pinocchio's jointPlacements), ``axes`` (nj, 3),
+    the bodies' spatial inertias ``rigid`` (nj, 6, 6) and with the water's added inertias
+    ``total``, ``gravity`` (m/s^2 along -z) and ``arm_current`` (whether the arm's drag sees the
+    current)."""
+
+
+structref.define_boxing(RigidTreeType, RigidTree)
+RIGID_TREE_TYPE = RigidTreeType([
+    ("parents", types.int64[::1]), ("place_rotation", types.float64[:, :, ::1]),
+    ("place_translation", types.float64[:, ::1]), ("axes", types.float64[:, ::1]),
+    ("rigid", types.float64[:, :, ::1]), ("total", types.float64[:, :, ::1]), ("gravity", types.float64),
+    ("arm_current", types.boolean),
+])  # fmt: skip
 
 
 @numba.njit(cache=True)
-def workspace(nj, nv):  # pragma: no cover - compiled
-    """Scratch arrays of :func:`evaluate` (allocated once per control step)."""
-    return (
+def new_rigid_tree(arrays, gravity, arm_current):  # pragma: no cover - compiled
+    """A :class:`RigidTree` of (parents, place_rotation, place_translation, axes, rigid, total)."""
+    s = structref.new(RIGID_TREE_TYPE)
+    s.parents, s.place_rotation, s.place_translation, s.axes, s.rigid, s.total = arrays
+    s.gravity, s.arm_current = gravity, arm_current
+    return s
+
+
+@numba.njit(cache=True)
+def workspace(nv, tree, vehicle, strips):  # pragma: no cover - compiled
+    """What :func:`evaluate` works with, built once per control step: scratch arrays, the strip
+    water's body frame (:func:`~hydroarm.model.water_effects.new_frame`) and a (6,), then the
+    arrays of ``tree``, ``vehicle`` and ``strips`` it reads (taken out of the structures here,
+    once, rather than at every evaluation)."""
+    nj = tree.parents.shape[0]
+    frame = new_frame(6, True, strips.nodes, strips.weights, strips.curve_log_re, strips.curve_cd)
+    scratch = (
         np.zeros((nj, 3, 3)), np.zeros((nj, 3)), np.zeros((nj, 3, 3)), np.zeros((nj, 6)), np.zeros((nj, 6)),
         np.zeros((nj, 6)), np.zeros((nj, 6, 6)), np.zeros((nv, nv)), np.zeros(nv), np.zeros(6), np.zeros(6),
-        np.zeros((6, 6)),
-        np.zeros((6, 6)),
+        np.zeros((6, 6)), np.zeros((6, 6)), frame, np.zeros(6),
     )  # fmt: skip
+    tree_arrays = (tree.parents, tree.place_rotation, tree.place_translation, tree.axes, tree.rigid, tree.total)
+    vehicle_arrays = (vehicle.allocation, vehicle.added_mass, vehicle.linear_damping, vehicle.quadratic_damping,
+                      vehicle.cb)  # fmt: skip
+    strip_arrays = (strips.joint_ids, strips.start, strips.axis, strips.table)
+    return scratch, tree_arrays, vehicle_arrays, strip_arrays
 
 
 @numba.njit(cache=True, inline="always")
@@ -65,102 +128,50 @@ def _motion_matrix(rot, pos, x):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, inline="always")
-def _cross_into(a0, a1, a2, b0, b1, b2):  # pragma: no cover - compiled
-    return a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
-
-
-@numba.njit(cache=True)
-def _water_on_cylinder(k, vel, acc, rot_world, water_velocity, cyl_start, cyl_axis, cyl_values, nodes, weights,
-                       flags, out):  # fmt: skip  # pragma: no cover - compiled
-    """Add the water's wrench on cylinder k (body frame, about the body origin) to ``out`` (6,)."""
-    r0, r1, r2 = cyl_start[k, 0], cyl_start[k, 1], cyl_start[k, 2]
-    e0, e1, e2 = cyl_axis[k, 0], cyl_axis[k, 1], cyl_axis[k, 2]
-    length, drag, mass, buoyancy = cyl_values[k, 0], cyl_values[k, 1], cyl_values[k, 2], cyl_values[k, 3]
+def body_frame(start, axis, table, k, vel, acc, rot_world, water_velocity, arm_current, frame):  # pragma: no cover
+    """Fill ``frame`` with cylinder k's kinematics in the frame of its body and its coefficients
+    (``start``, ``axis``, ``table``: the body-frame strips' arrays): ``vel`` (6,) the body twist,
+    ``acc`` (6,) its velocity-product acceleration, ``rot_world`` (3, 3) its orientation, the
+    water moving at ``water_velocity`` (3,, world; seen only if ``arm_current``)."""
+    for c in range(COLUMNS):
+        frame[CYL, c] = table[k, c]
+    for i in range(3):
+        frame[P0, i] = start[k, i]
+        frame[E, i] = axis[k, i]
+        frame[OM, i] = vel[3 + i]
+        frame[DL, i] = acc[i]
+        frame[DA, i] = acc[3 + i]
+        frame[UP, i] = rot_world[2, i]
+    p0, p1, p2 = frame[P0, 0], frame[P0, 1], frame[P0, 2]
+    e0, e1, e2 = frame[E, 0], frame[E, 1], frame[E, 2]
     w0, w1, w2 = vel[3], vel[4], vel[5]
-    c0, c1, c2 = _cross_into(w0, w1, w2, r0, r1, r2)
-    p0, p1, p2 = vel[0] + c0, vel[1] + c1, vel[2] + c2  # velocity at the start point
-    q0, q1, q2 = _cross_into(w0, w1, w2, e0, e1, e2)  # its rate along s (normal to e)
-    if flags[3] and drag > 0.0:
-        a0, a1, a2 = p0, p1, p2
-        if flags[6]:
-            for i in range(3):
-                cur = rot_world[0, i] * water_velocity[0] + rot_world[1, i] * water_velocity[1]
-                cur += rot_world[2, i] * water_velocity[2]
-                if i == 0:
-                    a0 -= cur
-                elif i == 1:
-                    a1 -= cur
-                else:
-                    a2 -= cur
-        along = a0 * e0 + a1 * e1 + a2 * e2
-        a0, a1, a2 = a0 - along * e0, a1 - along * e1, a2 - along * e2
-        along = q0 * e0 + q1 * e1 + q2 * e2
-        b0, b1, b2 = q0 - along * e0, q1 - along * e1, q2 - along * e2
-        bb = b0 * b0 + b1 * b1 + b2 * b2
-        split = -(a0 * b0 + a1 * b1 + a2 * b2) / bb if bb > 0.0 else -1.0
-        n_pieces = 2 if 0.0 < split < length else 1
-        for piece in range(n_pieces):
-            s0 = 0.0 if piece == 0 else split
-            s1 = length if n_pieces == 1 or piece == 1 else split
-            width = s1 - s0
-            for m in range(nodes.shape[0]):
-                s = s0 + width * nodes[m]
-                v0, v1, v2 = a0 + s * b0, a1 + s * b1, a2 + s * b2
-                scale = -drag * width * weights[m] * np.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
-                f0, f1, f2 = scale * v0, scale * v1, scale * v2
-                m0, m1, m2 = _cross_into(r0 + s * e0, r1 + s * e1, r2 + s * e2, f0, f1, f2)
-                out[0] += f0
-                out[1] += f1
-                out[2] += f2
-                out[3] += m0
-                out[4] += m1
-                out[5] += m2
-    if flags[4] and mass > 0.0:
-        al0, al1, al2 = acc[3], acc[4], acc[5]
-        x0, x1, x2 = _cross_into(al0, al1, al2, r0, r1, r2)
-        y0, y1, y2 = _cross_into(w0, w1, w2, p0, p1, p2)
-        d0, d1, d2 = acc[0] + x0 + y0, acc[1] + x1 + y1, acc[2] + x2 + y2  # classical acceleration at s = 0
-        x0, x1, x2 = _cross_into(al0, al1, al2, e0, e1, e2)
-        y0, y1, y2 = _cross_into(w0, w1, w2, q0, q1, q2)
-        k0, k1, k2 = x0 + y0, x1 + y1, x2 + y2  # its rate along s
-        l1, l2, l3 = length, 0.5 * length * length, length * length * length / 3.0
-        g0, g1, g2 = l1 * d0 + l2 * k0, l1 * d1 + l2 * k1, l1 * d2 + l2 * k2
-        h0, h1, h2 = l2 * d0 + l3 * k0, l2 * d1 + l3 * k1, l2 * d2 + l3 * k2
-        along = g0 * e0 + g1 * e1 + g2 * e2
-        g0, g1, g2 = -mass * (g0 - along * e0), -mass * (g1 - along * e1), -mass * (g2 - along * e2)
-        along = h0 * e0 + h1 * e1 + h2 * e2
-        h0, h1, h2 = -mass * (h0 - along * e0), -mass * (h1 - along * e1), -mass * (h2 - along * e2)
-        m0, m1, m2 = _cross_into(r0, r1, r2, g0, g1, g2)
-        n0, n1, n2 = _cross_into(e0, e1, e2, h0, h1, h2)
-        out[0] += g0
-        out[1] += g1
-        out[2] += g2
-        out[3] += m0 + n0
-        out[4] += m1 + n1
-        out[5] += m2 + n2
-    if flags[5] and buoyancy != 0.0:
-        f0, f1, f2 = buoyancy * rot_world[2, 0], buoyancy * rot_world[2, 1], buoyancy * rot_world[2, 2]
-        half = 0.5 * length
-        m0, m1, m2 = _cross_into(r0 + half * e0, r1 + half * e1, r2 + half * e2, f0, f1, f2)
-        out[0] += f0
-        out[1] += f1
-        out[2] += f2
-        out[3] += m0
-        out[4] += m1
-        out[5] += m2
+    frame[VEL0, 0] = vel[0] + (w1 * p2 - w2 * p1)
+    frame[VEL0, 1] = vel[1] + (w2 * p0 - w0 * p2)
+    frame[VEL0, 2] = vel[2] + (w0 * p1 - w1 * p0)
+    frame[VELR, 0] = w1 * e2 - w2 * e1
+    frame[VELR, 1] = w2 * e0 - w0 * e2
+    frame[VELR, 2] = w0 * e1 - w1 * e0
+    for i in range(3):
+        cur = 0.0
+        if arm_current:
+            cur = rot_world[0, i] * water_velocity[0] + rot_world[1, i] * water_velocity[1]
+            cur += rot_world[2, i] * water_velocity[2]
+        frame[FLOW, i] = cur
 
 
-@numba.njit(cache=True)
-def evaluate(
-    q, v, tau, thrust, water_velocity,
-    parents, place_rotation, place_translation, axes, rigid, total,
-    cyl_body, cyl_start, cyl_axis, cyl_values, nodes, weights,
-    allocation, added_mass, linear_damping, quadratic_damping, buoyancy, cb, gravity, flags,
-    work, out,
-):  # fmt: skip  # pragma: no cover - compiled
+@numba.njit(cache=True, inline="always")
+def evaluate(q, v, tau, thrust, water_velocity, tree, vehicle, strips, work, out):  # pragma: no cover - compiled
     """v' (nv,) into ``out``: RNEA bias with the water's body wrenches, CRBA with the added
-    inertias, Cholesky solve. ``tau`` (nv,): generalised force (base: body wrench)."""
-    rot, pos, rot_world, vel, acc, force, composite, mass, rhs, tmp, tmp2, tmp6, xm = work
+    inertias, Cholesky solve. ``tau`` (nv,): generalised force (base: body wrench); ``tree`` the
+    :class:`RigidTree`, ``vehicle`` the :class:`~hydroarm.model.uvms.VehicleWater`, ``strips`` the
+    arm's body-frame strips (their scalars and switches; their arrays, as the tree's and the
+    vehicle's, come in ``work``: :func:`workspace`)."""
+    scratch, tree_arrays, vehicle_arrays, strip_arrays = work
+    rot, pos, rot_world, vel, acc, force, composite, mass, rhs, tmp, tmp2, tmp6, xm, frame, unused = scratch
+    parents, place_rotation, place_translation, axes, rigid, total = tree_arrays
+    allocation, added_mass, linear_damping, quadratic_damping, cb = vehicle_arrays
+    bodies, start, axis, table = strip_arrays
+    gravity = tree.gravity
     rj = tmp6[:3, :3].copy()
     nj = parents.shape[0]
     nv = v.shape[0]
@@ -215,16 +226,21 @@ def evaluate(
         force[i, 3] += w1 * tmp2[5] - w2 * tmp2[4] + vel[i, 1] * tmp2[2] - vel[i, 2] * tmp2[1]
         force[i, 4] += w2 * tmp2[3] - w0 * tmp2[5] + vel[i, 2] * tmp2[0] - vel[i, 0] * tmp2[2]
         force[i, 5] += w0 * tmp2[4] - w1 * tmp2[3] + vel[i, 0] * tmp2[1] - vel[i, 1] * tmp2[0]
-    for k in range(cyl_body.shape[0]):
-        i = cyl_body[k]
+    no_inertia = tmp6[:0, :0]  # the added inertia is in ``total``
+    arm_current = tree.arm_current
+    wet = strips.drag or strips.axial or strips.added_mass or strips.buoyancy
+    for k in range(bodies.shape[0] if wet else 0):
+        i = bodies[k]
         for a in range(6):
             tmp[a] = 0.0
-        _water_on_cylinder(k, vel[i], acc[i], rot_world[i], water_velocity, cyl_start, cyl_axis, cyl_values,
-                           nodes, weights, flags, tmp)  # fmt: skip
+        body_frame(start, axis, table, k, vel[i], acc[i], rot_world[i], water_velocity, arm_current, frame)
+        cylinder_water(strips, frame, no_inertia, unused, tmp, tmp)
         for a in range(6):
             force[i, a] -= tmp[a]
-    body = vehicle_generalised_force(v[:6], rot_world[1], water_velocity, added_mass, linear_damping,
-                                     quadratic_damping, buoyancy, cb, flags[0], flags[1], flags[2])  # fmt: skip
+    body = vehicle_generalised_force(
+        v[:6], rot_world[1], water_velocity, added_mass, linear_damping, quadratic_damping,
+        vehicle.buoyancy, cb, vehicle.added_mass_on, vehicle.drag_on, vehicle.buoyancy_on,
+    )  # fmt: skip
     for a in range(6):
         s = body[a]
         for b in range(thrust.shape[0]):

@@ -24,6 +24,8 @@ import numba
 import numpy as np
 import pinocchio as pin
 import pydantic
+from numba.core import types
+from numba.experimental import structref
 
 from hydroarm.config import FrozenModel
 from hydroarm.model.current import current_at
@@ -68,6 +70,7 @@ class UVMSPlant:
         self.n_inputs = self.n_arm + self.n_thr  # u = [tau_arm, thrust command]
         self.state_size = self.n_state
         self._unknown = np.full(self.n_arm, np.nan)
+        self.rkmk4 = RKMK4(self.nq, self.nv, self.n_thr)
 
     def joint_state(self, x: np.ndarray) -> np.ndarray:
         """The arm's [q, v] (2 n_arm,) of a state [q, v, f]."""
@@ -110,37 +113,28 @@ class UVMSPlant:
         steps, h = inner_steps(dt, self.config.inner_step)
         vehicle = self.uvms.vehicle
         u = np.asarray(u, dtype=float)
-        tau = np.zeros(nv)
-        tau[6:] = u[: self.n_arm]
-        target = np.clip(u[self.n_arm :], vehicle.thrust_min, vehicle.thrust_max)
-        x = np.array(x, dtype=float)
-        thrust0 = x[nq + nv :].copy()
-        q0, v0 = x[:nq].copy(), x[nq : nq + nv].copy()
-        qs, vs = q0.copy(), v0.copy()
-        slopes = np.empty((4, nv))
-        accelerations = np.empty((4, nv))
-        wrench = np.zeros(6)
+        x = np.asarray(x, dtype=float)
+        rkmk4 = self.rkmk4
+        qs, vs = rkmk4.start(x[:nq], x[nq : nq + nv])
+        rkmk4.tau[:] = 0.0
+        rkmk4.tau[6:] = u[: self.n_arm]
+        rkmk4.target[:] = np.clip(u[self.n_arm :], vehicle.thrust_min, vehicle.thrust_max)
+        rkmk4.thrust0[:] = x[nq + nv :]
         dyn = self.dynamics
         model, data = self.uvms.model, dyn.data
-        world = dyn.current.world
-        constants, flags = dyn.kernel_constants, dyn.flags
-        lag = float(vehicle.thrust_time_constant)
+        strips, water, work = dyn.strips, dyn.vehicle, rkmk4.work
         time = t
         for _ in range(steps):
-            half = time + 0.5 * h
-            for stage, stage_time in enumerate((time, half, half, time + h)):
+            for stage, stage_time in enumerate(stage_times(time, h)):
                 pin.crba(model, data, qs)
                 nonlinear = pin.nonLinearEffects(model, data, qs, vs)
                 pin.computeJointJacobiansTimeVariation(model, data, qs, vs)
-                rkmk4_stage_kernel(
-                    stage, stage_time, t, h, q0, v0, qs, vs, slopes, accelerations, wrench, tau, thrust0, target,
-                    lag, world, data.M, nonlinear, data.J, data.dJ, *constants, *flags,
-                )  # fmt: skip
-            q0[:], v0[:] = qs, vs
+                rkmk4_stage_kernel(stage, stage_time, t, h, data.M, nonlinear, data.J, data.dJ, water, strips, work)
+            rkmk4.end_step()
             time += h
-        thrust = thrust_at(target, thrust0, dt, lag)
-        return np.concatenate([q0, v0, thrust]), UVMSStepInfo(
-            thrust_wrench=wrench / (6.0 * steps), disturbance=self._unknown.copy()
+        thrust = thrust_at(rkmk4.target, rkmk4.thrust0, dt, float(vehicle.thrust_time_constant))
+        return np.concatenate([rkmk4.q0, rkmk4.v0, thrust]), UVMSStepInfo(
+            thrust_wrench=rkmk4.wrench / (6.0 * steps), disturbance=self._unknown.copy()
         )
 
     def acceleration(self, t: float, x: np.ndarray, u: np.ndarray) -> np.ndarray:
@@ -218,43 +212,104 @@ def _ad(xi, eta):  # pragma: no cover - compiled
     return out
 
 
+def stage_times(time: float, h: float) -> tuple[float, float, float, float]:
+    """The times (s) of the four stages of an RK4 step of h from ``time``."""
+    half = time + 0.5 * h
+    return time, half, half, time + h
+
+
+@structref.register
+class RKMK4WorkType(types.StructRef):
+    """numba type of :class:`RKMK4`'s workspace."""
+
+
+class RKMK4Work(structref.StructRefProxy):
+    """The workspace of an RKMK4 step (:class:`RKMK4`)."""
+
+
+structref.define_boxing(RKMK4WorkType, RKMK4Work)
+_F1, _F2 = types.float64[::1], types.float64[:, ::1]
+RKMK4_WORK_TYPE = RKMK4WorkType([
+    ("q0", _F1), ("v0", _F1), ("qs", _F1), ("vs", _F1), ("slopes", _F2), ("accelerations", _F2),
+    ("increment", _F1), ("wrench", _F1), ("tau", _F1), ("thrust0", _F1), ("target", _F1),
+])  # fmt: skip
+
+
+@numba.njit(cache=True)
+def new_rkmk4_work(arrays):  # pragma: no cover - compiled
+    """A :class:`RKMK4Work` of the 11 arrays (the fields of ``RKMK4_WORK_TYPE``, in order)."""
+    s = structref.new(RKMK4_WORK_TYPE)
+    (s.q0, s.v0, s.qs, s.vs, s.slopes, s.accelerations, s.increment, s.wrench, s.tau, s.thrust0,
+     s.target) = arrays  # fmt: skip
+    return s
+
+
+class RKMK4:
+    """One plant's RKMK4 workspace (owned, like its Pinocchio data): the step's start ``q0``
+    (nq,), ``v0`` (nv,), the stage state ``qs``, ``vs``, the stage ``slopes`` and
+    ``accelerations`` (4, nv), the configuration ``increment`` (nv,), the thrust ``wrench``
+    (6,) summed with the RK4 weights, and the held inputs ``tau`` (nv,), ``thrust0`` and
+    ``target`` (n_thr,); ``work`` the same arrays as one :class:`RKMK4Work` for the kernels.
+    Shared by the floating plant, its prescribed-motion variant and (inside compiled code) the
+    fast path: :func:`rkmk4_advance` is the step's arithmetic."""
+
+    def __init__(self, nq: int, nv: int, n_thr: int = 0):
+        names = ("q0", "v0", "qs", "vs", "slopes", "accelerations", "increment", "wrench", "tau", "thrust0", "target")
+        shapes = (nq, nv, nq, nv, (4, nv), (4, nv), nv, 6, nv, n_thr, n_thr)
+        arrays = tuple(np.zeros(shape) for shape in shapes)
+        for name, array in zip(names, arrays, strict=True):
+            setattr(self, name, array)
+        self.work = new_rkmk4_work(arrays)
+
+    def start(self, q: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Begin a step at (q, v) (the thrust wrench reset): returns the stage state ``(qs, vs)``."""
+        self.q0[:] = q
+        self.v0[:] = v
+        self.qs[:] = q
+        self.vs[:] = v
+        self.wrench[:] = 0.0
+        return self.qs, self.vs
+
+    def end_step(self) -> None:
+        """After the fourth stage: the next inner step starts where this one ended."""
+        self.q0[:] = self.qs
+        self.v0[:] = self.vs
+
+
+@numba.njit(cache=True)
+def rkmk4_advance(stage, h, work, acc):  # pragma: no cover - compiled
+    """Store the stage's acceleration ``acc`` (nv,) and write the next stage's state (or, after
+    stage 3, the step's result) into ``work.qs``, ``work.vs``: :func:`rkmk4_update` then
+    :func:`integrate_configuration`."""
+    rkmk4_update(stage, h, work.v0, work.vs, acc, work.slopes, work.accelerations, work.increment)
+    integrate_configuration(work.q0, work.increment, work.qs)
+
+
 @numba.njit(cache=True)
 def rkmk4_stage_kernel(
-    stage, stage_time, step_start, h, q0, v0, qs, vs, slopes, accelerations, wrench, tau, thrust0, target,
-    lag, current_world, mass_upper, nonlinear, jac, djac,
-    allocation, added_mass, linear_damping, quadratic_damping, buoyancy, cb,
-    root_rows, body_rotation, body_translation,
-    parents, placement_rotation, placement_translation, axes, idx_v,
-    joint_ids, start, axis, length, support, drag_per_length, mass_per_length, buoyancy_force,
-    nodes, weights, use_drag, use_added_mass, use_buoyancy, has_strips,
-):  # fmt: skip  # pragma: no cover - compiled
-    """One RKMK4 stage at the stage state (qs, vs), Pinocchio's terms evaluated there.
+    stage, stage_time, step_start, h, mass_upper, nonlinear, jac, djac, vehicle, strips, work
+):  # pragma: no cover
+    """One RKMK4 stage at the stage state (``work.qs``, ``work.vs``), Pinocchio's terms evaluated
+    there.
 
     Stores the stage's acceleration and its configuration slope (the velocity, the base part
     corrected by dexp^-1 of the stage's increment ``xi = qs (-) q0``), then writes the next
-    stage's state into (qs, vs); after stage 3 the step's result. ``wrench`` accumulates the
-    thrust wrench with the RK4 weights.
+    stage's state into (qs, vs); after stage 3 the step's result. ``work.wrench`` accumulates
+    the thrust wrench with the RK4 weights. ``vehicle``: :class:`~hydroarm.model.uvms.VehicleWater`
+    (its thrust lag and current too); ``strips`` the arm's floating strips.
     """
-    nv = vs.shape[0]
-    thrust = thrust_at(target, thrust0, stage_time - step_start, lag)
+    thrust = thrust_at(work.target, work.thrust0, stage_time - step_start, vehicle.lag)
     joint_acceleration = np.empty(0)
     water_velocity = np.empty(3)
-    current_at(stage_time, np.zeros((3, 0)), current_world, joint_acceleration, water_velocity)
+    current_at(stage_time, np.zeros((3, 0)), vehicle.current_world, joint_acceleration, water_velocity)
     acc = uvms_acceleration_kernel(
-        qs, vs, tau, thrust, water_velocity, mass_upper, nonlinear, jac, djac,
-        allocation, added_mass, linear_damping, quadratic_damping, buoyancy, cb,
-        root_rows, body_rotation, body_translation,
-        parents, placement_rotation, placement_translation, axes, idx_v,
-        joint_ids, start, axis, length, support, drag_per_length, mass_per_length, buoyancy_force,
-        nodes, weights, use_drag, use_added_mass, use_buoyancy, has_strips,
-    )  # fmt: skip
+        work.qs, work.vs, work.tau, thrust, water_velocity, mass_upper, nonlinear, jac, djac, vehicle, strips
+    )
     weight = 1.0 if stage == 0 or stage == 3 else 2.0
-    thrust_wrench = allocation @ thrust
+    thrust_wrench = vehicle.allocation @ thrust
     for i in range(6):
-        wrench[i] += weight * thrust_wrench[i]
-    increment = np.empty(nv)
-    rkmk4_update(stage, h, v0, vs, acc, slopes, accelerations, increment)
-    integrate_configuration(q0, increment, qs)
+        work.wrench[i] += weight * thrust_wrench[i]
+    rkmk4_advance(stage, h, work, acc)
 
 
 @numba.njit(cache=True)

@@ -16,9 +16,11 @@ with a computed-torque controller, and the same dynamics (a test drives
 :class:`~hydroarm.model.uvms_plant.UVMSPlant` with ``tau_arm`` and gets the same v').
 
 State ``x = [q (7 + n), v (6 + n)]`` as the floating plant's without the thrust (a passive
-vehicle's thrusters, if any, deliver nothing). Integration: the floating plant's RKMK4
-(:func:`~hydroarm.model.uvms_plant.rkmk4_update`) on the vehicle; at every stage the arm's angles
-and rates are set to the prescription at the stage's time.
+vehicle's thrusters, if any, deliver nothing). Integration: the floating plant's RKMK4 (its
+workspace :class:`~hydroarm.model.uvms_plant.RKMK4` and arithmetic
+:func:`~hydroarm.model.uvms_plant.rkmk4_advance`) on the vehicle; at every stage the arm's angles
+and rates are set to the prescription at the stage's time. The water is the floating plant's
+(:class:`~hydroarm.model.uvms.UVMSDynamics`: the same strip kernel as every plant).
 """
 
 from __future__ import annotations
@@ -31,7 +33,7 @@ import pinocchio as pin
 
 from hydroarm.model.plant import inner_steps
 from hydroarm.model.uvms import UVMS, UVMSDynamics
-from hydroarm.model.uvms_plant import UVMSPlantConfig, integrate_configuration, rkmk4_update
+from hydroarm.model.uvms_plant import RKMK4, UVMSPlantConfig, rkmk4_advance, stage_times
 from hydroarm.model.water import Water
 
 
@@ -90,6 +92,7 @@ class PrescribedUVMSPlant:
                 raise ValueError(f"wrench frame {wrench.frame!r}: no such body frame (one of {', '.join(names)})")
         self.wrenches = tuple(wrenches)
         self._data = model.createData()
+        self.rkmk4 = RKMK4(self.nq, self.nv)
 
     # --- the protocol -------------------------------------------------------------------
     def joint_state(self, x: np.ndarray) -> np.ndarray:
@@ -156,31 +159,26 @@ class PrescribedUVMSPlant:
 
     def step(self, t: float, x: np.ndarray, u: np.ndarray | None, dt: float) -> tuple[np.ndarray, PrescribedStepInfo]:
         """Integrate the vehicle from (t, x) over dt (s) under the held body wrench ``u`` (6,) or None."""
-        nq, nv = self.nq, self.nv
+        nq = self.nq
         steps, h = inner_steps(dt, self.config.inner_step)
         body_wrench = None if u is None else np.asarray(u, dtype=float)
-        x = np.array(x, dtype=float)
-        q0, v0 = x[:nq].copy(), x[nq:].copy()
-        qs, vs = q0.copy(), v0.copy()
-        slopes = np.empty((4, nv))
-        stage_acc = np.empty((4, nv))
-        acc = np.empty(nv)
-        increment = np.empty(nv)
+        x = np.asarray(x, dtype=float)
+        rkmk4 = self.rkmk4
+        qs, vs = rkmk4.start(x[:nq], x[nq:])
+        acc = np.empty(self.nv)
         torque = np.zeros(self.n_arm)
         time = t
         for _ in range(steps):
-            times = (time, time + 0.5 * h, time + 0.5 * h, time + h)
-            for stage in range(4):
-                qa, va, aa = self.motion.sample(times[stage])
+            for stage, stage_time in enumerate(stage_times(time, h)):
+                qa, va, aa = self.motion.sample(stage_time)
                 qs[7:], vs[6:] = qa, va
-                nu_dot, tau = self.accelerations(times[stage], qs, vs, aa, body_wrench)
+                nu_dot, tau = self.accelerations(stage_time, qs, vs, aa, body_wrench)
                 acc[:6], acc[6:] = nu_dot, aa
                 torque += (1.0 if stage in (0, 3) else 2.0) * tau
-                rkmk4_update(stage, h, v0, vs, acc, slopes, stage_acc, increment)
-                integrate_configuration(q0, increment, qs)
+                rkmk4_advance(stage, h, rkmk4.work, acc)
             qa, va, _ = self.motion.sample(time + h)
             qs[7:], vs[6:] = qa, va
-            q0[:], v0[:] = qs, vs
+            rkmk4.end_step()
             time += h
         info = PrescribedStepInfo(arm_torque=torque / (6.0 * steps), disturbance=np.full(self.n_arm, np.nan))
-        return np.concatenate([q0, v0]), info
+        return np.concatenate([rkmk4.q0, rkmk4.v0]), info

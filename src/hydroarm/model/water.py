@@ -16,6 +16,19 @@ configuration-dependent inertia ``M_A(q) = sum rho C_m A w J_p^T (I - e e^T) J_p
 plus a velocity term ``h_A(q, v)``; the generalised added-mass force is
 ``-M_A(q) q'' - h_A(q, v)``.
 
+Beside the paper's model, two settings (off by default, the numbers then unchanged):
+
+* ``added_mass_model = "kirchhoff"``: the generalised force of the Lagrangian of
+  ``T_A = 1/2 sum int rho C_m A |(I - e e^T) u|^2 ds`` (u the point's velocity): the same M_A,
+  another h_A, so that the water's added mass conserves energy (the Morison form does not on
+  rotating links; docs/model.md);
+* axial drag: ``-1/2 rho C_a A |u_a| u_a`` along the axis of every cylinder whose arm file gives
+  an axial coefficient ``cd_axial`` (C_a; u_a the axial velocity relative to the water), switch
+  ``axial_drag``.
+
+Each effect is one compiled function of :mod:`hydroarm.model.water_effects`; the loop over the
+cylinders and the compiled structure every plant reads are in :mod:`hydroarm.model.strips`.
+
 Currents (``Water.current``):
 
 * ``paper`` (default): the joint-velocity disturbance d(t) of the paper's eq. (22),
@@ -40,8 +53,7 @@ import pydantic
 from hydroarm.config import FrozenModel
 from hydroarm.model.arm import Arm
 from hydroarm.model.current import CurrentConfig, CurrentField, current_velocity, paper_current_acceleration
-from hydroarm.model.reynolds import ReynoldsDrag
-from hydroarm.model.strips import StripGeometry, underwater_dynamics_kernel, water_terms_kernel
+from hydroarm.model.strips import StripGeometry, underwater_dynamics, water_terms
 
 __all__ = [
     "CurrentConfig",
@@ -63,7 +75,8 @@ class Water(FrozenModel):
     potential-flow value of a circular cylinder), ``quadrature_points``
     Gauss-Legendre points per cylinder (see ``docs/model.md`` for the
     convergence study behind the default), ``gravity`` (m/s^2, for buoyancy),
-    ``drag``/``added_mass``/``buoyancy`` switch each effect.
+    ``drag``/``added_mass``/``buoyancy``/``axial_drag`` switch each effect, ``drag_model`` and
+    ``added_mass_model`` choose their forms.
     """
 
     rho: float = pydantic.Field(1000.0, gt=0.0, le=2000.0, description="water density (kg/m^3)")
@@ -84,14 +97,23 @@ class Water(FrozenModel):
         1.0e-6, gt=0.0, le=1e-3, description="nu of the water, for drag_model = reynolds (m^2/s)"
     )
     added_mass: bool = pydantic.Field(True, description="switch: the added mass of the water (on/off)")
+    added_mass_model: Literal["morison", "kirchhoff"] = pydantic.Field(
+        "morison",
+        description="morison: -rho C_m A a_n per length (the paper's); kirchhoff: the same inertia from the "
+        "Lagrangian of the water's kinetic energy, which conserves energy on rotating links",
+    )
     buoyancy: bool = pydantic.Field(True, description="switch: the buoyancy of the wetted cylinders (on/off)")
+    axial_drag: bool = pydantic.Field(
+        True, description="switch: the axial drag of the cylinders whose arm file gives cd_axial > 0 (on/off)"
+    )
     current: CurrentConfig = pydantic.Field(CurrentConfig(), description="the ocean current (section)")
 
     def off(self) -> Water:
         """The same settings with every water effect and the current switched off."""
         return self.model_copy(
-            update={"drag": False, "added_mass": False, "buoyancy": False, "current": CurrentConfig(model="none")}
-        )
+            update={"drag": False, "added_mass": False, "buoyancy": False, "axial_drag": False,
+                    "current": CurrentConfig(model="none")}
+        )  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -112,11 +134,11 @@ class HydroTorques:
 
 
 class WaterModel:
-    """The water acting on one arm: precomputed strip geometry, the current, and a workspace.
+    """The water acting on one arm: its compiled strips, the current, and a workspace.
 
     Build once per (arm, water) pair; it owns its Pinocchio workspace (``data``), so
-    it is not shared between threads. ``kernel_constants``: the constant arguments of
-    the compiled kernels (:meth:`StripGeometry.kernel_constants`); ``current``: the
+    it is not shared between threads. ``strips``: the :class:`~hydroarm.model.strips.Strips`
+    every kernel reads (``geometry`` its arrays); ``current``: the
     :class:`~hydroarm.model.current.CurrentField`.
     """
 
@@ -124,72 +146,56 @@ class WaterModel:
         self.arm = arm
         self.water = water
         self.geometry = StripGeometry(arm, water)
-        self.kernel_constants = self.geometry.kernel_constants()
+        self.strips = self.geometry.compiled
         self.current = CurrentField(water.current, arm.n_joints)
         self.data = arm.create_data()
-        self.reynolds = (
-            ReynoldsDrag(arm, water, self.geometry) if water.drag and water.drag_model == "reynolds" else None
-        )
-        """The Reynolds-dependent drag (:mod:`hydroarm.model.reynolds`), None for a constant C_d."""
 
-    def _kernel(self, q, v, t, drag, added_mass, buoyancy):
+    def _kernel(self, q, v, t, drag, added_mass, buoyancy, axial):
         data = self.data
         pin.computeJointJacobiansTimeVariation(self.arm.model, data, q, v)
         n = self.arm.n_joints
         water_velocity = self.current.at(t)[1]
-        mass, bias, force = water_terms_kernel(
-            q, v, water_velocity, data.J.reshape(6, n), data.dJ.reshape(6, n),
-            *self.kernel_constants,
-            drag and self.reynolds is None, added_mass, buoyancy,
-        )  # fmt: skip
-        if drag and self.reynolds is not None:
-            force = force + self.reynolds.force(q, v, water_velocity, data.J.reshape(6, n))
+        strips = self.geometry.switched(drag, added_mass, buoyancy, axial)
+        mass, bias, force, tau_force = water_terms(
+            strips, q, v, water_velocity, data.J.reshape(6, n), data.dJ.reshape(6, n)
+        )
+        if drag and self.water.drag_model == "reynolds":
+            force = force + tau_force
         return mass, bias, force
 
     def dynamics(
         self, q: np.ndarray, v: np.ndarray, tau: np.ndarray, t: float, friction: float = 0.0
     ) -> tuple[np.ndarray, np.ndarray]:
         """True ``(q'', disturbance)`` of the arm in this water: see
-        :func:`~hydroarm.model.strips.underwater_dynamics_kernel`.
+        :func:`~hydroarm.model.strips.underwater_dynamics`.
 
         One CRBA, one NLE and one Jacobian-derivative call to Pinocchio, then
         the compiled kernel (water, current, friction, the (M + M_A) solve).
         """
         model, data = self.arm.model, self.data
-        w = self.water
         pin.crba(model, data, q)
         nonlinear = pin.nonLinearEffects(model, data, q, v)
         pin.computeJointJacobiansTimeVariation(model, data, q, v)
-        joint_acc, water_velocity = self.current.at(t)
-        jac = data.J.reshape(6, self.arm.n_joints)
-        if self.reynolds is not None:  # the drag as a generalised force beside tau
-            drag = self.reynolds.force(q, v, water_velocity, jac)
-            acc, disturbance = underwater_dynamics_kernel(
-                q, v, np.asarray(tau, dtype=float) + drag, water_velocity, joint_acc, friction, data.M, nonlinear,
-                jac, data.dJ.reshape(6, self.arm.n_joints), *self.kernel_constants, False, w.added_mass, w.buoyancy,
-            )  # fmt: skip
-            return acc, disturbance + drag
-        return underwater_dynamics_kernel(
-            q, v, tau, water_velocity, joint_acc, friction, data.M, nonlinear,
-            jac, data.dJ.reshape(6, self.arm.n_joints),
-            *self.kernel_constants, w.drag, w.added_mass, w.buoyancy,
-        )  # fmt: skip
+        n = self.arm.n_joints
+        rigid = (data.M, nonlinear, data.J.reshape(6, n), data.dJ.reshape(6, n))
+        return underwater_dynamics(self.strips, q, v, np.asarray(tau, dtype=float), float(t), float(friction), rigid)
 
     def terms(self, q: np.ndarray, v: np.ndarray, t: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(M_A (n, n), h_A (n,), f (n,))``: water generalised force = ``-M_A q'' - h_A + f``.
 
-        ``f`` collects drag (relative to the current at time t, s) and buoyancy.
+        ``f`` collects drag (relative to the current at time t, s), axial drag and buoyancy.
         """
         w = self.water
-        return self._kernel(q, v, t, w.drag, w.added_mass, w.buoyancy)
+        return self._kernel(q, v, t, w.drag, w.added_mass, w.buoyancy, w.axial_drag)
 
     def torques(self, q: np.ndarray, v: np.ndarray, a: np.ndarray, t: float = 0.0) -> HydroTorques:
-        """Each water effect separately at (q, v, a) and time t; see :class:`HydroTorques`."""
+        """Each water effect separately at (q, v, a) and time t; see :class:`HydroTorques`
+        (the axial drag is in ``drag``)."""
         w = self.water
         n = self.arm.n_joints
-        _, _, drag = self._kernel(q, v, t, w.drag, False, False)
-        _, _, buoyancy = self._kernel(q, v, t, False, False, w.buoyancy)
-        mass, bias, _ = self._kernel(q, v, t, False, w.added_mass, False)
+        _, _, drag = self._kernel(q, v, t, w.drag, False, False, w.axial_drag)
+        _, _, buoyancy = self._kernel(q, v, t, False, False, w.buoyancy, False)
+        mass, bias, _ = self._kernel(q, v, t, False, w.added_mass, False, False)
         added = -(mass @ a) - bias if w.added_mass else np.zeros(n)
         return HydroTorques(drag=drag, added_mass=added, buoyancy=buoyancy)
 
@@ -211,7 +217,7 @@ def added_mass_matrix(arm: Arm, water: Water, q: np.ndarray) -> np.ndarray:
     """M_A(q) (kg m^2), shape (n, n), symmetric positive semidefinite."""
     n = arm.n_joints
     q = _check_vector(q, n, "q")
-    return WaterModel(arm, water)._kernel(q, np.zeros(n), 0.0, False, True, False)[0]
+    return WaterModel(arm, water)._kernel(q, np.zeros(n), 0.0, False, True, False, False)[0]
 
 
 def _check_vector(x: np.ndarray, n: int, name: str) -> np.ndarray:

@@ -14,7 +14,11 @@ so the water's generalised force (N m, (n,)) at joint state (q, v) and accelerat
 (the current left out: a state model cannot know it). Column k of each block is the water
 kernel of :mod:`hydroarm.model.strips` with unit coefficient on cylinder k alone, so the basis
 is the plant's own strip geometry and quadrature (:class:`~hydroarm.model.strips.StripGeometry`):
-drag ``f(q, v)``, added mass ``-(M_A,k(q) a + h_A,k(q, v))``, buoyancy ``f(q)``.
+drag ``f(q, v)``, added mass ``-(M_A,k(q) a + h_A,k(q, v))`` (Morison's, or Kirchhoff's when the
+water's ``added_mass_model`` says so), buoyancy ``f(q)``. The axial drag is not in the basis.
+:func:`basis_kernel` runs the plant's strip loop (:func:`~hydroarm.model.strips.jacobian_frame`,
+the effects of :mod:`hydroarm.model.water_effects`) with unit coefficients, the added mass in the
+regressor's own form (the acceleration inside the integral).
 
 :meth:`WaterRegressor.physical` turns theta back into C_d, C_m and the displaced volume V (m^3)
 of every cylinder, with the water density and gravity the regressor was built with.
@@ -27,8 +31,29 @@ import numpy as np
 import pinocchio as pin
 
 from hydroarm.model.arm import Arm
-from hydroarm.model.strips import StripGeometry, _apply, _drag_piece, forward_kinematics, water_terms_kernel
+from hydroarm.model.strips import StripGeometry, forward_kinematics, jacobian_frame, water_terms, world_frame
 from hydroarm.model.water import Water
+from hydroarm.model.water_effects import (
+    BIAS0,
+    BIAS1,
+    BUOYANCY,
+    CYL,
+    DRAG,
+    DRAG_CONSTANT,
+    KIND,
+    KIRCHHOFF,
+    LENGTH,
+    MASS,
+    NJ0,
+    NJR,
+    NODES,
+    WEIGHTS,
+    acceleration_bias,
+    buoyancy,
+    drag,
+    kirchhoff_bias,
+    normal_jacobian,
+)
 
 BLOCKS = ("drag", "added_mass", "buoyancy")
 
@@ -51,28 +76,21 @@ class WaterRegressor:
         self.n_parameters = 3 * c
         self.diameters = np.asarray([cyl.diameter for cyl in arm.cylinders], dtype=float)
         self.areas = np.asarray([cyl.area for cyl in arm.cylinders], dtype=float)
-        chain = (geometry.parents, geometry.placement_rotation, geometry.placement_translation,
-                 geometry.axes, geometry.idx_v)  # fmt: skip
+        # the regressor's own strips: constant C_d, no axial drag, every effect on; the terms' coefficients
+        # are written into _theta (owned here) before each call, the basis' are ones
+        regressor = geometry.replace(drag=True, added_mass=True, buoyancy=True, axial=False, drag_model=DRAG_CONSTANT)
+        terms = regressor.replace(drag_per_length=np.zeros(c), mass_per_length=np.zeros(c), buoyancy_force=np.zeros(c))
+        self._terms_strips = terms.compile()
+        self._table = terms.table  # the compiled coefficients, written before each call of terms()
+        ones = np.ones(c)
+        unit = regressor.replace(drag_per_length=ones, mass_per_length=ones, buoyancy_force=ones)
+        self._unit_strips = unit.compile()
         self._per_cylinder = []
         for k in range(c):
             part = slice(k, k + 1)
-            self._per_cylinder.append(
-                (
-                    *chain,
-                    geometry.joint_ids[part],
-                    geometry.start[part],
-                    geometry.axis[part],
-                    geometry.length[part],
-                    geometry.support[part],
-                    np.ones(1),
-                    np.ones(1),
-                    np.ones(1),
-                    geometry.nodes,
-                    geometry.weights,
-                )  # fmt: skip
-            )
-        self._constants = (*chain, geometry.joint_ids, geometry.start, geometry.axis, geometry.length,
-                           geometry.support)  # fmt: skip
+            fields = ("joint_ids", "start", "axis", "length", "support", "drag_per_length", "mass_per_length",
+                      "buoyancy_force", "axial_drag", "reynolds_drag", "diameter")  # fmt: skip
+            self._per_cylinder.append(unit.replace(**{name: getattr(unit, name)[part] for name in fields}))
         self.data = arm.create_data()
         self._still = np.zeros(3)
 
@@ -85,13 +103,13 @@ class WaterRegressor:
         q = np.ascontiguousarray(q, dtype=float)
         v = np.ascontiguousarray(v, dtype=float)
         theta = np.maximum(np.asarray(theta, dtype=float), 0.0)
+        table = self._table
+        table[:, DRAG], table[:, MASS], table[:, BUOYANCY] = theta[:c], theta[c : 2 * c], theta[2 * c :]
         data = self.data
         pin.computeJointJacobiansTimeVariation(self.arm.model, data, q, v)
-        mass, bias, force = water_terms_kernel(
-            q, v, self._still, data.J.reshape(6, n), data.dJ.reshape(6, n), *self._constants,
-            np.ascontiguousarray(theta[:c]), np.ascontiguousarray(theta[c : 2 * c]),
-            np.ascontiguousarray(theta[2 * c :]), self.geometry.nodes, self.geometry.weights, True, True, True,
-        )  # fmt: skip
+        mass, bias, force, _ = water_terms(
+            self._terms_strips, q, v, self._still, data.J.reshape(6, n), data.dJ.reshape(6, n)
+        )
         return mass, force - bias
 
     def predict(self, theta: np.ndarray, q: np.ndarray, v: np.ndarray, a: np.ndarray) -> np.ndarray:
@@ -110,15 +128,12 @@ class WaterRegressor:
         v = np.ascontiguousarray(v, dtype=float)
         data = self.data
         pin.computeJointJacobiansTimeVariation(self.arm.model, data, q, v)
-        g = self.geometry
         return basis_kernel(
-            q, v, np.ascontiguousarray(a, dtype=float), data.J.reshape(6, n), data.dJ.reshape(6, n),
-            g.parents, g.placement_rotation, g.placement_translation, g.axes, g.idx_v,
-            g.joint_ids, g.start, g.axis, g.length, g.support, g.nodes, g.weights,
-        )  # fmt: skip
+            self._unit_strips, q, v, np.ascontiguousarray(a, dtype=float), data.J.reshape(6, n), data.dJ.reshape(6, n)
+        )
 
     def basis_reference(self, q: np.ndarray, v: np.ndarray, a: np.ndarray) -> np.ndarray:
-        """:meth:`basis` through :func:`~hydroarm.model.strips.water_terms_kernel`, one cylinder
+        """:meth:`basis` through :func:`~hydroarm.model.strips.water_terms`, one cylinder
         and one effect at a time (slow; the tests compare the two)."""
         n, c = self.n, self.n_cylinders
         q = np.ascontiguousarray(q, dtype=float)
@@ -128,12 +143,13 @@ class WaterRegressor:
         pin.computeJointJacobiansTimeVariation(self.arm.model, data, q, v)
         jac, djac = data.J.reshape(6, n), data.dJ.reshape(6, n)
         phi = np.empty((n, 3 * c))
-        for k, constants in enumerate(self._per_cylinder):
-            mass, bias, drag = water_terms_kernel(q, v, self._still, jac, djac, *constants, True, True, False)
-            phi[:, k] = drag
+        for k, single in enumerate(self._per_cylinder):
+            mass, bias, drag_force, _ = water_terms(single.switched(True, True, False, False), q, v, self._still,
+                                                    jac, djac)  # fmt: skip
+            phi[:, k] = drag_force
             phi[:, c + k] = -(mass @ a) - bias
-            _, _, buoyancy = water_terms_kernel(q, v, self._still, jac, djac, *constants, False, False, True)
-            phi[:, 2 * c + k] = buoyancy
+            _, _, lift, _ = water_terms(single.switched(False, False, True, False), q, v, self._still, jac, djac)
+            phi[:, 2 * c + k] = lift
         return phi
 
     def parameters(self, water: Water) -> np.ndarray:
@@ -160,118 +176,52 @@ class WaterRegressor:
 
 
 @numba.njit(cache=True)
-def basis_kernel(
-    q, v, a, jac, djac, parents, placement_rotation, placement_translation, axes, idx_v,
-    joint_ids, start, axis, length, support, nodes, weights,
-):  # fmt: skip  # pragma: no cover - compiled
+def basis_kernel(strips, q, v, a, jac, djac):  # pragma: no cover - compiled
     """``Phi`` (n, 3C) in one pass: per cylinder, the strip integrals of
-    :func:`~hydroarm.model.strips.water_terms_kernel` with unit coefficients, still water (the
-    same operations: drag split at the kink of ``|v_n|``, added mass ``-(M_A,k a + h_A,k)``,
-    buoyancy ``J_p(mid)^T e_z``)."""
+    :func:`~hydroarm.model.strips.water_terms` with the unit coefficients of ``strips``, still
+    water (the same operations: drag split at the kink of ``|v_n|``, added mass
+    ``-(M_A,k a + h_A,k)`` with the acceleration inside the integral, buoyancy ``J_p(mid)^T e_z``)."""
     n = v.shape[0]
-    c_count = joint_ids.shape[0]
+    c_count = strips.joint_ids.shape[0]
     phi = np.zeros((n, 3 * c_count))
-    rot, pos = forward_kinematics(q, parents, placement_rotation, placement_translation, axes, idx_v)
-    j0 = np.empty((3, n))
-    jr = np.empty((3, n))
-    nj0 = np.empty((3, n))
-    njr = np.empty((3, n))
-    p0 = np.empty(3)
-    e = np.empty(3)
-    zero = np.zeros(3)
-    a_n = np.empty(3)
-    b_n = np.empty(3)
-    bias0 = np.empty(3)
-    bias1 = np.empty(3)
+    rot, pos = forward_kinematics(strips, q)
+    frame = world_frame(strips, n, np.zeros(3))
     column = np.empty(n)
+    kirchhoff = strips.added_mass_model == KIRCHHOFF
     for k in range(c_count):
-        j = joint_ids[k]
-        L = length[k]
-        _apply(rot[j], pos[j], start[k], p0)
-        _apply(rot[j], zero, axis[k], e)
-        om0 = om1 = om2 = 0.0
-        dl0 = dl1 = dl2 = 0.0
-        da0 = da1 = da2 = 0.0
-        for c in range(n):
-            if support[k, c] != 0.0:
-                vc = v[c]
-                om0 += jac[3, c] * vc
-                om1 += jac[4, c] * vc
-                om2 += jac[5, c] * vc
-                dl0 += djac[0, c] * vc
-                dl1 += djac[1, c] * vc
-                dl2 += djac[2, c] * vc
-                da0 += djac[3, c] * vc
-                da1 += djac[4, c] * vc
-                da2 += djac[5, c] * vc
-                j0[0, c] = jac[0, c] + jac[4, c] * p0[2] - jac[5, c] * p0[1]
-                j0[1, c] = jac[1, c] + jac[5, c] * p0[0] - jac[3, c] * p0[2]
-                j0[2, c] = jac[2, c] + jac[3, c] * p0[1] - jac[4, c] * p0[0]
-                jr[0, c] = jac[4, c] * e[2] - jac[5, c] * e[1]
-                jr[1, c] = jac[5, c] * e[0] - jac[3, c] * e[2]
-                jr[2, c] = jac[3, c] * e[1] - jac[4, c] * e[0]
-            else:
-                for i in range(3):
-                    j0[i, c] = 0.0
-                    jr[i, c] = 0.0
-        vel0 = np.zeros(3)
-        velr = np.zeros(3)
-        for i in range(3):
-            for c in range(n):
-                vel0[i] += j0[i, c] * v[c]
-                velr[i] += jr[i, c] * v[c]
-        # drag, unit coefficient
-        for i in range(3):
-            a_n[i] = vel0[i]
-        along = a_n[0] * e[0] + a_n[1] * e[1] + a_n[2] * e[2]
-        for i in range(3):
-            a_n[i] -= along * e[i]
-        along = velr[0] * e[0] + velr[1] * e[1] + velr[2] * e[2]
-        for i in range(3):
-            b_n[i] = velr[i] - along * e[i]
-        bb = b_n[0] * b_n[0] + b_n[1] * b_n[1] + b_n[2] * b_n[2]
-        split = -1.0
-        if bb > 0.0:
-            split = -(a_n[0] * b_n[0] + a_n[1] * b_n[1] + a_n[2] * b_n[2]) / bb
+        jacobian_frame(strips, k, rot, pos, jac, djac, v, frame)
+        L = frame[CYL, LENGTH]
         column[:] = 0.0
-        if 0.0 < split < L:
-            _drag_piece(0.0, split, a_n, b_n, j0, jr, 1.0, nodes, weights, column)
-            _drag_piece(split, L, a_n, b_n, j0, jr, 1.0, nodes, weights, column)
-        else:
-            _drag_piece(0.0, L, a_n, b_n, j0, jr, 1.0, nodes, weights, column)
+        drag(strips, frame, column)
         for c in range(n):
             phi[c, k] = column[c]
         # added mass, unit coefficient: -(M_A,k a + h_A,k)
-        bias0[0] = dl0 + da1 * p0[2] - da2 * p0[1] + om1 * vel0[2] - om2 * vel0[1]
-        bias0[1] = dl1 + da2 * p0[0] - da0 * p0[2] + om2 * vel0[0] - om0 * vel0[2]
-        bias0[2] = dl2 + da0 * p0[1] - da1 * p0[0] + om0 * vel0[1] - om1 * vel0[0]
-        bias1[0] = da1 * e[2] - da2 * e[1] + om1 * velr[2] - om2 * velr[1]
-        bias1[1] = da2 * e[0] - da0 * e[2] + om2 * velr[0] - om0 * velr[2]
-        bias1[2] = da0 * e[1] - da1 * e[0] + om0 * velr[1] - om1 * velr[0]
-        for c in range(n):
-            along0 = e[0] * j0[0, c] + e[1] * j0[1, c] + e[2] * j0[2, c]
-            alongr = e[0] * jr[0, c] + e[1] * jr[1, c] + e[2] * jr[2, c]
-            for i in range(3):
-                nj0[i, c] = j0[i, c] - e[i] * along0
-                njr[i, c] = jr[i, c] - e[i] * alongr
-        for m in range(nodes.shape[0]):
-            s = L * nodes[m]
-            w = L * weights[m]
+        acceleration_bias(frame)
+        normal_jacobian(frame)
+        for m in range(int(frame[KIND, 1])):
+            s = L * frame[NODES, m]
+            w = L * frame[WEIGHTS, m]
             # normal acceleration at s: sum_b N_b(s) a_b + bias(s)
-            acc0 = bias0[0] + s * bias1[0]
-            acc1 = bias0[1] + s * bias1[1]
-            acc2 = bias0[2] + s * bias1[2]
+            acc0 = frame[BIAS0, 0] + s * frame[BIAS1, 0]
+            acc1 = frame[BIAS0, 1] + s * frame[BIAS1, 1]
+            acc2 = frame[BIAS0, 2] + s * frame[BIAS1, 2]
             for b in range(n):
-                acc0 += (nj0[0, b] + s * njr[0, b]) * a[b]
-                acc1 += (nj0[1, b] + s * njr[1, b]) * a[b]
-                acc2 += (nj0[2, b] + s * njr[2, b]) * a[b]
+                acc0 += (frame[NJ0, b] + s * frame[NJR, b]) * a[b]
+                acc1 += (frame[NJ0 + 1, b] + s * frame[NJR + 1, b]) * a[b]
+                acc2 += (frame[NJ0 + 2, b] + s * frame[NJR + 2, b]) * a[b]
             for c in range(n):
                 phi[c, c_count + k] -= w * (
-                    (nj0[0, c] + s * njr[0, c]) * acc0 + (nj0[1, c] + s * njr[1, c]) * acc1
-                    + (nj0[2, c] + s * njr[2, c]) * acc2
+                    (frame[NJ0, c] + s * frame[NJR, c]) * acc0 + (frame[NJ0 + 1, c] + s * frame[NJR + 1, c]) * acc1
+                    + (frame[NJ0 + 2, c] + s * frame[NJR + 2, c]) * acc2
                 )  # fmt: skip
+        if kirchhoff:
+            column[:] = 0.0
+            kirchhoff_bias(frame, L, column)
+            for c in range(n):
+                phi[c, c_count + k] -= column[c]
         # buoyancy, unit coefficient: the midpoint's vertical Jacobian row
-        half = 0.5 * L
+        column[:] = 0.0
+        buoyancy(strips, frame, column)
         for c in range(n):
-            phi[c, 2 * c_count + k] = j0[2, c] + half * jr[2, c]
+            phi[c, 2 * c_count + k] = column[c]
     return phi
