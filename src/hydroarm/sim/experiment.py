@@ -95,6 +95,11 @@ made before they existed still match."""
 REAL_LOOP_ESTIMATOR_KEYS: tuple[str, ...] = ("measures", "delay", "repeated")
 """The estimator's real-loop settings, left out of :meth:`ExperimentConfig.canonical` at their defaults."""
 
+LATER_WATER_KEYS: tuple[str, ...] = ("added_mass_model", "axial_drag")
+"""The water's settings added after run ids were first made (the energy-consistent added mass,
+the links' axial drag), left out of :meth:`ExperimentConfig.canonical` at their defaults, so
+sweeps made before them still resume."""
+
 
 class InitialState(FrozenModel):
     """Where a run starts: the task's start x0 (:func:`task_for_arm`) plus a seeded uniform draw.
@@ -206,7 +211,7 @@ class ExperimentConfig(FrozenModel):
 
     def canonical(self) -> dict[str, Any]:
         """The settings as JSON data, the optional sections (:data:`OPTIONAL_SECTIONS`: the real
-        loop's and the vehicle's) and estimator keys (:data:`REAL_LOOP_ESTIMATOR_KEYS`) left out
+        loop's and the vehicle's), estimator keys (:data:`REAL_LOOP_ESTIMATOR_KEYS`) and later water keys (:data:`LATER_WATER_KEYS`) left out
         where they are at their defaults (what digests, run ids and summaries hold)."""
         data = self.model_dump(mode="json")
         for section in OPTIONAL_SECTIONS:
@@ -216,6 +221,10 @@ class ExperimentConfig(FrozenModel):
         for key in REAL_LOOP_ESTIMATOR_KEYS:
             if getattr(self.estimator, key) == getattr(defaults, key):
                 data["estimator"].pop(key)
+        water_defaults = Water()
+        for key in LATER_WATER_KEYS:
+            if getattr(self.water, key) == getattr(water_defaults, key):
+                data["water"].pop(key)
         return data
 
     def digest(self) -> str:
