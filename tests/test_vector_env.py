@@ -405,3 +405,75 @@ def test_the_vector_envs_lanes_compile_nothing_at_their_first_step():
     )
     assert result.returncode == 0, result.stderr
     assert result.stdout.strip() == str([[0, 0, 0, 0]] * 5), result.stdout
+
+
+@pytest.mark.parametrize(
+    "infos",
+    [
+        [{"x": np.arange(3.0) + i, "t": 0.1 * i, "k": i, "ok": i % 2 == 0, "f": np.float32(i)} for i in range(5)],
+        [{"x": np.arange(2) + i} if i != 3 else {"t": 1.0} for i in range(5)],  # a reset copy among stepping ones
+        [{"x": np.zeros(2)}, {}, {"x": np.ones(2)}, {}, {}],  # a reset mask
+        [{"x": np.zeros(2), "y": np.zeros(2)}] * 2 + [{"x": np.arange(2), "y": np.zeros(2)}] * 3,  # dtypes differ
+        [{"final_obs": np.zeros(2), "final_info": {"t": 0.5, "x": np.ones(2)}, "t": 0.0}] * 5,  # SAME_STEP's
+        [{"n": 1}, {"n": 2.0}, {"n": 3}, {"n": np.int32(4)}, {"n": True}],  # types differ
+    ],
+    ids=["stackable", "mixed-keys", "masked", "dtypes", "final", "types"],
+)
+@pytest.mark.parametrize("blocks", [[(0, 5)], [(0, 3), (3, 2)], [(0, 1), (1, 2), (3, 2)]], ids=["1", "2", "3"])
+def test_packed_infos_merge_as_gymnasiums_add_info(infos, blocks):
+    """The lanes send their copies' infos stacked when they can (hydroarm.envs.vector._pack): the
+    merged vector info equals VectorEnv._add_info's of the dicts one by one, keys, dtypes and masks."""
+    from gymnasium.vector import VectorEnv
+
+    from hydroarm.envs.vector import _pack
+
+    envs = object.__new__(WorkerVectorEnv)  # only _infos's attributes: no lanes to start
+    envs.num_envs, envs.blocks, envs.closed = 5, blocks, True
+    merged = envs._infos([_pack(infos[start : start + count]) for start, count in blocks])
+    expected: dict = {}
+    for i, info in enumerate(infos):
+        if info:
+            expected = VectorEnv._add_info(envs, expected, info, i)
+    assert merged.keys() == expected.keys()
+    for key in expected:
+        if isinstance(expected[key], np.ndarray):
+            assert merged[key].dtype == expected[key].dtype, key
+    assert data_equivalence(merged, expected, exact=True)
+
+
+def gone(pid: int) -> bool:
+    """The process has exited (no such process, or a zombie waiting to be reaped)."""
+    try:
+        with open(f"/proc/{pid}/stat") as stat:
+            return stat.read().rsplit(")", 1)[1].split()[0] == "Z"
+    except FileNotFoundError:
+        return True
+
+
+@pytest.mark.subprocess
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads /proc")
+def test_workers_exit_when_the_calling_process_is_killed():
+    """SIGKILL gives the calling process no chance to close: its workers see their pipe close and exit."""
+    code = """
+        import os, signal, numpy as np, gymnasium
+        envs = gymnasium.make_vec("hydroarm.envs:hydroarm/UnderwaterArm-v0", num_envs=3, workers=3, arm="alpha5")
+        envs.reset(seed=0)
+        envs.step(np.zeros((3, 4)))
+        print(*envs.unwrapped.worker_pids, flush=True)
+        os.kill(os.getpid(), signal.SIGKILL)
+    """
+    process = subprocess.Popen(
+        [sys.executable, "-c", textwrap.dedent(code)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+        text=True,
+        cwd=ROOT,
+    )
+    pids = [int(pid) for pid in process.stdout.readline().split()]  # not to EOF: a live worker would hold it
+    assert process.wait(timeout=300) == -signal.SIGKILL
+    process.stdout.close()
+    assert len(pids) == 2
+    deadline = time.monotonic() + 60.0  # a liveness deadline (the workers look every second), not a speed bound
+    while not all(gone(pid) for pid in pids) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert all(gone(pid) for pid in pids), [pid for pid in pids if not gone(pid)]

@@ -66,6 +66,9 @@ __all__ = ["WorkerVectorEnv", "default_workers", "make_arm_vector_env", "make_uv
 _ALIGN = 64
 """Bytes: the alignment of each array in the shared block."""
 
+_PARENT_CHECK = 1.0
+"""s: how often an idle worker checks that the main process's end of its pipe is still open."""
+
 _JOIN_TIMEOUT = 5.0
 """s: how long :meth:`WorkerVectorEnv.close` waits for a worker to exit before terminating it."""
 
@@ -96,6 +99,44 @@ class _RemoteTraceback(Exception):
 
     def __str__(self) -> str:
         return "\n" + self.text
+
+
+_SCALARS = (bool, int, float)
+
+
+def _pack(infos: list[dict]) -> list[dict] | dict[str, np.ndarray]:
+    """A block's ``info`` dicts as one dict of stacked arrays ``{key: (count, ...)}`` when every
+    copy has the same keys and each key's values are arrays of one shape and dtype, or scalars of
+    one type (what Gymnasium's ``VectorEnv._add_info`` would make of them, with fewer objects to
+    pickle and merge); else the list as it is."""
+    if not infos or not infos[0]:
+        return infos
+    keys = infos[0].keys()
+    if any(info.keys() != keys for info in infos[1:]):
+        return infos
+    stacked: dict[str, np.ndarray] = {}
+    for key in keys:
+        values = [info[key] for info in infos]
+        first = values[0]
+        kind = type(first)
+        if key == "final_obs" or any(type(value) is not kind for value in values):
+            return infos
+        if kind is np.ndarray:
+            if any(value.shape != first.shape or value.dtype != first.dtype for value in values):
+                return infos
+            stacked[key] = np.stack(values)
+        elif kind in _SCALARS or issubclass(kind, np.number):
+            stacked[key] = np.array(values, dtype=kind)
+        else:
+            return infos
+    return stacked
+
+
+def _unstack(values: np.ndarray, i: int) -> Any:
+    """Copy i's value of a :func:`_pack` array, typed so that ``VectorEnv._add_info`` batches it as
+    the original (a NumPy scalar for numbers, a Python bool for booleans)."""
+    value = values[i]
+    return value.item() if values.dtype == np.bool_ and values.ndim == 1 else value
 
 
 class _Block:
@@ -215,6 +256,7 @@ def _worker(
     count: int,
     autoreset_mode: AutoresetMode,
     pipe: Connection,
+    go: Any,
     parent_end: Connection | None,
 ) -> None:  # pragma: no cover - runs in the worker processes (the tests drive it through them)
     """A worker process: make its block of copies, then serve commands until ``close`` or until
@@ -229,12 +271,15 @@ def _worker(
         block = _Block(env_fn, start, count, autoreset_mode)
         pipe.send(("ok", block.describe()))
         while True:
+            while not go.acquire(timeout=_PARENT_CHECK):  # the command is in the pipe when go is released
+                if pipe.poll():  # the main process's end closed (EOF: recv raises) or a command came
+                    break
             command, data = pipe.recv()
             current = block.current = start
             if command == "step":
-                pipe.send(("ok", block.step()))
+                pipe.send(("ok", _pack(block.step())))
             elif command == "reset":
-                pipe.send(("ok", block.reset(data)))
+                pipe.send(("ok", _pack(block.reset(data))))
             elif command == "call":
                 pipe.send(("ok", block.call(*data)))
             elif command == "set_attr":
@@ -296,6 +341,7 @@ class WorkerVectorEnv(VectorEnv):
         self._arrays: dict[str, np.ndarray] = {}
         self._pipes: list[Connection] = []  # lane w's at w - 1
         self._processes: list[multiprocessing.process.BaseProcess] = []
+        self._go: list[Any] = []  # lane w's semaphore at w - 1: released once a command is in its pipe
         self._local: _Block | None = None
         if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
             raise ValueError(f"num_envs must be an integer >= 1; got {num_envs!r}")
@@ -340,10 +386,12 @@ class WorkerVectorEnv(VectorEnv):
             resource_tracker.ensure_running()
         for w, (start, count) in enumerate(self.blocks[1:], start=1):
             parent_end, child_end = ctx.Pipe()
+            go = ctx.Semaphore(0)
+            self._go.append(go)
             process = ctx.Process(
                 target=_worker,
                 name=f"hydroarm-vector-env-worker-{w}",
-                args=(w, env_fn, start, count, self.autoreset_mode, child_end, parent_end if fork else None),
+                args=(w, env_fn, start, count, self.autoreset_mode, child_end, go, parent_end if fork else None),
                 daemon=True,
             )
             self._pipes.append(parent_end)
@@ -390,8 +438,12 @@ class WorkerVectorEnv(VectorEnv):
 
     # --- the pipes ----------------------------------------------------------------------------
     def _send_all(self, command: str, data: Any = None, per_lane: Sequence[Any] | None = None) -> None:
-        for w, pipe in enumerate(self._pipes, start=1):
+        for w, (pipe, go) in enumerate(zip(self._pipes, self._go, strict=True), start=1):
             pipe.send((command, per_lane[w] if per_lane is not None else data))
+            # the worker waits on the semaphore, not on the pipe: a pipe write wakes its reader as a
+            # "synchronous" wake-up, which Linux may serve on the writer's core, preempting this
+            # process while it steps its own copies (measured: the lanes then take turns on one core)
+            go.release()
 
     def _gather(self, what: str) -> list[Any]:
         """Every worker's reply to the last command, in lane order (lanes 1 ..). An error reply (or
@@ -461,9 +513,9 @@ class WorkerVectorEnv(VectorEnv):
             self._send_all(command, data, per_lane)
             try:
                 if command == "step":
-                    mine = local.step()
+                    mine = _pack(local.step())
                 elif command == "reset":
-                    mine = local.reset(argument)
+                    mine = _pack(local.reset(argument))
                 elif command == "call":
                     mine = local.call(*argument)
                 else:
@@ -481,10 +533,29 @@ class WorkerVectorEnv(VectorEnv):
             self._shutdown(force=True)
             raise
 
-    def _infos(self, replies: list[list[dict]]) -> dict[str, Any]:
-        infos: dict[str, Any] = {}
-        for (start, _), block in zip(self.blocks, replies, strict=True):
-            for i, info in enumerate(block):
+    def _infos(self, replies: list[list[dict] | dict[str, np.ndarray]]) -> dict[str, Any]:
+        """The lanes' ``info`` replies (each :func:`_pack`'s) as Gymnasium's vector ``info``: every
+        key an array over the copies with its ``_key`` mask (``VectorEnv._add_info``)."""
+        if all(isinstance(reply, dict) for reply in replies):  # every lane stacked
+            first = replies[0]
+            keys = first.keys()
+            same = all(
+                reply.keys() == keys
+                and all(reply[k].dtype == first[k].dtype and reply[k].shape[1:] == first[k].shape[1:] for k in keys)
+                for reply in replies[1:]
+            )
+            if same:
+                infos: dict[str, Any] = {}
+                mask = np.ones(self.num_envs, dtype=np.bool_)
+                for key in keys:
+                    infos[key] = np.concatenate([reply[key] for reply in replies])
+                    infos[f"_{key}"] = mask.copy()
+                return infos
+        infos = {}
+        for (start, count), reply in zip(self.blocks, replies, strict=True):
+            if isinstance(reply, dict):  # stacked: back to one dict per copy
+                reply = [{key: _unstack(values, i) for key, values in reply.items()} for i in range(count)]
+            for i, info in enumerate(reply):
                 if info:
                     infos = self._add_info(infos, info, start + i)
         return infos
@@ -575,12 +646,14 @@ class WorkerVectorEnv(VectorEnv):
         free the shared memory. Idempotent; leaves the env closed."""
         self.closed = True
         if not force:
-            for pipe, process in zip(self._pipes, self._processes, strict=True):
+            for pipe, process, go in zip(self._pipes, self._processes, self._go, strict=True):
                 if process.is_alive() and not pipe.closed:
                     try:
                         pipe.send(("close", None))
                     except OSError:
                         pass
+                    else:
+                        go.release()
         for process in self._processes:
             if force and process.is_alive():
                 process.terminate()
@@ -593,7 +666,7 @@ class WorkerVectorEnv(VectorEnv):
                 process.join()
         for pipe in self._pipes:
             pipe.close()
-        self._pipes, self._processes = [], []
+        self._pipes, self._processes, self._go = [], [], []
         local, self._local = self._local, None
         if local is not None:
             local.arrays = {}
@@ -608,7 +681,7 @@ class WorkerVectorEnv(VectorEnv):
             memory.unlink()
 
     def __del__(self) -> None:
-        if not getattr(self, "closed", True):
+        if not getattr(self, "closed", True) and hasattr(self, "_processes"):
             self._shutdown(force=True)
 
     def __repr__(self) -> str:
