@@ -425,7 +425,7 @@ def test_packed_infos_merge_as_gymnasiums_add_info(infos, blocks):
     merged vector info equals VectorEnv._add_info's of the dicts one by one, keys, dtypes and masks."""
     from gymnasium.vector import VectorEnv
 
-    from hydroarm.envs.vector import _pack
+    from hydroarm.envs.vector_lanes import pack_infos as _pack
 
     envs = object.__new__(WorkerVectorEnv)  # only _infos's attributes: no lanes to start
     envs.num_envs, envs.blocks, envs.closed = 5, blocks, True

@@ -9,9 +9,10 @@ per copy) is timed once beside them for reference (not in ``--quick``).
 An environment step of the vector env is one copy's step (the autoreset steps of ``NEXT_STEP``,
 which only reset, are not counted, as in ``gymnasium.utils.performance.benchmark_vector_step``).
 The compile cost and the workers' start are paid at make (timed apart). The machine's load
-average at the start and the end, and the CPU time per environment step (this process plus the
-workers, Linux), say how much the wall-clock ratio owes to a busy machine: on a shared machine
-the lanes wait for their cores, the single env less so.
+average at the start and the end, the CPU time per environment step (this process plus the
+workers, Linux) and the cores each kept busy say how much the wall-clock ratio owes to a busy
+machine: where other sessions keep the cores busy, Linux shares the cores out per session
+(autogroups), and the vector env's lanes together get no more than the single env's session does.
 """
 
 from __future__ import annotations
@@ -38,6 +39,20 @@ def _cpu_seconds(pids: list[int]) -> float:
     except (OSError, ValueError, AttributeError):
         return float("nan")
     return total
+
+
+def _cpu_model() -> str:
+    """The CPU's model name (Linux /proc/cpuinfo), or the platform's processor string."""
+    import platform
+
+    try:
+        with open("/proc/cpuinfo") as info:
+            for line in info:
+                if line.startswith("model name"):
+                    return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or "unknown CPU"
 
 
 def _single_rate(env, actions: np.ndarray) -> tuple[float, float]:
@@ -130,6 +145,11 @@ def bench_envs(quick: bool, arm: str = "alpha5") -> dict:
         "vector_env_steps_per_s_all": vectors,
         "single_cpu_ms_per_step": 1e3 * float(np.median(single_cpu)),
         "vector_cpu_ms_per_env_step": 1e3 * float(np.median(vector_cpu)),
+        # cores kept busy (CPU s per wall s): on a shared machine the vector env's lanes get no
+        # more than this session's fair share of the cores (Linux autogroups share them out per
+        # session), which a single env may already use most of
+        "single_cores_used": float(np.median(np.array(singles) * np.array(single_cpu))),
+        "vector_cores_used": float(np.median(np.array(vectors) * np.array(vector_cpu))),
         "single_make_s": single_make,
         "vector_make_s": vector_make,
         "cpus": os.cpu_count(),
@@ -164,6 +184,35 @@ def render_envs(section: dict) -> str:
         + f") on {section['cores_available']} cores, load average {section['load_average_start'][0]:.1f} at the "
         f"start and {section['load_average_end'][0]:.1f} at the end. CPU time per environment step: "
         f"{section['single_cpu_ms_per_step']:.3f} ms single, {section['vector_cpu_ms_per_env_step']:.3f} ms in the "
-        f"vector env (workers included). Made in {section['single_make_s']:.1f} s and "
+        f"vector env (workers included); cores kept busy: {section['single_cores_used']:.2f} single, "
+        f"{section['vector_cores_used']:.2f} vector. Made in {section['single_make_s']:.1f} s and "
         f"{section['vector_make_s']:.1f} s (the compiled step and the workers' start are paid there).{reference}\n"
     )
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m hydroarm_bench.envs --out FILE [--quick]`` (with ``bench/`` on ``PYTHONPATH``):
+    this section alone, as JSON with the date, the machine and its load (``hydroarm bench`` runs
+    it inside the whole suite)."""
+    import argparse
+    import json
+    import platform
+    import sys
+    from datetime import UTC, datetime
+    from pathlib import Path
+
+    parser = argparse.ArgumentParser(prog="hydroarm_bench.envs", description="Time the vector env against one env.")
+    parser.add_argument("--out", type=Path, required=True, help="the JSON file to write")
+    parser.add_argument("--quick", action="store_true", help="fewer repeats and steps")
+    args = parser.parse_args(argv)
+    section = bench_envs(args.quick)
+    section["date"] = datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")
+    section["machine"] = f"{platform.machine()}, {_cpu_model()}, {os.cpu_count()} CPUs"
+    section["python"] = sys.version.split()[0]
+    args.out.write_text(json.dumps(section, indent=1) + "\n")
+    print(render_envs(section))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

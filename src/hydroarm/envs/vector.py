@@ -46,8 +46,6 @@ from __future__ import annotations
 import functools
 import multiprocessing
 import os
-import signal
-import traceback
 from collections.abc import Callable, Sequence
 from multiprocessing.connection import Connection, wait
 from multiprocessing.shared_memory import SharedMemory
@@ -61,13 +59,9 @@ from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
+from hydroarm.envs.vector_lanes import Block, RemoteTraceback, layout_of, pack_infos, serve, unstack_info, views_of
+
 __all__ = ["WorkerVectorEnv", "default_workers", "make_arm_vector_env", "make_uvms_vector_env"]
-
-_ALIGN = 64
-"""Bytes: the alignment of each array in the shared block."""
-
-_PARENT_CHECK = 1.0
-"""s: how often an idle worker checks that the main process's end of its pipe is still open."""
 
 _JOIN_TIMEOUT = 5.0
 """s: how long :meth:`WorkerVectorEnv.close` waits for a worker to exit before terminating it."""
@@ -88,232 +82,6 @@ def _autoreset_mode(value: AutoresetMode | str) -> AutoresetMode:
     except ValueError:
         allowed = ", ".join(repr(mode.value) for mode in AutoresetMode)
         raise ValueError(f"autoreset_mode must be an AutoresetMode or one of {allowed}; got {value!r}") from None
-
-
-class _RemoteTraceback(Exception):
-    """The traceback of an exception raised in a worker (the cause of the re-raised exception)."""
-
-    def __init__(self, text: str):
-        super().__init__(text)
-        self.text = text
-
-    def __str__(self) -> str:
-        return "\n" + self.text
-
-
-_SCALARS = (bool, int, float)
-
-
-def _pack(infos: list[dict]) -> list[dict] | dict[str, np.ndarray]:
-    """A block's ``info`` dicts as one dict of stacked arrays ``{key: (count, ...)}`` when every
-    copy has the same keys and each key's values are arrays of one shape and dtype, or scalars of
-    one type (what Gymnasium's ``VectorEnv._add_info`` would make of them, with fewer objects to
-    pickle and merge); else the list as it is."""
-    if not infos or not infos[0]:
-        return infos
-    keys = infos[0].keys()
-    if any(info.keys() != keys for info in infos[1:]):
-        return infos
-    stacked: dict[str, np.ndarray] = {}
-    for key in keys:
-        values = [info[key] for info in infos]
-        first = values[0]
-        kind = type(first)
-        if key == "final_obs" or any(type(value) is not kind for value in values):
-            return infos
-        if kind is np.ndarray:
-            if any(value.shape != first.shape or value.dtype != first.dtype for value in values):
-                return infos
-            stacked[key] = np.stack(values)
-        elif kind in _SCALARS or issubclass(kind, np.number):
-            stacked[key] = np.array(values, dtype=kind)
-        else:
-            return infos
-    return stacked
-
-
-def _unstack(values: np.ndarray, i: int) -> Any:
-    """Copy i's value of a :func:`_pack` array, typed so that ``VectorEnv._add_info`` batches it as
-    the original (a NumPy scalar for numbers, a Python bool for booleans)."""
-    value = values[i]
-    return value.item() if values.dtype == np.bool_ and values.ndim == 1 else value
-
-
-class _Block:
-    """A worker's contiguous copies ``start .. start + count - 1``, stepped one after the other,
-    reading their actions from and writing their results into the (shared) arrays it is given."""
-
-    def __init__(self, env_fn: Callable[[], gymnasium.Env], start: int, count: int, autoreset_mode: AutoresetMode):
-        self.start = start
-        self.current = start  # the copy being run: an error names it
-        self.envs: list[gymnasium.Env] = []
-        for i in range(count):
-            self.current = start + i
-            self.envs.append(env_fn())
-        self.autoreset_mode = autoreset_mode
-        self.autoreset = np.zeros(count, dtype=bool)
-        self.arrays: dict[str, np.ndarray] = {}
-
-    def describe(self) -> tuple[spaces.Space, spaces.Space, dict[str, Any], str | None]:
-        """The copies' (observation space, action space, metadata, render mode); all copies must agree."""
-        first = self.envs[0]
-        for i, env in enumerate(self.envs[1:], start=1):
-            self.current = self.start + i
-            if env.observation_space != first.observation_space or env.action_space != first.action_space:
-                raise ValueError(
-                    f"copy {self.start + i} has other spaces than copy {self.start}: a vector env needs equal ones"
-                )
-        return first.observation_space, first.action_space, dict(first.metadata), first.render_mode
-
-    def attach(self, arrays: dict[str, np.ndarray]) -> None:
-        """Use ``arrays`` (each of the whole vector env, (num_envs, ...)): this block's rows."""
-        stop = self.start + len(self.envs)
-        self.arrays = {name: array[self.start : stop] for name, array in arrays.items()}
-
-    def reset(self, requests: Sequence[tuple[int | None, dict | None] | None]) -> list[dict]:
-        """Reset each copy whose request ``(seed, options)`` is not None."""
-        observations = self.arrays["observations"]
-        infos: list[dict] = []
-        for i, (env, request) in enumerate(zip(self.envs, requests, strict=True)):
-            self.current = self.start + i
-            if request is None:
-                infos.append({})
-                continue
-            seed, options = request
-            observation, info = env.reset(seed=seed, options=options)
-            observations[i] = observation
-            self.autoreset[i] = False
-            infos.append(info)
-        return infos
-
-    def step(self) -> list[dict]:
-        """Step every copy with its row of the actions (autoreset as the mode says)."""
-        a = self.arrays
-        observations, actions, rewards = a["observations"], a["actions"], a["rewards"]
-        terminations, truncations = a["terminated"], a["truncated"]
-        mode = self.autoreset_mode
-        infos: list[dict] = []
-        for i, env in enumerate(self.envs):
-            self.current = self.start + i
-            if mode == AutoresetMode.NEXT_STEP and self.autoreset[i]:
-                observation, info = env.reset()
-                reward, terminated, truncated = 0.0, False, False
-            else:
-                observation, reward, terminated, truncated, info = env.step(actions[i].copy())
-                if mode == AutoresetMode.SAME_STEP and (terminated or truncated):
-                    final_observation, final_info = observation, info
-                    observation, reset_info = env.reset()
-                    info = {"final_info": final_info, "final_obs": final_observation, **reset_info}
-            if mode == AutoresetMode.NEXT_STEP:
-                self.autoreset[i] = terminated or truncated
-            observations[i] = observation
-            rewards[i] = reward
-            terminations[i] = terminated
-            truncations[i] = truncated
-            infos.append(info)
-        return infos
-
-    def call(self, name: str, args: tuple, kwargs: dict) -> list[Any]:
-        """Each copy's ``name`` (an attribute, or a method called with ``args``, ``kwargs``)."""
-        results = []
-        for i, env in enumerate(self.envs):
-            self.current = self.start + i
-            value = env.get_wrapper_attr(name)
-            results.append(value(*args, **kwargs) if callable(value) else value)
-        return results
-
-    def set_attr(self, name: str, values: Sequence[Any]) -> None:
-        for i, (env, value) in enumerate(zip(self.envs, values, strict=True)):
-            self.current = self.start + i
-            env.set_wrapper_attr(name, value)
-
-    def close(self) -> None:
-        for env in self.envs:
-            env.close()
-
-
-def _layout(fields: Sequence[tuple[str, tuple[int, ...], np.dtype]]) -> tuple[dict[str, tuple], int]:
-    """Byte offsets of the arrays in one block (each aligned to :data:`_ALIGN`), and its size."""
-    layout, offset = {}, 0
-    for name, shape, dtype in fields:
-        layout[name] = (shape, np.dtype(dtype).str, offset)
-        size = int(np.prod(shape, dtype=np.int64)) * np.dtype(dtype).itemsize
-        offset += -(-size // _ALIGN) * _ALIGN
-    return layout, max(offset, _ALIGN)
-
-
-def _views(buffer, layout: dict[str, tuple]) -> dict[str, np.ndarray]:
-    return {
-        name: np.ndarray(shape, dtype=np.dtype(dtype), buffer=buffer, offset=offset)
-        for name, (shape, dtype, offset) in layout.items()
-    }
-
-
-def _worker(
-    index: int,
-    env_fn: Callable[[], gymnasium.Env],
-    start: int,
-    count: int,
-    autoreset_mode: AutoresetMode,
-    pipe: Connection,
-    go: Any,
-    parent_end: Connection | None,
-) -> None:  # pragma: no cover - runs in the worker processes (the tests drive it through them)
-    """A worker process: make its block of copies, then serve commands until ``close`` or until
-    the main process's end of the pipe closes."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the main process's to handle
-    if parent_end is not None:
-        parent_end.close()  # the main process's end: closed here so its death shows as EOF
-    block: _Block | None = None
-    memory: SharedMemory | None = None
-    current = start
-    try:
-        block = _Block(env_fn, start, count, autoreset_mode)
-        pipe.send(("ok", block.describe()))
-        while True:
-            while not go.acquire(timeout=_PARENT_CHECK):  # the command is in the pipe when go is released
-                if pipe.poll():  # the main process's end closed (EOF: recv raises) or a command came
-                    break
-            command, data = pipe.recv()
-            current = block.current = start
-            if command == "step":
-                pipe.send(("ok", _pack(block.step())))
-            elif command == "reset":
-                pipe.send(("ok", _pack(block.reset(data))))
-            elif command == "call":
-                pipe.send(("ok", block.call(*data)))
-            elif command == "set_attr":
-                block.set_attr(*data)
-                pipe.send(("ok", None))
-            elif command == "attach":
-                name, layout = data
-                memory = SharedMemory(name=name)
-                block.attach(_views(memory.buf, layout))
-                pipe.send(("ok", None))
-            elif command == "close":
-                pipe.send(("ok", None))
-                break
-            else:
-                raise RuntimeError(f"unknown command {command!r}")
-    except (EOFError, BrokenPipeError):  # the main process is gone: nothing to report to
-        pass
-    except BaseException as error:  # noqa: BLE001 - every failure goes back to the main process
-        if block is not None:
-            current = block.current
-        text = "".join(traceback.format_exception(error))
-        try:
-            pipe.send(("error", (current, error, text)))
-        except Exception:  # the exception itself does not pickle: send its text
-            pipe.send(("error", (current, RuntimeError(f"{type(error).__name__}: {error}"), text)))
-    finally:
-        if block is not None:
-            block.arrays = {}
-            try:
-                block.close()
-            except Exception:  # noqa: BLE001, S110 - closing after a failure: the first error is the one to report
-                pass
-        if memory is not None:
-            memory.close()
 
 
 class WorkerVectorEnv(VectorEnv):
@@ -342,7 +110,7 @@ class WorkerVectorEnv(VectorEnv):
         self._pipes: list[Connection] = []  # lane w's at w - 1
         self._processes: list[multiprocessing.process.BaseProcess] = []
         self._go: list[Any] = []  # lane w's semaphore at w - 1: released once a command is in its pipe
-        self._local: _Block | None = None
+        self._local: Block | None = None
         if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
             raise ValueError(f"num_envs must be an integer >= 1; got {num_envs!r}")
         if workers is None:
@@ -359,7 +127,7 @@ class WorkerVectorEnv(VectorEnv):
         self.blocks = list(zip(starts, counts, strict=True))
         try:
             self._start(env_fn, context)  # the workers make their copies while this process makes its own
-            self._local = _Block(env_fn, 0, counts[0], self.autoreset_mode)
+            self._local = Block(env_fn, 0, counts[0], self.autoreset_mode)
             self._set_spaces([self._local.describe(), *self._gather("make")])
             self._allocate()
         except BaseException:
@@ -389,7 +157,7 @@ class WorkerVectorEnv(VectorEnv):
             go = ctx.Semaphore(0)
             self._go.append(go)
             process = ctx.Process(
-                target=_worker,
+                target=serve,
                 name=f"hydroarm-vector-env-worker-{w}",
                 args=(w, env_fn, start, count, self.autoreset_mode, child_end, go, parent_end if fork else None),
                 daemon=True,
@@ -426,9 +194,9 @@ class WorkerVectorEnv(VectorEnv):
         if not self._pipes:
             self._arrays = {name: np.zeros(shape, dtype=dtype) for name, shape, dtype in fields}
         else:
-            layout, size = _layout(fields)
+            layout, size = layout_of(fields)
             self._memory = SharedMemory(create=True, size=size)
-            self._arrays = _views(self._memory.buf, layout)
+            self._arrays = views_of(self._memory.buf, layout)
             for array in self._arrays.values():
                 array[...] = 0
             self._send_all("attach", (self._memory.name, layout))
@@ -487,7 +255,7 @@ class WorkerVectorEnv(VectorEnv):
         if len(failures) > 1:
             error.add_note(f"{len(failures) - 1} other lane(s) failed too")
         if text is not None:
-            raise error from _RemoteTraceback(text)
+            raise error from RemoteTraceback(text)
         raise error
 
     def _died(self, w: int, what: str) -> RuntimeError:
@@ -513,9 +281,9 @@ class WorkerVectorEnv(VectorEnv):
             self._send_all(command, data, per_lane)
             try:
                 if command == "step":
-                    mine = _pack(local.step())
+                    mine = pack_infos(local.step())
                 elif command == "reset":
-                    mine = _pack(local.reset(argument))
+                    mine = pack_infos(local.reset(argument))
                 elif command == "call":
                     mine = local.call(*argument)
                 else:
@@ -534,7 +302,7 @@ class WorkerVectorEnv(VectorEnv):
             raise
 
     def _infos(self, replies: list[list[dict] | dict[str, np.ndarray]]) -> dict[str, Any]:
-        """The lanes' ``info`` replies (each :func:`_pack`'s) as Gymnasium's vector ``info``: every
+        """The lanes' ``info`` replies (each :func:`pack_infos`'s) as Gymnasium's vector ``info``: every
         key an array over the copies with its ``_key`` mask (``VectorEnv._add_info``)."""
         if all(isinstance(reply, dict) for reply in replies):  # every lane stacked
             first = replies[0]
@@ -554,7 +322,7 @@ class WorkerVectorEnv(VectorEnv):
         infos = {}
         for (start, count), reply in zip(self.blocks, replies, strict=True):
             if isinstance(reply, dict):  # stacked: back to one dict per copy
-                reply = [{key: _unstack(values, i) for key, values in reply.items()} for i in range(count)]
+                reply = [{key: unstack_info(values, i) for key, values in reply.items()} for i in range(count)]
             for i, info in enumerate(reply):
                 if info:
                     infos = self._add_info(infos, info, start + i)
