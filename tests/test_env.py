@@ -328,3 +328,16 @@ def test_a_vector_env_steps_eight_copies_with_next_step_autoreset():
     np.testing.assert_array_equal(reward, np.zeros(8))
     np.testing.assert_array_equal(obs[:, :8], np.tile(envs.envs[0].unwrapped.x0, (8, 1)))
     envs.close()
+
+
+def test_the_random_policy_table_of_the_docs_is_the_measured_one():
+    """docs/envs.md's table is docs/data/env_random_episodes.json's (scripts/env_random_episodes.py)."""
+    import json
+
+    measured = json.loads((ROOT / "docs" / "data" / "env_random_episodes.json").read_text())
+    text = (ROOT / "docs" / "envs.md").read_text()
+    assert f"`docs/data/env_random_episodes.json`, {measured['date']}" in " ".join(text.split())
+    assert set(measured["arms"]) == {"paper", "ur5", "alpha5", "iiwa14", "myarm.urdf"}
+    for row in measured["arms"].values():
+        cells = f"| {row['ended_early']} | {row['median_length']:g} | {row['shortest']} |"
+        assert cells in text, cells

@@ -477,3 +477,24 @@ def test_workers_exit_when_the_calling_process_is_killed():
     while not all(gone(pid) for pid in pids) and time.monotonic() < deadline:
         time.sleep(0.2)
     assert all(gone(pid) for pid in pids), [pid for pid in pids if not gone(pid)]
+
+
+def test_the_speed_docs_envs_md_states_is_the_measured_one():
+    """docs/envs.md's figures are docs/data/env_vector_speed.json's (python -m hydroarm_bench.envs)."""
+    import json
+
+    measured = json.loads((ROOT / "docs" / "data" / "env_vector_speed.json").read_text())
+    assert measured["date"] and measured["machine"] and measured["load_average_start"]
+    text = " ".join((ROOT / "docs" / "envs.md").read_text().split())
+    single, vector = measured["single_cpu_ms_per_step"], measured["vector_cpu_ms_per_env_step"]
+    for phrase in (
+        f"Measured {measured['date']} on a shared {measured['cpus']}-core",
+        f"(load average {measured['load_average_start'][0]:.1f} at the start;",
+        f"one environment {measured['single_steps_per_s']:.0f} steps/s",
+        f"({measured['workers']} lanes) {measured['vector_env_steps_per_s']:.0f} environment steps/s: "
+        f"**{measured['speedup']:.2f}x**",
+        f"async vector env gave {measured['async_env_steps_per_s']:.0f} ({measured['async_speedup']:.2f}x)",
+        f"({measured['single_cores_used']:.2f} and {measured['vector_cores_used']:.2f})",
+        f"2 x {single:.3f} / {vector:.3f} = {2 * single / vector:.2f}x",
+    ):
+        assert phrase in text, phrase
