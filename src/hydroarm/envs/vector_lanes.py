@@ -60,7 +60,7 @@ def pack_infos(infos: list[dict]) -> list[dict] | dict[str, np.ndarray]:
         if kind is np.ndarray:
             if any(value.shape != first.shape or value.dtype != first.dtype for value in values):
                 return infos
-            stacked[key] = np.stack(values)
+            stacked[key] = np.array(values)  # (count, ...): the shapes and dtypes are equal
         elif kind in SCALARS or issubclass(kind, np.number):
             stacked[key] = np.array(values, dtype=kind)
         else:
