@@ -498,3 +498,27 @@ def test_the_speed_docs_envs_md_states_is_the_measured_one():
         f"2 x {single:.3f} / {vector:.3f} = {2 * single / vector:.2f}x",
     ):
         assert phrase in text, phrase
+
+
+@pytest.mark.subprocess
+@pytest.mark.parametrize("context", ["spawn", "forkserver"])
+def test_other_start_methods_give_the_same_numbers(context):
+    """The workers started by spawn or forkserver (Python 3.14's default on Linux) import hydroarm
+    afresh and unpickle the env's constructor: the same numbers as a single env."""
+    import multiprocessing
+
+    if context not in multiprocessing.get_all_start_methods():
+        pytest.skip(f"no {context} here")
+    make = functools.partial(UnderwaterArmEnv, **ENV_KWARGS)
+    envs = WorkerVectorEnv(make, 2, workers=2, context=context)
+    single = make()
+    try:
+        obs, _ = envs.reset(seed=5)
+        np.testing.assert_array_equal(obs[1], single.reset(seed=6)[0])
+        for batch in actions_for(envs, 3):
+            obs, reward, *_ = envs.step(batch)
+            expected, expected_reward, *_ = single.step(batch[1])
+            np.testing.assert_array_equal(obs[1], expected)
+            assert reward[1] == expected_reward
+    finally:
+        envs.close()
