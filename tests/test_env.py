@@ -23,15 +23,17 @@ from hydroarm.sim.runner import tracking_metrics  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 URDF_ARM = str(ROOT / "examples" / "urdf" / "myarm.urdf")
+IIWA14 = str(ROOT / "examples" / "urdf" / "iiwa14.urdf")
 ARMS = [
     pytest.param("paper", id="paper"),
     pytest.param("ur5", id="ur5"),
     pytest.param("alpha5", id="alpha5"),
     pytest.param(URDF_ARM, id="myarm.urdf"),
 ]
+EVERY_ARM = [*ARMS, pytest.param(IIWA14, id="iiwa14")]
 
 
-@pytest.mark.parametrize("arm", ARMS)
+@pytest.mark.parametrize("arm", EVERY_ARM)
 def test_passes_gymnasium_env_checker(arm):
     from gymnasium.utils.env_checker import check_env
 
@@ -273,12 +275,33 @@ def test_a_start_spread_draws_seeded_starts_around_the_tasks_start():
         UnderwaterArmEnv(arm="alpha5", start_spread=(-1.0, 0.0))
 
 
-@pytest.mark.parametrize("arm", ["alpha5", URDF_ARM], ids=["alpha5", "myarm.urdf"])
-def test_a_random_policy_runs_whole_episodes(arm):
+MORISON_ADDED_MASS = pytest.mark.xfail(
+    strict=True,
+    reason="the Morison added mass does not conserve energy on rotating links (docs/model.md, "
+    "scripts/added_mass_energy.py): random torques spin the light wrists of the paper arm and the UR5 "
+    "past the divergence speed (docs/data/env_random_episodes.json); strict, so that an energy-consistent "
+    "default water model shows here",
+)
+
+
+@pytest.mark.parametrize(
+    ("arm", "settings"),
+    [
+        pytest.param("paper", {}, id="paper", marks=MORISON_ADDED_MASS),
+        pytest.param("ur5", {}, id="ur5", marks=MORISON_ADDED_MASS),
+        pytest.param("alpha5", {}, id="alpha5"),
+        pytest.param(IIWA14, {}, id="iiwa14"),
+        pytest.param(URDF_ARM, {}, id="myarm.urdf"),
+        pytest.param("paper", {"water.added_mass": False}, id="paper-no-added-mass"),
+        pytest.param("ur5", {"water.added_mass": False}, id="ur5-no-added-mass"),
+    ],
+)
+def test_a_random_policy_runs_whole_episodes(arm, settings):
     """Uniform random normalised actions over the full range: 100 episodes of 1 s, none ends early.
-    (The paper and UR5 arms are not here: their light wrists spin past the divergence speed
-    under random torques, docs/envs.md.)"""
-    env = gymnasium.make(ENV_ID, arm=arm, duration=1.0)
+    On the paper arm and the UR5 only without the Morison added mass (the water settings reach the
+    env through ``settings``): with it, they end early (strict xfail)."""
+    env = gymnasium.make(ENV_ID, arm=arm, duration=1.0, settings=settings)
+    assert env.unwrapped.config.water.added_mass == settings.get("water.added_mass", True)
     env.action_space.seed(0)
     for episode in range(100):
         env.reset(seed=episode)
@@ -305,3 +328,16 @@ def test_a_vector_env_steps_eight_copies_with_next_step_autoreset():
     np.testing.assert_array_equal(reward, np.zeros(8))
     np.testing.assert_array_equal(obs[:, :8], np.tile(envs.envs[0].unwrapped.x0, (8, 1)))
     envs.close()
+
+
+def test_the_random_policy_table_of_the_docs_is_the_measured_one():
+    """docs/envs.md's table is docs/data/env_random_episodes.json's (scripts/env_random_episodes.py)."""
+    import json
+
+    measured = json.loads((ROOT / "docs" / "data" / "env_random_episodes.json").read_text())
+    text = (ROOT / "docs" / "envs.md").read_text()
+    assert f"`docs/data/env_random_episodes.json`, {measured['date']}" in " ".join(text.split())
+    assert set(measured["arms"]) == {"paper", "ur5", "alpha5", "iiwa14", "myarm.urdf"}
+    for row in measured["arms"].values():
+        cells = f"| {row['ended_early']} | {row['median_length']:g} | {row['shortest']} |"
+        assert cells in text, cells

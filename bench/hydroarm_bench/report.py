@@ -136,6 +136,7 @@ def target_status(report: dict) -> dict:
             TARGETS["viewer_recording_mb"],
             False,
         ),
+        "env_vector_speedup": check(report.get("envs", {}).get("speedup"), TARGETS["env_vector_speedup"], True),
     }
 
 

@@ -25,6 +25,7 @@ TARGETS = {
     "uvms_real_time_factor": 200.0,
     "viewer_open_s": 2.0,
     "viewer_recording_mb": 20.0,
+    "env_vector_speedup": 1.6,
 }
 PEER_PACKAGES = (
     "do-mpc",

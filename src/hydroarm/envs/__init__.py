@@ -18,7 +18,10 @@ have Gymnasium import it, or import it yourself::
 
 :func:`register` does the registration again if needed (idempotent). The environment
 and :class:`~hydroarm.envs.underwater_arm.ControllerPolicy` are documented in
-:mod:`hydroarm.envs.underwater_arm`.
+:mod:`hydroarm.envs.underwater_arm`. Both ids name :mod:`hydroarm.envs.vector`'s
+:class:`~hydroarm.envs.vector.WorkerVectorEnv` as their ``vector_entry_point``:
+``gymnasium.make_vec("hydroarm/UnderwaterArm-v0", num_envs=8)`` runs the 8 copies on as many
+worker processes as there are cores.
 """
 
 from __future__ import annotations
@@ -30,6 +33,8 @@ ENV_ID = "hydroarm/UnderwaterArm-v0"
 ENTRY_POINT = "hydroarm.envs.underwater_arm:UnderwaterArmEnv"
 UVMS_ENV_ID = "hydroarm/UVMS-v0"
 UVMS_ENTRY_POINT = "hydroarm.envs.vehicle:UVMSEnv"
+VECTOR_ENTRY_POINT = "hydroarm.envs.vector:make_arm_vector_env"
+UVMS_VECTOR_ENTRY_POINT = "hydroarm.envs.vector:make_uvms_vector_env"
 
 __all__ = ["ENV_ID", "UVMS_ENV_ID", "ControllerPolicy", "UnderwaterArmEnv", "register"]
 
@@ -42,9 +47,9 @@ def register() -> None:
     except ImportError as error:  # pragma: no cover - depends on the environment
         raise ImportError("hydroarm.envs needs Gymnasium: pip install 'hydroarm[gym]'") from error
     if ENV_ID not in gymnasium.registry:
-        gymnasium.register(id=ENV_ID, entry_point=ENTRY_POINT)
+        gymnasium.register(id=ENV_ID, entry_point=ENTRY_POINT, vector_entry_point=VECTOR_ENTRY_POINT)
     if UVMS_ENV_ID not in gymnasium.registry:
-        gymnasium.register(id=UVMS_ENV_ID, entry_point=UVMS_ENTRY_POINT)
+        gymnasium.register(id=UVMS_ENV_ID, entry_point=UVMS_ENTRY_POINT, vector_entry_point=UVMS_VECTOR_ENTRY_POINT)
 
 
 def __getattr__(name: str) -> Any:

@@ -13,7 +13,9 @@ ranges of arms with limits) and the start state (the task's, moved by the settin
 (``.urdf`` with its ``<stem>.hydro.toml`` beside it, or the ``.hydro.toml`` itself);
 default: the settings' ``arm`` (``"paper"``). ``config``: an
 :class:`~hydroarm.sim.experiment.ExperimentConfig` (default: the paper reading's settings);
-``noise_variance`` and ``duration`` override ``plant.noise_variance`` and ``duration``.
+``settings``: dotted overrides of it, as ``hydroarm run --set`` takes them (``{"water.added_mass":
+False}``: every water, plant, current and task setting is reachable so); ``noise_variance`` and
+``duration`` override ``plant.noise_variance`` and ``duration`` (after ``settings``).
 With n the arm's joint count:
 
 * observation (4n,), float64: the measured joint state [q, v] (2n, rad and rad/s, with
@@ -45,11 +47,13 @@ With n the arm's joint count:
 * the plant's compiled step is compiled (or loaded from numba's cache) when the env is made,
   not at the first ``step``.
 
-Vector envs: ``gymnasium.make_vec("hydroarm.envs:hydroarm/UnderwaterArm-v0", num_envs=8,
-vectorization_mode="async")`` (one process per copy; ``"sync"`` steps them in this process).
-The autoreset mode is Gymnasium's default, ``AutoresetMode.NEXT_STEP``: the step after an
+Vector envs: ``gymnasium.make_vec("hydroarm.envs:hydroarm/UnderwaterArm-v0", num_envs=8)`` gives
+:class:`~hydroarm.envs.vector.WorkerVectorEnv` (the id's ``vector_entry_point``): the copies in
+blocks on one worker process per core, through shared memory. Its autoreset mode
+(``metadata["autoreset_mode"]``) is ``AutoresetMode.NEXT_STEP`` by default: the step after an
 episode ended returns the first observation of the next one (its reward 0, not terminated) and
-ignores that step's action.
+ignores that step's action. ``vectorization_mode="async"`` / ``"sync"`` give Gymnasium's (one
+process per copy / all in this process), with the same autoreset mode.
 
 Seeded through ``reset(seed=...)``: the measurement-noise stream is the one
 :func:`~hydroarm.sim.runner.run_closed_loop` draws with that seed, so a controller
@@ -72,6 +76,7 @@ Example (``gymnasium.make`` imports :mod:`hydroarm.envs`, which registers the id
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -139,13 +144,14 @@ class UnderwaterArmEnv(gymnasium.Env):
         action_mode: str = "normalised",
         action_scale: np.ndarray | list[float] | None = None,
         start_spread: tuple[float, float] = (0.0, 0.0),
+        settings: Mapping[str, Any] | None = None,
     ):
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be None or one of {self.metadata['render_modes']}; got {render_mode!r}")
         self.render_mode = render_mode
         self._scene = None
         config = config if config is not None else ExperimentConfig()
-        overrides: dict[str, Any] = {}
+        overrides: dict[str, Any] = dict(settings) if settings is not None else {}
         if arm is not None:
             overrides["arm"] = str(arm)
         if noise_variance is not None:

@@ -21,7 +21,10 @@ study); the agent takes the station keeper's place and drives the thrusters.
   (settings: :class:`UVMSEnvConfig`).
 
 ``reset(seed=...)`` draws the vehicle's start offset (uniform within ``start_offset`` m per
-axis) from the seeded generator: the same seed gives the same episode.
+axis) from the seeded generator: the same seed gives the same episode. The compiled plant step
+and the arm controller's compiled code are compiled (or loaded from numba's cache) when the
+environment is made, not at the first ``step``. ``gymnasium.make_vec("hydroarm/UVMS-v0",
+num_envs=...)`` gives :class:`~hydroarm.envs.vector.WorkerVectorEnv`.
 """
 
 from __future__ import annotations
@@ -107,6 +110,12 @@ class UVMSEnv(gymnasium.Env):
         self.x = self.experiment.x0.copy()
         self.target = self.x[:7].copy()
         self.k = 0
+        # compile (or load from numba's cache) the plant's step and the arm controller's code now,
+        # not at the first step; reset() resets the controller
+        y_arm = self.plant.joint_state(self.plant.measure(self.x, np.random.default_rng(0)))
+        tau = self.arm_controller.compute(0.0, y_arm, self.reference).tau
+        self.plant.step(0.0, self.x, np.concatenate([tau, np.zeros(self.n_thr)]), self.period)
+        self.arm_controller.reset()
 
     def _observation(self) -> np.ndarray:
         nq = self.uvms.nq
