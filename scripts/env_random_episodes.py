@@ -2,10 +2,14 @@
 uniform random normalised actions over the whole range [-1, 1] (the action space seeded with 0,
 episode k reset with seed k), on the paper arm, the UR5, the Alpha 5, the iiwa14 and the tutorial's
 URDF arm of ``examples/urdf``: each episode's length in steps and whether it ended early
-(``terminated``: the arm diverged). Dotted settings (``--set water.added_mass=false``, as
-``hydroarm run --set`` takes them) go to every env, so a water model can be compared.
+(``terminated``: the arm diverged). The env's default water has the energy-consistent (Kirchhoff)
+added mass; ``--set water.added_mass_model=morison`` gives the paper's. Dotted settings (as
+``hydroarm run --set`` takes them) go to every env, so water models can be compared.
 
-    python scripts/env_random_episodes.py --episodes 100 --duration 10 --out docs/data/env_random_episodes.json
+    python scripts/env_random_episodes.py --episodes 100 --duration 10 \
+        --out docs/data/env_random_episodes.json
+    python scripts/env_random_episodes.py --episodes 100 --duration 10 \
+        --set water.added_mass_model=morison --out docs/data/env_random_episodes_morison.json
 """
 
 from __future__ import annotations
@@ -25,6 +29,7 @@ import numpy as np
 import hydroarm.envs  # noqa: F401  (registers the environment)
 
 ROOT = Path(__file__).resolve().parents[1]
+ENV_ID = "hydroarm/UnderwaterArm-v0"
 ARMS = {
     "paper": "paper",
     "ur5": "ur5",
@@ -44,7 +49,7 @@ def parse_setting(text: str) -> tuple[str, object]:
 
 
 def episodes(arm: str, count: int, duration: float, settings: dict) -> dict:
-    env = gymnasium.make("hydroarm/UnderwaterArm-v0", arm=arm, duration=duration, settings=settings)
+    env = gymnasium.make(ENV_ID, arm=arm, duration=duration, settings=settings)
     env.action_space.seed(0)
     lengths, ended = [], []
     for k in range(count):
@@ -94,6 +99,8 @@ def main(argv: list[str] | None = None) -> int:
             "machine": f"{platform.machine()}, {os.cpu_count()} CPUs, Python {sys.version.split()[0]}",
             "duration_s": args.duration,
             "settings": settings,
+            "added_mass_model": gymnasium.make(ENV_ID, arm="alpha5", duration=0.1, settings=settings)
+            .unwrapped.config.water.added_mass_model,
             "arms": results,
         }
         args.out.write_text(json.dumps(document, indent=1) + "\n")

@@ -277,31 +277,35 @@ def test_a_start_spread_draws_seeded_starts_around_the_tasks_start():
 
 MORISON_ADDED_MASS = pytest.mark.xfail(
     strict=True,
-    reason="the Morison added mass does not conserve energy on rotating links (docs/model.md, "
+    reason="the paper's Morison added mass does not conserve energy on rotating links (docs/model.md, "
     "scripts/added_mass_energy.py): random torques spin the light wrists of the paper arm and the UR5 "
-    "past the divergence speed (docs/data/env_random_episodes.json); strict, so that an energy-consistent "
-    "default water model shows here",
+    "past the divergence speed (docs/data/env_random_episodes.json); strict, so that the env's default "
+    "(the energy-consistent Kirchhoff added mass) is what makes these pass",
 )
+MORISON = {"water.added_mass_model": "morison"}
 
 
 @pytest.mark.parametrize(
     ("arm", "settings"),
     [
-        pytest.param("paper", {}, id="paper", marks=MORISON_ADDED_MASS),
-        pytest.param("ur5", {}, id="ur5", marks=MORISON_ADDED_MASS),
+        pytest.param("paper", {}, id="paper"),
+        pytest.param("ur5", {}, id="ur5"),
         pytest.param("alpha5", {}, id="alpha5"),
         pytest.param(IIWA14, {}, id="iiwa14"),
         pytest.param(URDF_ARM, {}, id="myarm.urdf"),
-        pytest.param("paper", {"water.added_mass": False}, id="paper-no-added-mass"),
-        pytest.param("ur5", {"water.added_mass": False}, id="ur5-no-added-mass"),
+        pytest.param("paper", MORISON, id="paper-morison", marks=MORISON_ADDED_MASS),
+        pytest.param("ur5", MORISON, id="ur5-morison", marks=MORISON_ADDED_MASS),
+        pytest.param("paper", {**MORISON, "water.added_mass": False}, id="paper-no-added-mass"),
     ],
 )
 def test_a_random_policy_runs_whole_episodes(arm, settings):
-    """Uniform random normalised actions over the full range: 100 episodes of 1 s, none ends early.
-    On the paper arm and the UR5 only without the Morison added mass (the water settings reach the
-    env through ``settings``): with it, they end early (strict xfail)."""
+    """Uniform random normalised actions over the full range: 100 episodes of 1 s, none ends early,
+    on every arm with the env's default water (the Kirchhoff added mass); with the paper's Morison
+    added mass the paper arm and the UR5 end early (strict xfail), without any added mass they do not."""
     env = gymnasium.make(ENV_ID, arm=arm, duration=1.0, settings=settings)
-    assert env.unwrapped.config.water.added_mass == settings.get("water.added_mass", True)
+    water = env.unwrapped.config.water
+    assert water.added_mass == settings.get("water.added_mass", True)
+    assert water.added_mass_model == settings.get("water.added_mass_model", "kirchhoff")
     env.action_space.seed(0)
     for episode in range(100):
         env.reset(seed=episode)
