@@ -211,8 +211,9 @@ class ExperimentConfig(FrozenModel):
 
     def canonical(self) -> dict[str, Any]:
         """The settings as JSON data, the optional sections (:data:`OPTIONAL_SECTIONS`: the real
-        loop's and the vehicle's), estimator keys (:data:`REAL_LOOP_ESTIMATOR_KEYS`) and later water keys (:data:`LATER_WATER_KEYS`) left out
-        where they are at their defaults (what digests, run ids and summaries hold)."""
+        loop's and the vehicle's), the estimator's real-loop keys (:data:`REAL_LOOP_ESTIMATOR_KEYS`)
+        and the water's later keys (:data:`LATER_WATER_KEYS`) left out where they are at their defaults
+        (what digests, run ids and summaries hold)."""
         data = self.model_dump(mode="json")
         for section in OPTIONAL_SECTIONS:
             if getattr(self, section) == type(getattr(self, section))():
