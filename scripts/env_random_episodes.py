@@ -99,8 +99,9 @@ def main(argv: list[str] | None = None) -> int:
             "machine": f"{platform.machine()}, {os.cpu_count()} CPUs, Python {sys.version.split()[0]}",
             "duration_s": args.duration,
             "settings": settings,
-            "added_mass_model": gymnasium.make(ENV_ID, arm="alpha5", duration=0.1, settings=settings)
-            .unwrapped.config.water.added_mass_model,
+            "added_mass_model": gymnasium.make(
+                ENV_ID, arm="alpha5", duration=0.1, settings=settings
+            ).unwrapped.config.water.added_mass_model,
             "arms": results,
         }
         args.out.write_text(json.dumps(document, indent=1) + "\n")
