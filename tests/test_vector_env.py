@@ -488,13 +488,13 @@ def test_the_speed_docs_envs_md_states_is_the_measured_one():
     text = " ".join((ROOT / "docs" / "envs.md").read_text().split())
     single, vector = measured["single_cpu_ms_per_step"], measured["vector_cpu_ms_per_env_step"]
     for phrase in (
-        f"Measured {measured['date']} on a shared {measured['cpus']}-core",
-        f"(load average {measured['load_average_start'][0]:.1f} at the start;",
+        f"Measured {measured['date']} on a quiet {measured['cpus']}-core",
+        f"load average {measured['load_average_start'][0]:.1f} at the start;",
         f"one environment {measured['single_steps_per_s']:.0f} steps/s",
         f"({measured['workers']} lanes) {measured['vector_env_steps_per_s']:.0f} environment steps/s: "
         f"**{measured['speedup']:.2f}x**",
         f"async vector env gave {measured['async_env_steps_per_s']:.0f} ({measured['async_speedup']:.2f}x)",
-        f"({measured['single_cores_used']:.2f} and {measured['vector_cores_used']:.2f})",
+        f"kept {measured['single_cores_used']:.2f} and {measured['vector_cores_used']:.2f} cores busy",
         f"2 x {single:.3f} / {vector:.3f} = {2 * single / vector:.2f}x",
     ):
         assert phrase in text, phrase
