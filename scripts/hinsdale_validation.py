@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hydroarm.studies.calibrate import calibrate, write_calibrated_vehicle
+from hydroarm.studies.calibrate import calibrate, replay_config, write_calibrated_vehicle
 from hydroarm.studies.replay import ReplayConfig, build_system, load_vehicle_quietly, replay_many, summary, write_trial
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -68,6 +68,7 @@ def main() -> None:
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--arms", nargs="+", default=list(VEHICLES), choices=list(VEHICLES))
     parser.add_argument("--params", default=None, help="comma-separated parameters for every arm (default: PARAMETERS)")
+    parser.add_argument("--splits", default="ABCD", help="which splits (letters), default all")
     args = parser.parse_args()
     if args.params:
         for arm in VEHICLES:
@@ -93,6 +94,8 @@ def main() -> None:
         record["uncalibrated_alt"] = _mean(base, set(ALT))
         print(f"{arm}: {len(every)} trials replayed in {seconds:.1f} s", flush=True)
         for split, (train, held) in SPLITS.items():
+            if split[0] not in args.splits:
+                continue
             if held is None:
                 held = [n for n in ALT if n not in train]
             elif isinstance(held, str):
@@ -102,11 +105,13 @@ def main() -> None:
             calibrated_path = args.out / f"{arm}_{slug}.toml"
             write_calibrated_vehicle(calibrated_path, spec, fit, train, build_system(spec).arm)
             calibrated = load_vehicle_quietly(calibrated_path)
-            replays = replay_many([by_name[n] for n in train + held], calibrated, "mount", config, args.workers)
+            fitted = replay_config(config, fit.values)  # the fitted replay settings (joint_time_offset)
+            replays = replay_many([by_name[n] for n in train + held], calibrated, "mount", fitted, args.workers)
             record["splits"][split] = {
                 "train": train,
                 "held_out": held,
                 "parameters": {n: [fit.values[n], fit.uncertainty[n]] for n in fit.names},
+                "correlation": fit.correlation,
                 "cost_deg2": [fit.initial_cost, fit.cost],
                 "calibrate_seconds": fit.seconds,
                 "evaluations": fit.evaluations,
@@ -114,6 +119,9 @@ def main() -> None:
                 "uncalibrated_held_out": _mean(base, set(held)),
                 "calibrated_train": _mean(replays, set(train)),
                 "calibrated_held_out": _mean(replays, set(held)),
+                "calibrated_held_out_trials": {
+                    r.name: {k: r.metrics[k] for k in KEYS[:2] + KEYS[6:8]} for r in replays if r.name in held
+                },
             }
             if slug == "A" and arm == "tested_alpha":
                 for result in replays:

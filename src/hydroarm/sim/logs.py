@@ -261,14 +261,22 @@ class JointSplines:
 
     vectorised = True
 
-    def __init__(self, splines: list[BSpline], span: tuple[float, float]):
+    def __init__(self, splines: list[BSpline], span: tuple[float, float], delay: float = 0.0):
         self.splines = splines
         self.derivatives = [s.derivative(1) for s in splines]
         self.second = [s.derivative(2) for s in splines]
         self.span = span
+        self.delay = delay
+
+    def delayed(self, delay: float) -> JointSplines:
+        """The same motion ``delay`` seconds later: ``sample(t)`` is this one's at ``t - delay``
+        (a clock offset between the joints' log and the IMU's)."""
+        out = JointSplines.__new__(JointSplines)
+        out.__dict__.update(self.__dict__, delay=self.delay + float(delay))
+        return out
 
     def sample(self, t):
-        t = np.asarray(t, dtype=float)
+        t = np.asarray(t, dtype=float) - self.delay
         inside = (t >= self.span[0]) & (t <= self.span[1])
         clipped = np.clip(t, *self.span)
         q = np.stack([s(clipped) for s in self.splines], axis=-1)

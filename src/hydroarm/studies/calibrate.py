@@ -48,11 +48,28 @@ PARAMETERS: dict[str, tuple[str, float, float, float]] = {
     "cg_z": ("offset of the centre of gravity along z (m)", 0.0, -0.05, 0.05),
     "buoyancy_scale": ("scale of the hull's displaced volume (-)", 1.0, 0.8, 1.2),
     "rotational_damping_scale": ("scale of the K M N damping, linear and quadratic (-)", 1.0, 0.0, 20.0),
+    "rotational_linear_damping_scale": ("scale of the K M N linear damping (-)", 1.0, 0.0, 20.0),
+    "rotational_quadratic_damping_scale": ("scale of the K M N quadratic damping (-)", 1.0, 0.0, 20.0),
     "translational_damping_scale": ("scale of the X Y Z damping, linear and quadratic (-)", 1.0, 0.0, 20.0),
     "added_mass_scale": ("scale of the added mass (-)", 1.0, 0.0, 10.0),
+    "rotational_added_inertia": ("added inertia on K M N, added to the file's diagonal (kg m^2)", 0.0, 0.0, 1.0),
     "arm_buoyancy_scale": ("scale of every arm link's displaced volume (-)", 1.0, 0.0, 2.0),
+    "joint_time_offset": ("delay of the arm's log behind the IMU's clock (s; a replay setting)", 0.0, -0.5, 0.5),
 }
 """The calibratable parameters of a vehicle file: what, start value, bounds."""
+
+REPLAY_SETTINGS = ("joint_time_offset",)
+"""The parameters that are replay settings (:class:`~hydroarm.studies.replay.ReplayConfig`), not
+vehicle-file numbers: the calibrated file's header and JSON give them, ``--set`` passes them."""
+
+SCALES = {"cb_": 0.01, "cg_": 0.01, "joint_time_offset": 0.1, "rotational_added_inertia": 0.1}
+"""The typical size of a parameter's change (least_squares' x_scale; 1 for the scales)."""
+
+
+def replay_config(config: ReplayConfig, values: dict[str, float]) -> ReplayConfig:
+    """``config`` with the fitted replay settings among ``values`` (:data:`REPLAY_SETTINGS`)."""
+    update = {k: float(v) for k, v in values.items() if k in REPLAY_SETTINGS}
+    return config.model_copy(update=update) if update else config
 
 
 def check_parameters(names: list[str]) -> list[str]:
@@ -74,8 +91,8 @@ def apply_parameters(spec: VehicleSpec, values: dict[str, float]) -> VehicleSpec
     """The vehicle file with the parameters' values applied (module docstring)."""
     data = spec.model_dump(by_alias=True)
     for name, value in values.items():
-        if name.startswith("arm_"):
-            continue  # the arm's: apply_arm_parameters
+        if name.startswith("arm_") or name in REPLAY_SETTINGS:
+            continue  # the arm's (apply_arm_parameters) or the replay's (replay_config)
         if name[:3] in ("cb_", "cg_"):
             data[name[:2]]["xyz".index(name[3])] += float(value)
         elif name == "buoyancy_scale":
@@ -86,6 +103,16 @@ def apply_parameters(spec: VehicleSpec, values: dict[str, float]) -> VehicleSpec
                 row = list(data[key])
                 row[part] = [float(value) * x for x in row[part]]
                 data[key] = row
+        elif name.startswith("rotational_") and name.endswith("_damping_scale"):
+            key = "linear_damping" if "linear" in name else "quadratic_damping"
+            row = list(data[key])
+            row[3:6] = [float(value) * x for x in row[3:6]]
+            data[key] = row
+        elif name == "rotational_added_inertia":
+            added = np.asarray(data["added_mass"], dtype=float)
+            added = np.diag(added) if added.ndim == 1 else added
+            added[3:6, 3:6] += float(value) * np.eye(3)
+            data["added_mass"] = added.tolist()
         elif name == "added_mass_scale":
             added = np.asarray(data["added_mass"], dtype=float) * float(value)
             data["added_mass"] = added.tolist()
@@ -152,7 +179,7 @@ def _residual(task: tuple[str, dict[str, float]]) -> np.ndarray:
     log = _STATE["logs"][path]
     uvms = build_system(apply_parameters(_STATE["spec"], values), apply_arm_parameters(arm, values))
     try:
-        time, rpy = simulate(log, uvms, _STATE["config"], _STATE["motions"][path])
+        time, rpy = simulate(log, uvms, replay_config(_STATE["config"], values), _STATE["motions"][path])
     except np.linalg.LinAlgError:  # a diverging vehicle: as bad as a residual gets, not a crash
         time, rpy = None, None
     if rpy is None or not np.all(np.isfinite(rpy)):
@@ -178,6 +205,7 @@ class Calibration:
     evaluations: int
     seconds: float
     status: str
+    correlation: list[list[float]] = dataclasses.field(default_factory=list)
 
 
 def calibrate(
@@ -216,7 +244,7 @@ def calibrate(
         fit = least_squares(
             residuals, start, bounds=(lower, upper), method="trf", diff_step=diff_step, max_nfev=max_evaluations,
             ftol=tolerance, xtol=tolerance, gtol=tolerance,
-            x_scale=np.where(np.abs(upper - lower) < 0.2, 0.01, 1.0),
+            x_scale=np.array([next((v for k, v in SCALES.items() if n.startswith(k)), 1.0) for n in names]),
         )  # fmt: skip
     finally:
         if pool is not None:
@@ -227,8 +255,11 @@ def calibrate(
     try:
         covariance = np.linalg.inv(jtj) * variance
         sigma = np.sqrt(np.clip(np.diag(covariance), 0.0, None))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            correlation = covariance / np.outer(sigma, sigma)
     except np.linalg.LinAlgError:
         sigma = np.full(p, np.nan)
+        correlation = np.full((p, p), np.nan)
     return Calibration(
         names=names,
         values=dict(zip(names, (float(v) for v in fit.x), strict=True)),
@@ -238,6 +269,7 @@ def calibrate(
         evaluations=int(count[0]),
         seconds=clock.perf_counter() - began,
         status=str(fit.message),
+        correlation=[[float(c) for c in row] for row in correlation],
     )
 
 

@@ -49,6 +49,12 @@ class ReplayConfig(FrozenModel):
     rate_window: float = pydantic.Field(
         0.25, ge=0.0, le=5.0, description="s: the initial body rates are the IMU's mean over this window"
     )
+    joint_time_offset: float = pydantic.Field(
+        0.0,
+        ge=-1.0,
+        le=1.0,
+        description="s: the arm log runs this far behind the IMU clock (joints at t = the log at t - offset)",
+    )
     cleaning: CleaningConfig = pydantic.Field(CleaningConfig(), description="the logs' cleaning (section)")
 
 
@@ -93,6 +99,8 @@ def simulate(log: TrialLog, uvms, config: ReplayConfig, motion=None) -> tuple[np
     log's cleaned joint motion, if already made)."""
     names = tuple(uvms.arm.model.names[1:])
     motion = motion if motion is not None else joint_motion(log.select_joints(names), config.cleaning)
+    if config.joint_time_offset:
+        motion = motion.delayed(config.joint_time_offset)
     t0 = max(float(log.joint_time[0]), float(log.imu_time[0]))
     t1 = min(float(log.joint_time[-1]), float(log.imu_time[-1]))
     first = int(np.searchsorted(log.imu_time, t0))
