@@ -55,20 +55,29 @@ PARAMETERS: dict[str, tuple[str, float, float, float]] = {
     "rotational_added_inertia": ("added inertia on K M N, added to the file's diagonal (kg m^2)", 0.0, 0.0, 1.0),
     "arm_buoyancy_scale": ("scale of every arm link's displaced volume (-)", 1.0, 0.0, 2.0),
     "joint_time_offset": ("delay of the arm's log behind the IMU's clock (s; a replay setting)", 0.0, -0.5, 0.5),
+    "imu_roll_deg": ("the IMU's mounting roll in the body frame (deg; a replay setting)", 0.0, -10.0, 10.0),
+    "imu_pitch_deg": ("the IMU's mounting pitch in the body frame (deg; a replay setting)", 0.0, -10.0, 10.0),
+    "imu_yaw_deg": ("the IMU's mounting yaw in the body frame (deg; a replay setting)", 0.0, -10.0, 10.0),
+    "trim": ("fraction of each log's initial restoring moment cancelled (-; a replay setting)", 0.0, 0.0, 1.0),
 }
 """The calibratable parameters of a vehicle file: what, start value, bounds."""
 
-REPLAY_SETTINGS = ("joint_time_offset",)
+REPLAY_SETTINGS = ("joint_time_offset", "trim", "imu_roll_deg", "imu_pitch_deg", "imu_yaw_deg")
 """The parameters that are replay settings (:class:`~hydroarm.studies.replay.ReplayConfig`), not
 vehicle-file numbers: the calibrated file's header and JSON give them, ``--set`` passes them."""
 
-SCALES = {"cb_": 0.01, "cg_": 0.01, "joint_time_offset": 0.1, "rotational_added_inertia": 0.1}
+SCALES = {"cb_": 0.01, "cg_": 0.01, "joint_time_offset": 0.1, "rotational_added_inertia": 0.1, "imu_": 1.0}
 """The typical size of a parameter's change (least_squares' x_scale; 1 for the scales)."""
 
 
 def replay_config(config: ReplayConfig, values: dict[str, float]) -> ReplayConfig:
     """``config`` with the fitted replay settings among ``values`` (:data:`REPLAY_SETTINGS`)."""
-    update = {k: float(v) for k, v in values.items() if k in REPLAY_SETTINGS}
+    update: dict[str, Any] = {k: float(v) for k, v in values.items() if k in ("joint_time_offset", "trim")}
+    mounting = list(config.imu_mounting_rpy_deg)
+    for i, axis in enumerate(("roll", "pitch", "yaw")):
+        if f"imu_{axis}_deg" in values:
+            mounting[i] = float(values[f"imu_{axis}_deg"])
+            update["imu_mounting_rpy_deg"] = tuple(mounting)
     return config.model_copy(update=update) if update else config
 
 

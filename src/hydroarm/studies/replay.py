@@ -55,7 +55,28 @@ class ReplayConfig(FrozenModel):
         le=1.0,
         description="s: the arm log runs this far behind the IMU clock (joints at t = the log at t - offset)",
     )
+    imu_mounting_rpy_deg: tuple[float, float, float] = pydantic.Field(
+        (0.0, 0.0, 0.0),
+        description="deg: the IMU's frame in the body frame (roll, pitch, yaw; each within +-15)",
+    )
+    trim: float = pydantic.Field(
+        0.0,
+        ge=0.0,
+        le=1.0,
+        description="fraction of the initial roll and pitch restoring moment cancelled (a per-log trim)",
+    )
     cleaning: CleaningConfig = pydantic.Field(CleaningConfig(), description="the logs' cleaning (section)")
+
+    @pydantic.field_validator("imu_mounting_rpy_deg")
+    @classmethod
+    def _small_mounting(cls, value: tuple[float, float, float]) -> tuple[float, float, float]:
+        if any(not math.isfinite(v) or abs(v) > 15.0 for v in value):
+            raise ValueError(f"each angle must be within +-15 deg, got {list(value)}")
+        return value
+
+    def imu_mounting(self) -> np.ndarray:
+        """R (3, 3): the IMU's frame in the body frame (the IMU reads R_body R)."""
+        return pin.rpy.rpyToMatrix(*np.radians(self.imu_mounting_rpy_deg))
 
 
 @dataclass
@@ -96,7 +117,9 @@ def _interp_angles(t: np.ndarray, time: np.ndarray, angles: np.ndarray) -> np.nd
 
 def simulate(log: TrialLog, uvms, config: ReplayConfig, motion=None) -> tuple[np.ndarray, np.ndarray]:
     """``(time (k,), simulated roll pitch yaw (k, 3))`` of one log on one system (``motion``: the
-    log's cleaned joint motion, if already made)."""
+    log's cleaned joint motion, if already made). The attitude is the IMU frame's (the body's
+    times ``config.imu_mounting()``: the body's with the default identity mounting); the vehicle
+    starts from the IMU's attitude and mean rates brought into the body frame."""
     names = tuple(uvms.arm.model.names[1:])
     motion = motion if motion is not None else joint_motion(log.select_joints(names), config.cleaning)
     if config.joint_time_offset:
@@ -105,12 +128,15 @@ def simulate(log: TrialLog, uvms, config: ReplayConfig, motion=None) -> tuple[np
     t1 = min(float(log.joint_time[-1]), float(log.imu_time[-1]))
     first = int(np.searchsorted(log.imu_time, t0))
     quaternion = log.imu_quaternion[min(first, log.imu_time.size - 1)]
-    pose = np.concatenate([np.zeros(3), quaternion / np.linalg.norm(quaternion)])
+    mounting = config.imu_mounting()
+    x_, y_, z_, w_ = quaternion / np.linalg.norm(quaternion)
+    body = pin.Quaternion(pin.Quaternion(w_, x_, y_, z_).toRotationMatrix() @ mounting.T)
+    pose = np.concatenate([np.zeros(3), body.coeffs()])
     twist = np.zeros(6)
     if log.imu_angular_velocity is not None and config.rate_window > 0.0:
         window = (log.imu_time >= t0) & (log.imu_time <= t0 + config.rate_window)
         if window.any():
-            twist[3:] = log.imu_angular_velocity[window].mean(axis=0)
+            twist[3:] = mounting @ log.imu_angular_velocity[window].mean(axis=0)
     water = Water(rho=config.water_density, current={"model": "none"})
     steps = int(math.floor((t1 - t0) / config.output_period + 1e-9))
     time = t0 + config.output_period * np.arange(steps + 1)
@@ -118,11 +144,18 @@ def simulate(log: TrialLog, uvms, config: ReplayConfig, motion=None) -> tuple[np
     grid = motion.tabulate(t0, 0.5 * h, 2 * inner * steps + 1)  # every RK4 stage time
     plant = PrescribedUVMSPlant(uvms, grid, water, UVMSPlantConfig(inner_step=config.inner_step))
     x = plant.initial_state(t0, pose, twist)
+    trim = None
+    if config.trim:  # the per-log trim: a constant body moment against the initial restoring moment
+        still = x.copy()
+        still[plant.nq :] = 0.0
+        _, rhs = plant.dynamics.system(t0, still[: plant.nq], still[plant.nq :], np.zeros(plant.nv), plant._thrust)
+        trim = np.zeros(6)
+        trim[3:5] = -config.trim * rhs[3:5]
     rpy = np.empty((time.size, 3))
     for k in range(time.size):
-        rpy[k] = pin.rpy.matrixToRpy(pin.Quaternion(x[3:7]).normalized().toRotationMatrix())
+        rpy[k] = pin.rpy.matrixToRpy(pin.Quaternion(x[3:7]).normalized().toRotationMatrix() @ mounting)
         if k < steps:
-            x, _ = plant.step(float(time[k]), x, None, config.output_period)
+            x, _ = plant.step(float(time[k]), x, trim, config.output_period)
     return time, rpy
 
 
