@@ -12,7 +12,7 @@ from typer.testing import CliRunner
 
 from hydroarm.cli import app
 from hydroarm.sim.logs import CleaningConfig, TrialLog, drop_repeats, glitches, joint_motion, load_csv_trial
-from hydroarm.studies.calibrate import apply_parameters, calibrate
+from hydroarm.studies.calibrate import apply_parameters, calibrate, replay_config
 from hydroarm.studies.replay import ReplayConfig, build_system, load_vehicle_quietly, replay_log
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -108,6 +108,75 @@ def test_calibrate_recovers_a_known_damping(tmp_path):
                     config, workers=0)  # fmt: skip
     assert fit.values["rotational_damping_scale"] == pytest.approx(0.5, rel=0.05), fit
     assert fit.cost < 1e-2 * fit.initial_cost
+
+
+def _synthetic_imu(tmp_path: Path, result) -> Path:
+    """A copy of traj_alt_011-1 whose IMU is a replay's attitude (no rates)."""
+    import pinocchio as pin
+
+    synthetic = tmp_path / "synthetic"
+    synthetic.mkdir()
+    for stream in ("joint_states", "mocap"):
+        shutil.copy(DATA / f"traj_alt_011-1_{stream}.csv", synthetic / f"traj_alt_011-1_{stream}.csv")
+    rows = ["time_secs,x_ori,y_ori,z_ori,w_ori"]
+    for t, (r, p, y) in zip(result.time, result.simulated, strict=True):
+        x, yq, z, w = pin.Quaternion(pin.rpy.rpyToMatrix(r, p, y)).coeffs()
+        rows.append(",".join(repr(float(v)) for v in (t, x, yq, z, w)))
+    (synthetic / "traj_alt_011-1_imu.csv").write_text("\n".join(rows) + "\n")
+    return synthetic / "traj_alt_011-1_joint_states.csv"
+
+
+def test_calibrate_recovers_a_clock_offset_and_an_imu_mounting(tmp_path):
+    """A log made by hydroarm with the joints' log 0.2 s behind the IMU's clock and the IMU turned
+    3 deg in yaw: the fit of those two replay settings finds them; their correlation is reported."""
+    spec = load_vehicle_quietly(CALIBRATED)
+    log = load_csv_trial(DATA / "traj_alt_011-1_joint_states.csv", ARM_JOINTS)
+    truth = ReplayConfig(rate_window=0.0, joint_time_offset=0.2, imu_mounting_rpy_deg=(0.0, 0.0, 3.0))
+    path = _synthetic_imu(tmp_path, replay_log(log, build_system(spec), truth))
+    config = ReplayConfig(rate_window=0.0)
+    fit = calibrate([path], spec, "mount", ["joint_time_offset", "imu_yaw_deg"], config, workers=0)
+    assert fit.values["joint_time_offset"] == pytest.approx(0.2, abs=0.01), fit
+    assert fit.values["imu_yaw_deg"] == pytest.approx(3.0, abs=0.1), fit
+    assert fit.cost < 1e-2 * fit.initial_cost
+    np.testing.assert_allclose(np.diag(fit.correlation), 1.0)
+    fitted = replay_config(config, fit.values)
+    assert fitted.joint_time_offset == fit.values["joint_time_offset"]
+    assert fitted.imu_mounting_rpy_deg[2] == fit.values["imu_yaw_deg"]
+
+
+def test_rotational_damping_split_and_added_inertia():
+    spec = load_vehicle_quietly(VEHICLE)
+    linear = apply_parameters(spec, {"rotational_linear_damping_scale": 0.5})
+    quadratic = apply_parameters(spec, {"rotational_quadratic_damping_scale": 0.25})
+    np.testing.assert_allclose(linear.linear_damping[3:], 0.5 * np.array(spec.linear_damping[3:]))
+    assert linear.linear_damping[:3] == spec.linear_damping[:3]
+    assert linear.quadratic_damping == spec.quadratic_damping
+    np.testing.assert_allclose(quadratic.quadratic_damping[3:], 0.25 * np.array(spec.quadratic_damping[3:]))
+    assert quadratic.linear_damping == spec.linear_damping
+    inertia = apply_parameters(spec, {"rotational_added_inertia": 0.1})
+    added = np.asarray(inertia.added_mass)
+    np.testing.assert_allclose(np.diag(added), [*spec.added_mass[:3], *(np.array(spec.added_mass[3:]) + 0.1)])
+    assert np.count_nonzero(added - np.diag(np.diag(added))) == 0
+
+
+def test_trim_makes_the_initial_attitude_an_equilibrium():
+    """The arm held still, the vehicle logged at 4 deg roll, 3 deg pitch (not its equilibrium):
+    untrimmed it swings towards its own; fully trimmed it stays where the log started."""
+    import pinocchio as pin
+
+    spec = load_vehicle_quietly(CALIBRATED)
+    uvms = build_system(spec)
+    time = np.arange(0.0, 5.0, 1 / 54)
+    q = np.tile([3.0, 1.0, 0.5, 2.9], (time.size, 1))
+    quaternion = pin.Quaternion(pin.rpy.rpyToMatrix(np.radians(4.0), np.radians(3.0), 0.0)).coeffs()
+    log = TrialLog("still", ARM_JOINTS, time, q, time, np.tile(quaternion, (time.size, 1)))
+    free = replay_log(log, uvms, ReplayConfig())
+    trimmed = replay_log(log, uvms, ReplayConfig(trim=1.0))
+    assert np.degrees(np.abs(free.simulated[:, :2] - free.simulated[0, :2])).max() > 0.5
+    # within 0.05 deg over 5 s, not exactly: the trim cancels the moment at the start, but the
+    # vehicle is not neutrally buoyant (0.03 N) and the water's forces on the motion that makes
+    # turn it by hundredths of a degree
+    np.testing.assert_allclose(np.degrees(trimmed.simulated[:, :2]), [[4.0, 3.0]] * trimmed.time.size, atol=0.05)
 
 
 # --- bad logs: one line, exit code 2 ------------------------------------------------------

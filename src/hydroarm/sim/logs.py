@@ -313,6 +313,8 @@ def joint_motion(log: TrialLog, config: CleaningConfig | None = None) -> JointSp
     for j, name in enumerate(log.joint_names):
         values = log.joint_position[:, j]
         keep = drop_repeats(time, values, config.repeat_hold) if config.drop_repeats else np.ones(time.size, bool)
+        if keep.sum() < 5:  # a joint that hardly moves (held still): its every sample is a reading
+            keep = np.ones(time.size, bool)
         t, y = time[keep], values[keep]
         bad = glitches(y, config.outlier_window, config.outlier_threshold)
         t, y = t[~bad], y[~bad]

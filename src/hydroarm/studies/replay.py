@@ -63,7 +63,7 @@ class ReplayConfig(FrozenModel):
         0.0,
         ge=0.0,
         le=1.0,
-        description="fraction of the initial roll and pitch restoring moment cancelled (a per-log trim)",
+        description="fraction of the initial restoring moment cancelled by a constant one (a per-log trim)",
     )
     cleaning: CleaningConfig = pydantic.Field(CleaningConfig(), description="the logs' cleaning (section)")
 
@@ -150,7 +150,7 @@ def simulate(log: TrialLog, uvms, config: ReplayConfig, motion=None) -> tuple[np
         still[plant.nq :] = 0.0
         _, rhs = plant.dynamics.system(t0, still[: plant.nq], still[plant.nq :], np.zeros(plant.nv), plant._thrust)
         trim = np.zeros(6)
-        trim[3:5] = -config.trim * rhs[3:5]
+        trim[3:6] = -config.trim * rhs[3:6]
     rpy = np.empty((time.size, 3))
     for k in range(time.size):
         rpy[k] = pin.rpy.matrixToRpy(pin.Quaternion(x[3:7]).normalized().toRotationMatrix() @ mounting)
