@@ -240,3 +240,48 @@ def test_replay_command_writes_attitude_and_summary(tmp_path):
     header = (out / "t" / "attitude.csv").read_text().splitlines()[0].split(",")
     assert header[:4] == ["time_s", "sim_roll", "sim_pitch", "sim_yaw"] and "imu_pitch" in header
     assert summary["mean"]["pitch_rmse_imu_deg"] < 0.6
+
+
+def test_calibrate_command_reports_replay_settings_and_correlation(tmp_path):
+    log = _copy_trial(tmp_path)
+    out = tmp_path / "fit.toml"
+    args = [
+        "calibrate",
+        str(log),
+        "--vehicle",
+        str(CALIBRATED),
+        "--params",
+        "cb_x,joint_time_offset",
+        "--out",
+        str(out),
+    ]
+    result = RUNNER.invoke(app, [*args, "--workers", "0"])
+    assert result.exit_code == 0, result.output
+    report = json.loads(out.with_suffix(".json").read_text())
+    assert len(report["correlation"]) == 2 and report["correlation"][0][0] == pytest.approx(1.0)
+    offset = report["parameters"]["joint_time_offset"]["value"]
+    assert report["replay_settings"] == f"--set joint_time_offset={offset:.6g}"
+    assert "--set joint_time_offset=" in out.read_text()  # the header says how to replay it
+    replayed = tmp_path / "out"
+    args = ["replay", str(log), "--vehicle", str(out), "--out", str(replayed), "--workers", "0", "--no-figures"]
+    result = RUNNER.invoke(app, [*args, *report["replay_settings"].split()])
+    assert result.exit_code == 0, result.output
+    summary = json.loads((replayed / "summary.json").read_text())
+    assert summary["settings"]["joint_time_offset"] == pytest.approx(offset, rel=1e-5)
+
+
+@pytest.mark.parametrize(
+    ("setting", "message"),
+    [
+        ("imu_mounting_rpy_deg=[0,0,20]", "imu_mounting_rpy_deg"),
+        ("trim=2", "trim"),
+        ("joint_time_offset=3", "joint_time_offset"),
+    ],
+)
+def test_bad_replay_settings_exit_2(tmp_path, setting, message):
+    log = _copy_trial(tmp_path)
+    out = tmp_path / "out"
+    args = ["replay", str(log), "--vehicle", str(VEHICLE), "--out", str(out), "--workers", "0", "--set", setting]
+    result = RUNNER.invoke(app, args)
+    assert result.exit_code == 2, (result.output, result.exception)
+    assert message in result.output and "Traceback" not in result.output

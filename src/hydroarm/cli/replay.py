@@ -134,7 +134,7 @@ def calibrate(
     <out>.json (each parameter with its uncertainty, the residual)."""
     from hydroarm.sim.trials import find_trials, load_trial
     from hydroarm.studies.calibrate import calibrate as fit
-    from hydroarm.studies.calibrate import check_parameters, write_calibrated_vehicle
+    from hydroarm.studies.calibrate import check_parameters, replay_settings_hint, write_calibrated_vehicle
     from hydroarm.studies.outputs import dumps
     from hydroarm.studies.replay import build_system, load_vehicle_quietly
 
@@ -162,6 +162,8 @@ def calibrate(
         "arm": arm,
         "logs": sources,
         "parameters": {n: {"value": result.values[n], "sigma": result.uncertainty[n]} for n in result.names},
+        "correlation": result.correlation,
+        "replay_settings": replay_settings_hint(result.values),
         "cost_deg2": result.cost,
         "initial_cost_deg2": result.initial_cost,
         "evaluations": result.evaluations,
@@ -174,3 +176,5 @@ def calibrate(
         f"wrote {out}: {shown}; cost {result.initial_cost:.3g} -> {result.cost:.3g} deg^2 "
         f"({result.evaluations} replays of {len(paths)} logs, {result.seconds:.0f} s)"
     )
+    if report["replay_settings"]:
+        console.print(f"the fitted replay settings: replay with {report['replay_settings']}")

@@ -96,6 +96,15 @@ def check_parameters(names: list[str]) -> list[str]:
     return out
 
 
+def replay_settings_hint(values: dict[str, float]) -> str:
+    """The ``--set`` options that pass the fitted replay settings among ``values`` ('' if none)."""
+    config = replay_config(ReplayConfig(), values)
+    out = [f"--set {k}={getattr(config, k):.6g}" for k in ("joint_time_offset", "trim") if k in values]
+    if any(k.startswith("imu_") for k in values):
+        out.append("--set imu_mounting_rpy_deg=[" + ",".join(f"{v:.6g}" for v in config.imu_mounting_rpy_deg) + "]")
+    return " ".join(out)
+
+
 def apply_parameters(spec: VehicleSpec, values: dict[str, float]) -> VehicleSpec:
     """The vehicle file with the parameters' values applied (module docstring)."""
     data = spec.model_dump(by_alias=True)
@@ -305,6 +314,9 @@ def write_calibrated_vehicle(
             f"# {name} = {calibration.values[name]:.6g} +- {calibration.uncertainty[name]:.2g} ({PARAMETERS[name][0]})"
         )
     lines.append(f"# cost (sum of the trials' mean squared roll and pitch errors): {calibration.cost:.4g} deg^2")
+    hint = replay_settings_hint(calibration.values)
+    if hint:
+        lines.append(f"# fitted replay settings, not in this file: replay with {hint}")
     path.parent.mkdir(parents=True, exist_ok=True)
     atomic_write(path, "\n".join(lines) + "\n" + to_toml(data))
 
