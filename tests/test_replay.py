@@ -285,3 +285,13 @@ def test_bad_replay_settings_exit_2(tmp_path, setting, message):
     result = RUNNER.invoke(app, args)
     assert result.exit_code == 2, (result.output, result.exception)
     assert message in result.output and "Traceback" not in result.output
+
+
+def test_bench_full_dataset_section_is_skipped_without_the_dataset(monkeypatch, tmp_path):
+    from hydroarm_bench.replay import FULL_ENV, _render_full, bench_full
+
+    monkeypatch.delenv(FULL_ENV, raising=False)
+    assert FULL_ENV in bench_full()["skipped"]
+    monkeypatch.setenv(FULL_ENV, str(DATA))  # three trials, not the 57
+    skipped = bench_full()["skipped"]
+    assert "3 arm-motion trials" in skipped and "skipped" in _render_full({"skipped": skipped})

@@ -106,8 +106,12 @@ def render_markdown(report: dict) -> str:
         "viewer_open_s": ("`hydroarm view` of a 10 s run to the arm drawn (s)", "<="),
         "viewer_recording_mb": ("shareable recording of a 10 s run (MB)", "<="),
         "env_vector_speedup": ("8-copy vector env vs one env, environment steps/s (all cores)", ">="),
+        "replay_all_trials_s": ("replay all 57 Hinsdale trials, 2 processes (wall s)", "<="),
+        "calibrate_4_on_6_s": ("calibrate 4 parameters on 6 Hinsdale trials, 2 processes (wall s)", "<="),
     }
     for key, (label, sense) in labels.items():
+        if key not in status:  # an older bench.json
+            continue
         row = status[key]
         met = "n/a" if row["met"] is None else ("yes" if row["met"] else "**no**")
         lines.append(f"| {label} | {sense} {fmt(row['target'])} | {fmt(row['measured'])} | {met} |")

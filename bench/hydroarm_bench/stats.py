@@ -26,6 +26,8 @@ TARGETS = {
     "viewer_open_s": 2.0,
     "viewer_recording_mb": 20.0,
     "env_vector_speedup": 1.6,
+    "replay_all_trials_s": 60.0,
+    "calibrate_4_on_6_s": 60.0,
 }
 PEER_PACKAGES = (
     "do-mpc",
