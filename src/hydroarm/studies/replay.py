@@ -65,6 +65,12 @@ class ReplayConfig(FrozenModel):
         le=1.0,
         description="fraction of the initial restoring moment cancelled by a constant one (a per-log trim)",
     )
+    trim_window: float = pydantic.Field(
+        1.0,
+        ge=0.0,
+        le=10.0,
+        description="s: the trim's attitude at rest is the IMU's mean over this first window, before the arm moves",
+    )
     cleaning: CleaningConfig = pydantic.Field(CleaningConfig(), description="the logs' cleaning (section)")
 
     @pydantic.field_validator("imu_mounting_rpy_deg")
@@ -145,8 +151,9 @@ def simulate(log: TrialLog, uvms, config: ReplayConfig, motion=None) -> tuple[np
     plant = PrescribedUVMSPlant(uvms, grid, water, UVMSPlantConfig(inner_step=config.inner_step))
     x = plant.initial_state(t0, pose, twist)
     trim = None
-    if config.trim:  # the per-log trim: a constant body moment against the initial restoring moment
+    if config.trim:  # the per-log trim: a constant body moment against the restoring moment at rest
         still = x.copy()
+        still[3:7] = _rest_attitude(log, motion, t0, mounting, config.trim_window)
         still[plant.nq :] = 0.0
         _, rhs = plant.dynamics.system(t0, still[: plant.nq], still[plant.nq :], np.zeros(plant.nv), plant._thrust)
         trim = np.zeros(6)
@@ -157,6 +164,25 @@ def simulate(log: TrialLog, uvms, config: ReplayConfig, motion=None) -> tuple[np
         if k < steps:
             x, _ = plant.step(float(time[k]), x, trim, config.output_period)
     return time, rpy
+
+
+def _rest_attitude(log: TrialLog, motion, t0: float, mounting: np.ndarray, window: float) -> np.ndarray:
+    """The body's quaternion (x y z w) at rest before the arm moves: the IMU's mean roll and pitch
+    over ``[t0, t0 + window]``, cut where a joint first moves faster than 0.02 rad/s (the first
+    sample's yaw; the first sample alone with a zero window or an arm moving from the start)."""
+    grid = t0 + np.arange(0.0, window + 1e-9, 0.02)
+    _, rates, _ = motion.sample(grid)
+    moving = np.flatnonzero(np.abs(rates).max(axis=1) > 0.02)
+    end = grid[moving[0]] if moving.size else t0 + window
+    inside = (log.imu_time >= t0) & (log.imu_time <= end)
+    first = min(int(np.searchsorted(log.imu_time, t0)), log.imu_time.size - 1)
+    inside[first] = True
+    rotations = []
+    for x_, y_, z_, w_ in log.imu_quaternion[inside]:
+        rotations.append(pin.Quaternion(w_, x_, y_, z_).normalized().toRotationMatrix() @ mounting.T)
+    rpy = np.array([pin.rpy.matrixToRpy(r) for r in rotations])
+    roll, pitch = rpy[:, 0].mean(), rpy[:, 1].mean()
+    return pin.Quaternion(pin.rpy.rpyToMatrix(roll, pitch, rpy[0, 2])).coeffs()
 
 
 def measured(log: TrialLog, time: np.ndarray, config: ReplayConfig) -> tuple[np.ndarray, np.ndarray]:
