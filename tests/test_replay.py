@@ -251,16 +251,19 @@ def test_calibrate_command_reports_replay_settings_and_correlation(tmp_path):
         "--vehicle",
         str(CALIBRATED),
         "--params",
-        "cb_x,joint_time_offset",
+        "cb_x,joint_time_offset,imu_yaw_deg",
         "--out",
         str(out),
     ]
     result = RUNNER.invoke(app, [*args, "--workers", "0"])
     assert result.exit_code == 0, result.output
     report = json.loads(out.with_suffix(".json").read_text())
-    assert len(report["correlation"]) == 2 and report["correlation"][0][0] == pytest.approx(1.0)
+    assert len(report["correlation"]) == 3 and report["correlation"][0][0] == pytest.approx(1.0)
     offset = report["parameters"]["joint_time_offset"]["value"]
-    assert report["replay_settings"] == f"--set joint_time_offset={offset:.6g}"
+    yaw = report["parameters"]["imu_yaw_deg"]["value"]
+    assert (
+        report["replay_settings"] == f"--set joint_time_offset={offset:.6g} --set imu_mounting_rpy_deg=[0,0,{yaw:.6g}]"
+    )
     assert "--set joint_time_offset=" in out.read_text()  # the header says how to replay it
     replayed = tmp_path / "out"
     args = ["replay", str(log), "--vehicle", str(out), "--out", str(replayed), "--workers", "0", "--no-figures"]
@@ -268,6 +271,7 @@ def test_calibrate_command_reports_replay_settings_and_correlation(tmp_path):
     assert result.exit_code == 0, result.output
     summary = json.loads((replayed / "summary.json").read_text())
     assert summary["settings"]["joint_time_offset"] == pytest.approx(offset, rel=1e-5)
+    assert summary["settings"]["imu_mounting_rpy_deg"][2] == pytest.approx(yaw, rel=1e-5)
 
 
 @pytest.mark.parametrize(

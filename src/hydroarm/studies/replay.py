@@ -19,7 +19,7 @@ import warnings
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
 
 import numpy as np
 import pinocchio as pin
@@ -55,7 +55,9 @@ class ReplayConfig(FrozenModel):
         le=1.0,
         description="s: the arm log runs this far behind the IMU clock (joints at t = the log at t - offset)",
     )
-    imu_mounting_rpy_deg: tuple[float, float, float] = pydantic.Field(
+    imu_mounting_rpy_deg: Annotated[
+        tuple[pydantic.StrictFloat, pydantic.StrictFloat, pydantic.StrictFloat], pydantic.Strict(False)
+    ] = pydantic.Field(
         (0.0, 0.0, 0.0),
         description="deg: the IMU's frame in the body frame (roll, pitch, yaw; each within +-15)",
     )
