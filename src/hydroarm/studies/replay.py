@@ -68,10 +68,10 @@ class ReplayConfig(FrozenModel):
         description="fraction of the initial restoring moment cancelled by a constant one (a per-log trim)",
     )
     trim_window: float = pydantic.Field(
-        1.0,
+        3.0,
         ge=0.0,
         le=10.0,
-        description="s: the trim's attitude at rest is the IMU's mean over this first window, before the arm moves",
+        description="s: the trim's rest attitude: the IMU's mean over this first window (cut where the arm moves)",
     )
     cleaning: CleaningConfig = pydantic.Field(CleaningConfig(), description="the logs' cleaning (section)")
 
