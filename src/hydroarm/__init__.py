@@ -37,7 +37,7 @@ _EXPORTS: dict[str, str] = {
     "hydrodynamic_torques": "hydroarm.model.water",
     "added_mass_matrix": "hydroarm.model.water",
     "PlantConfig": "hydroarm.model.plant",
-    "StepInfo": "hydroarm.model.plant",
+    "StepInfo": "hydroarm.model.integrator",
     "UnderwaterPlant": "hydroarm.model.plant",
     "NominalModel": "hydroarm.model.nominal",
     "SinusoidReference": "hydroarm.model.task",
