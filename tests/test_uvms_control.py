@@ -106,7 +106,7 @@ def test_quick_study_writes_its_outputs(tmp_path, monkeypatch):
     from hydroarm.studies import vehicle_study
 
     monkeypatch.setattr(vehicle_study, "study_tasks", lambda duration: vehicle_study.__dict__["_tasks"](2.0))
-    metrics = vehicle_study.run_uvms_study(tmp_path, quick=True, workers=0)
+    metrics = vehicle_study.run_vehicle_study(tmp_path, quick=True, workers=0)
     assert (tmp_path / "report.md").is_file() and (tmp_path / "fig_x.png").is_file()
     on_disk = json.loads((tmp_path / "metrics.json").read_text())
     assert set(on_disk["effects"]) == set(vehicle_study.EFFECTS) and on_disk["effect_ranking_by_drift"]

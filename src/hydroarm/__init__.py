@@ -11,8 +11,8 @@ Quick tour::
 
 The package is layered (docs/architecture.md): :mod:`hydroarm.model` (arm, water, plant,
 nominal model) <- :mod:`hydroarm.control` (GP, QP backends, MPC, GP-MPC, SMC, registry)
-<- :mod:`hydroarm.studies` (experiment builder, runner, reproduce, sweep, figures) <-
-:mod:`hydroarm.envs` and :mod:`hydroarm.cli`. The names below are imported on first use,
+<- :mod:`hydroarm.sim` (experiment builder, runner, Trajectory) <- :mod:`hydroarm.studies`
+(reproduce, sweep, figures) <- :mod:`hydroarm.envs` and :mod:`hydroarm.cli`. The names below are imported on first use,
 so ``import hydroarm`` itself loads no controller, study or Gymnasium.
 """
 
@@ -37,7 +37,7 @@ _EXPORTS: dict[str, str] = {
     "hydrodynamic_torques": "hydroarm.model.water",
     "added_mass_matrix": "hydroarm.model.water",
     "PlantConfig": "hydroarm.model.plant",
-    "StepInfo": "hydroarm.model.plant",
+    "StepInfo": "hydroarm.model.integrator",
     "UnderwaterPlant": "hydroarm.model.plant",
     "NominalModel": "hydroarm.model.nominal",
     "SinusoidReference": "hydroarm.model.task",
@@ -56,7 +56,7 @@ _EXPORTS: dict[str, str] = {
     "GPMPC": "hydroarm.control.gpmpc",
     "GPConfig": "hydroarm.control.gp",
     "SlidingWindowGP": "hydroarm.control.gp",
-    # studies
+    # sim
     "ExperimentConfig": "hydroarm.sim.experiment",
     "Experiment": "hydroarm.sim.experiment",
     "build_experiment": "hydroarm.sim.experiment",

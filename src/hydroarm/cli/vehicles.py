@@ -56,11 +56,11 @@ def study_uvms(
 ) -> None:
     """Station keeping in a 0.2 m/s current while the Alpha 5 reaches and returns: blind vs GP
     feed-forward, PID vs MPC, and which arm effects matter."""
-    from hydroarm.studies.vehicle_study import run_uvms_study
+    from hydroarm.studies.vehicle_study import run_vehicle_study
 
     _check_out(out)
     try:
-        metrics = run_uvms_study(out, quick=quick, workers=workers)
+        metrics = run_vehicle_study(out, quick=quick, workers=workers)
     except KeyboardInterrupt:
         console.print(f"[yellow]interrupted:[/] finished runs are kept in {out}/runs; run again to resume")
         raise typer.Exit(130) from None

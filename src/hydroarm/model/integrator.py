@@ -1,13 +1,43 @@
-"""Fixed-step explicit integration of x' = f(t, x) (classic Runge-Kutta 4)."""
+"""Fixed-step explicit integration of x' = f(t, x) (classic Runge-Kutta 4), shared by every
+plant and by the dry model.
+
+:func:`inner_steps` splits a control period into the equal RK4 steps every integrator here
+takes; :class:`StepInfo` is what one step of a joint-space model reports beside the next
+state (the true plant's disturbance; zero for :class:`~hydroarm.model.nominal.NominalModel`).
+Both live here, not in the true plant's module, so that the dry model does not import the plant.
+"""
 
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import numba
 import numpy as np
 
 Derivative = Callable[[float, np.ndarray], np.ndarray]
+
+
+@dataclass(frozen=True)
+class StepInfo:
+    """What happened inside one plant step.
+
+    ``disturbance`` (N m, (n,)): the generalised force beyond the dry model,
+    averaged over the step with the RK4 weights (what a one-step residual can
+    see); ``disturbance_start``: its value at the start of the step.
+    """
+
+    disturbance: np.ndarray
+    disturbance_start: np.ndarray
+
+
+def inner_steps(dt: float, inner_step: float | None) -> tuple[int, float]:
+    """``(count, h)``: ``dt`` (s) split into ``ceil(dt / inner_step)`` equal RK4 steps of h (s);
+    one step of ``dt`` when ``inner_step`` is None."""
+    if inner_step is None:
+        return 1, dt
+    steps = max(1, int(np.ceil(dt / inner_step - 1e-9)))
+    return steps, dt / steps
 
 
 def rk4_step(f: Derivative, t: float, x: np.ndarray, h: float) -> np.ndarray:

@@ -26,8 +26,7 @@ import pinocchio as pin
 
 from hydroarm.config import ConfigError
 from hydroarm.model.arm import Arm
-from hydroarm.model.integrator import rk4_second_order_stage, rk4_step
-from hydroarm.model.plant import StepInfo, inner_steps
+from hydroarm.model.integrator import StepInfo, inner_steps, rk4_second_order_stage, rk4_step
 
 DISCRETISATIONS = ("euler", "taylor2")
 

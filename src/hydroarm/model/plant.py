@@ -23,8 +23,6 @@ RK4 stages), and, per run, the sensor and the drives (:meth:`UnderwaterPlant.new
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numba
 import numpy as np
 import pinocchio as pin
@@ -37,7 +35,7 @@ from hydroarm.config import ConfigError, FrozenModel, per_joint
 from hydroarm.model.arm import Arm
 from hydroarm.model.current import current_at
 from hydroarm.model.friction import FrictionConfig, friction_torque
-from hydroarm.model.integrator import rk4_second_order_stage, rk4_step
+from hydroarm.model.integrator import StepInfo, inner_steps, rk4_second_order_stage, rk4_step
 from hydroarm.model.sensing import Actuator, ActuatorConfig, Sensor, SensorConfig
 from hydroarm.model.strips import solve_underwater, water_terms
 from hydroarm.model.water import Water, WaterModel, added_mass_matrix
@@ -67,28 +65,6 @@ class PlantConfig(FrozenModel):
     noise_variance: float = pydantic.Field(
         0.0, ge=0.0, le=10.0, description="variance of the Gaussian measurement noise on q and v (rad^2, (rad/s)^2)"
     )
-
-
-@dataclass(frozen=True)
-class StepInfo:
-    """What happened inside one plant step.
-
-    ``disturbance`` (N m, (n,)): the generalised force beyond the dry model,
-    averaged over the step with the RK4 weights (what a one-step residual can
-    see); ``disturbance_start``: its value at the start of the step.
-    """
-
-    disturbance: np.ndarray
-    disturbance_start: np.ndarray
-
-
-def inner_steps(dt: float, inner_step: float | None) -> tuple[int, float]:
-    """``(count, h)``: ``dt`` (s) split into ``ceil(dt / inner_step)`` equal RK4 steps of h (s);
-    one step of ``dt`` when ``inner_step`` is None."""
-    if inner_step is None:
-        return 1, dt
-    steps = max(1, int(np.ceil(dt / inner_step - 1e-9)))
-    return steps, dt / steps
 
 
 def _live_views(model: pin.Model, data: pin.Data):

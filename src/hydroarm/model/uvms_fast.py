@@ -31,7 +31,7 @@ import pydantic
 
 from hydroarm.config import FrozenModel
 from hydroarm.model.current import current_at
-from hydroarm.model.plant import inner_steps
+from hydroarm.model.integrator import inner_steps
 from hydroarm.model.strips import StripGeometry
 from hydroarm.model.uvms import UVMS, vehicle_water
 from hydroarm.model.uvms_fast_kernels import evaluate, new_rigid_tree, workspace

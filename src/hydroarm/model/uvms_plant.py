@@ -29,7 +29,7 @@ from numba.experimental import structref
 
 from hydroarm.config import FrozenModel
 from hydroarm.model.current import current_at
-from hydroarm.model.plant import inner_steps
+from hydroarm.model.integrator import inner_steps
 from hydroarm.model.uvms import UVMS, UVMSDynamics, uvms_acceleration_kernel
 from hydroarm.model.vehicle import quaternion_matrix
 from hydroarm.model.water import Water

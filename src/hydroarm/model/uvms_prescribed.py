@@ -31,7 +31,7 @@ from typing import Protocol
 import numpy as np
 import pinocchio as pin
 
-from hydroarm.model.plant import inner_steps
+from hydroarm.model.integrator import inner_steps
 from hydroarm.model.uvms import UVMS, UVMSDynamics
 from hydroarm.model.uvms_plant import RKMK4, UVMSPlantConfig, rkmk4_advance, stage_times
 from hydroarm.model.water import Water

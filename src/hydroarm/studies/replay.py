@@ -26,8 +26,8 @@ import pinocchio as pin
 import pydantic
 
 from hydroarm.config import FrozenModel
+from hydroarm.model.integrator import inner_steps
 from hydroarm.model.loading import load_arm
-from hydroarm.model.plant import inner_steps
 from hydroarm.model.uvms import build_uvms
 from hydroarm.model.uvms_plant import UVMSPlantConfig
 from hydroarm.model.uvms_prescribed import PrescribedUVMSPlant

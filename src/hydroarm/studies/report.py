@@ -1,7 +1,14 @@
 """report.md of a reproduction: settings, tables, figures, and where and why we differ.
 
-Every sentence that states a result is computed from ``metrics`` (so the report
-never claims what the numbers do not show).
+Every sentence that states a result is computed from ``metrics`` (summary.json's content, so
+the report never claims what the numbers do not show); the module reads nothing else of the
+study (:mod:`hydroarm.studies.reproduce` calls :func:`render_report`).
+
+On the paper's arm the report sets the paper's numbers beside ours and appends
+report_notes.md (prose about that arm). On any other arm neither says anything about it, so
+the header, the noise floor and the notes are computed from that arm's own numbers
+(``metrics["settings"]["arm"]``, :func:`~hydroarm.studies.reproduce.arm_summary`) and the
+controllers are compared on that arm alone.
 """
 
 from __future__ import annotations
@@ -13,7 +20,7 @@ import numpy as np
 
 from hydroarm.control.estimator import EstimatorConfig, JointKalmanFilter
 from hydroarm.control.registry import PAPER_CONTROLLERS
-from hydroarm.studies import report_arm
+from hydroarm.control.smc import SMCConfig
 from hydroarm.studies.figures import ANIMATION, FIGURES
 
 
@@ -119,6 +126,130 @@ def _paper_header(metrics: dict) -> tuple[list[str], list[str]]:
     ]
 
 
+# Another arm than the paper's: the header, the noise floor and the notes from its own numbers
+
+
+def _limits(limits: list[float]) -> str:
+    """``9 N m`` if every joint has the same limit, else ``9, 9, 4 N m``."""
+    values = sorted(set(limits))
+    return f"{values[0]:g} N m" if len(values) == 1 else ", ".join(f"{x:g}" for x in limits) + " N m"
+
+
+def _finite(values) -> bool:
+    return all(v is not None and math.isfinite(v) for v in np.ravel(values))
+
+
+def _arm_header(metrics: dict) -> tuple[list[str], list[str]]:
+    """The title and introduction, and the arm, task and SMC lines of the settings."""
+    settings = metrics["settings"]
+    experiment, arm = settings["experiment"], settings["arm"]
+    name, joints = arm["name"], arm["joints"]
+    described = f"{arm['description']}; " if arm.get("description") else ""
+    smc = experiment["smc"]
+    default_smc = smc == SMCConfig().model_dump(mode="json")
+    title = [
+        f"# The study of Liu et al. 2023 on the arm `{name}`",
+        "",
+        "Sliding-mode control, MPC and the paper's MPC with a sliding-window Gaussian process (GP-MPC),",
+        f"with hydroarm's best controller, on the arm `{name}` ({described}{joints} joints, torque limit",
+        f"{_limits(arm['torque_limit'])}), without (Table 1) and with (Table 2) measurement noise. The paper's",
+        "numbers belong to its own 6-joint arm and are not shown here:",
+        "`hydroarm reproduce --out results` compares with them on that arm.",
+    ]
+    lines = [
+        f"- Arm `{name}`: {joints} joints, torque limit {_limits(arm['torque_limit'])} (from the arm file); "
+        "true plant = ",
+        "- Task: the paper's eq. (21) shape scaled to the arm's joint ranges (joint i follows the paper's "
+        f"joint i mod 6, within 80 % of each range; `task_for_arm`), {experiment['duration']:g} s from rest at "
+        f"its start; control period {experiment['control_period'] * 1e3:g} ms.",
+        f"- SMC: lambda = {smc['surface_slope']}, k = {smc['switching_gain']}, phi = {smc['boundary_layer']}, "
+        f"k_s = {smc['linear_gain']} "
+        + (
+            "(hydroarm's defaults, tuned on the paper's arm, not on this one: `hydroarm tune --arm "
+            f"{name} --controller smc --out {name}.toml` tunes them for it, `--config {name}.toml` uses them)."
+            if default_smc
+            else "(as set)."
+        ),
+    ]
+    return title, lines
+
+
+def _arm_noise_floor(metrics: dict) -> list[str]:
+    """What one-step residuals cannot resolve on this arm: M_jj / T times the velocity noise of
+    two samples, for the joint with the largest inertia at the start."""
+    settings = metrics["settings"]
+    inertia = np.asarray(settings["arm"]["inertia_diagonal_at_start"], dtype=float)
+    period = settings["experiment"]["control_period"]
+    std = math.sqrt(settings["noise_variance"])
+    j = int(np.argmax(inertia))
+    two = math.sqrt(2.0) * std
+    return [
+        f"Noise floor: a velocity noise of standard deviation {std:.3g} rad/s on two consecutive samples puts",
+        f"about M_{j + 1}{j + 1} / T * {two:.2g} ~ {inertia[j] / period * two:.2g} N m of noise on each one-step "
+        f"torque residual of joint {j + 1}",
+        f"(M_{j + 1}{j + 1} = {inertia[j]:.3g} kg m^2 at the start, T = {period * 1e3:g} ms), which no estimator "
+        "working from one-step residuals can fall below per sample.",
+    ]
+
+
+def _share(ep: list[float]) -> tuple[int, float]:
+    """The joint (1-based) with the largest E_p and its share of the sum (%)."""
+    values = np.asarray(ep, dtype=float)
+    j = int(np.argmax(values))
+    total = float(values.sum())
+    return j + 1, 100.0 * values[j] / total if total > 0 else 0.0
+
+
+def _arm_notes(metrics: dict) -> list[str]:
+    """Notes on this arm, every number from ``metrics``."""
+    settings = metrics["settings"]
+    limits = np.asarray(settings["arm"]["torque_limit"], dtype=float)
+    clean = metrics["clean"]
+    rows = [*PAPER_CONTROLLERS, clean["best"]["row"]]  # hydroarm's best row, as summary.json names it
+    lines = [f"## Notes on the arm `{settings['arm']['name']}` (computed from its runs)", ""]
+    where = ", ".join(
+        "{}'s on joint {} ({:.0f} % of its sum)".format(name, *_share(clean[name]["Ep"])) for name in rows
+    )
+    lines.append(f"- **Where the error is** (no noise): the largest E_p is {where}.")
+    peaks = []
+    for name in rows:
+        peak = np.asarray(clean[name].get("torque_max", [math.nan] * len(limits)), dtype=float)
+        if not _finite(peak):
+            continue
+        use = peak / limits
+        j = int(np.argmax(use))
+        at_limit = [k + 1 for k in range(len(use)) if use[k] >= 0.999]
+        text = f"{name} {peak[j]:.3g} N m on joint {j + 1} ({100 * use[j]:.0f} % of its limit)"
+        peaks.append(text + (f", at the limit on joints {at_limit}" if at_limit else ""))
+    if peaks:
+        lines.append(f"- **Torque against the limit** (no noise, peak |tau|): {'; '.join(peaks)}.")
+    steady = [(name, clean[name]["Ep_steady"], clean[name]["Ep_mean"]) for name in rows]
+    if all(_finite(s) for _, s, _ in steady):
+        parts = ", ".join(
+            f"{name} {np.mean(s):.3g} rad^2 ({100 * np.mean(s) / m:.2g} % of its whole-run mean)" if m > 0 else name
+            for name, s, m in steady
+        )
+        lines.append(f"- **After the start-up** (t > 2 s, no noise) the mean E_p is {parts}.")
+    gains = {case: metrics[case]["gain_gp_mpc_over_mpc_percent"] for case in ("clean", "noisy")}
+    lines.append(
+        f"- **What the GP adds to the MPC**: {gains['clean']['of_mean_Ep']:.1f} % on the mean E_p without noise, "
+        f"{gains['noisy']['of_mean_Ep']:.1f} % with noise. The same MPC on the arm without water (perfect "
+        f"disturbance knowledge) gains {clean['MPC_dry_arm_bound']['gain_mean_of_joints']:.1f} % as the paper "
+        "averages it: the ceiling for any disturbance estimate feeding this MPC."
+    )
+    rms = clean["GP-MPC"].get("disturbance_rms_after_1s")
+    if rms is not None and _finite(rms):
+        j = int(np.argmax(rms))
+        lines.append(
+            f"- **How much the water matters**: after 1 s the disturbance's RMS is at most {rms[j]:.3g} N m "
+            f"(joint {j + 1}), {100 * rms[j] / limits[j]:.2g} % of that joint's torque limit."
+        )
+    return [*lines, ""]
+
+
+# The report
+
+
 REPRODUCIBLE_DIGITS = [
     "### Which digits reproduce on another machine",
     "",
@@ -140,7 +271,7 @@ REPRODUCIBLE_DIGITS = [
 def render_report(metrics: dict, out: Path) -> str:
     """report.md. On the paper's arm (``settings.paper_arm``): the reproduction, the paper's
     numbers beside ours and report_notes.md; on any other arm: the same study on that arm,
-    with no paper numbers and notes computed from its own (:mod:`hydroarm.studies.report_arm`)."""
+    with no paper numbers and notes computed from its own (the module docstring)."""
     settings = metrics["settings"]
     experiment = settings["experiment"]
     clean, noisy = metrics["clean"], metrics["noisy"]
@@ -148,7 +279,7 @@ def render_report(metrics: dict, out: Path) -> str:
     gp_settings, gpmpc = experiment["gp"], experiment["gpmpc"]
     paper = settings.get("paper_arm", True)
     n = len(clean["MPC"]["Ep"])
-    title, (arm_line, task_line, smc_line) = _paper_header(metrics) if paper else report_arm.header(metrics)
+    title, (arm_line, task_line, smc_line) = _paper_header(metrics) if paper else _arm_header(metrics)
     lines = [
         *title,
         "",
@@ -221,7 +352,7 @@ def render_report(metrics: dict, out: Path) -> str:
             "estimator working from one-step residuals can fall below per sample.",
         ]
         if paper
-        else report_arm.noise_floor(metrics)
+        else _arm_noise_floor(metrics)
     )
     lines += [
         "",
@@ -254,5 +385,5 @@ def render_report(metrics: dict, out: Path) -> str:
     if paper:
         lines += [Path(__file__).with_name("report_notes.md").read_text()]
     else:
-        lines += report_arm.notes(metrics)
+        lines += _arm_notes(metrics)
     return "\n".join(lines) + "\n"

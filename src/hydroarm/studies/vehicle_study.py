@@ -127,7 +127,7 @@ class UVMSCache(RunCache):
         return outcome
 
 
-def run_uvms_study(out: str | Path, quick: bool = False, workers: int = 2, on_progress=None) -> dict:
+def run_vehicle_study(out: str | Path, quick: bool = False, workers: int = 2, on_progress=None) -> dict:
     """Run (or resume) the study into ``out``; returns the metrics document."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
