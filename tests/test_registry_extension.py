@@ -90,7 +90,9 @@ def test_a_registered_controller_drives_the_env_as_in_the_runner(toy):
         obs, _, terminated, truncated, _ = env.step(action)
         policy.observe(obs)
         done = terminated or truncated
-    runner = run_experiment(ExperimentConfig(duration=0.3, plant={"noise_variance": 1e-3}), "toy-ct", seed=4)
+    config = env.unwrapped.config  # the env's defaults (its water: the Kirchhoff added mass)
+    assert config.water.added_mass_model == "kirchhoff" and config.plant.noise_variance == 1e-3
+    runner = run_experiment(config, "toy-ct", seed=4)
     assert np.array_equal(np.array(torques), runner.u)  # the env reproduces the runner bit for bit
 
 
