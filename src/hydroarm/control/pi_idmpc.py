@@ -28,9 +28,12 @@ import time
 from pathlib import Path
 
 import numpy as np
+import pinocchio as pin
 
+from hydroarm.config import per_joint
 from hydroarm.control.idmpc import IDMPCConfig, InverseDynamicsMPC
-from hydroarm.control.interface import ControlOutput, Reference
+from hydroarm.control.idmpc_limits import HorizonQP, allocate, predicted_plan
+from hydroarm.control.interface import ControlOutput, Reference, sample_times
 from hydroarm.control.observers import DisturbanceObserver
 from hydroarm.control.water_model import PhysicsInformedModel, WaterModelConfig
 from hydroarm.model.arm import Arm
@@ -63,6 +66,22 @@ class PhysicsInformedIDMPC:
         self._loaded: tuple[np.ndarray, np.ndarray, int] | None = None
         if self.mpc.qp is not None:
             self.mpc.qp.disturbance_model = self._along_plan
+        cfg, mcfg = self.mpc.config, self.model.config
+        self.planner = None
+        if mcfg.planner != "off":
+            self.planner = HorizonQP(
+                arm,
+                self.control_period,
+                mcfg.planner_horizon,
+                per_joint(cfg.q_position, self.n, "q_position"),
+                per_joint(cfg.q_velocity, self.n, "q_velocity"),
+                self.mpc.r_acceleration,
+                self.mpc.P,
+                self.torque_limit,
+                mcfg.planner_iterations,
+            )
+            self.planner.disturbance_model = self._along_plan
+            self._plan_offsets = np.arange(mcfg.planner_horizon + 1) * self.control_period
         self._saturated = False
         self.reset()
 
@@ -89,6 +108,9 @@ class PhysicsInformedIDMPC:
         self._rest = np.zeros(self.n)
         self._commanded: np.ndarray | None = None
         self._learn_time = 0.0
+        self._plan: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None  # q, v, a (N, n), moves
+        self._plan_step = 0
+        self.plans = 0  # replans this run
 
     # --- the controller interface ---------------------------------------------------
     def _along_plan(self, q: np.ndarray, v: np.ndarray, a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -104,6 +126,62 @@ class PhysicsInformedIDMPC:
         # a plan far from feasible (light joints, long horizons) reaches speeds where |v| v drag
         # explodes; a force beyond the torque limit cannot be compensated anyway: hold it there
         return np.clip(w, -self.torque_limit, self.torque_limit), added
+
+    # --- the planner ------------------------------------------------------------------
+    def _replan(self, t, y, reference, mass, bias, w_free) -> bool:
+        """Solve the planner's horizon problem from state y (2n,) at time t; ``mass`` (n, n) with
+        the model's added mass, ``bias`` = h - w_free (n,). False if DAQP fails (no plan)."""
+        n, period = self.n, self.control_period
+        q_r, v_r, a_r = sample_times(reference, t + self._plan_offsets)
+        e0 = np.stack([y[:n] - q_r[0], y[n:] - v_r[0]], axis=1)
+        c = np.empty((self.planner.horizon, n, 2))
+        c[:, :, 0] = q_r[1:] - q_r[:-1] - period * v_r[:-1] - 0.5 * period * period * a_r[:-1]
+        c[:, :, 1] = v_r[1:] - v_r[:-1] - period * a_r[:-1]
+        if self._plan is not None:  # warm start: the last plan's moves, shifted by the steps followed
+            moves = self._plan[3]
+            initial = np.zeros_like(moves)
+            initial[: moves.shape[0] - self._plan_step] = moves[self._plan_step :]
+        else:  # the first plan: linearise about the IDMPC's own closed loop on the model, within the limits
+            initial = self._rollout(t, y, reference, a_r)
+        if self.planner.solve(e0, c, q_r, v_r, a_r[:-1], mass, bias, w_free, initial) is None:
+            self._plan = None
+            return False
+        moves = self.planner.last_moves
+        q_p, v_p, a_p = predicted_plan(e0, c, moves, q_r, v_r, a_r[:-1], period)
+        self._plan = (q_p, v_p, a_p, moves.copy())
+        self._plan_step = 0
+        self.plans += 1
+        return True
+
+    def _rollout(self, t, y, reference, a_r) -> np.ndarray:
+        """The moves (N, n) of the IDMPC with the torque allocation, run N steps on the double
+        integrator from y with the dry model plus the water model (a plan within the limits)."""
+        n, period, horizon = self.n, self.control_period, self.planner.horizon
+        model, data = self.arm.model, self.planner.data
+        saved = self.mpc._last_problem
+        q, v = y[:n].copy(), y[n:].copy()
+        moves = np.empty((horizon, n))
+        for k in range(horizon):
+            x = np.concatenate([q, v])
+            a = self.mpc.planned_acceleration(t + k * period, x, reference)
+            added, rest = self.model.terms(q, v)
+            mass = pin.crba(model, data, q)
+            mass = np.triu(mass) + np.triu(mass, 1).T + added
+            bias = pin.nonLinearEffects(model, data, q, v) - np.clip(
+                rest + self._rest, -self.torque_limit, self.torque_limit
+            )
+            _, a, _ = allocate(mass, bias, a, self.torque_limit)
+            moves[k] = a - a_r[k]
+            q, v = q + period * v + 0.5 * period * period * a, v + period * a
+        self.mpc._last_problem = saved
+        return moves
+
+    def _follow_plan(self, q: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """The plan's acceleration at this step plus the IDMPC's LQR feedback on the deviation from it."""
+        q_p, v_p, a_p, _ = self._plan
+        k = self._plan_step
+        gains = self.mpc.K
+        return a_p[k] - gains[:, 0] * (q - q_p[k]) - gains[:, 1] * (v - v_p[k])
 
     def compute(self, t: float, y: np.ndarray, reference: Reference) -> ControlOutput:
         """The torque at state y (2n,). ``timings["learn"]`` (s): the last ``observe``'s learning
@@ -122,7 +200,11 @@ class PhysicsInformedIDMPC:
         if not (np.all(np.isfinite(w_free)) and np.all(np.isfinite(added_mass))):
             w_free, added_mass = np.where(np.isfinite(w_free), w_free, 0.0), None
         t_model = time.perf_counter()
-        tau, realised, saturated = self.mpc.torque_map(q, v, acceleration, w_free, added_mass)
+        tau = None
+        if self.planner is not None:
+            tau, realised, saturated = self._planned_torque(t, y, reference, acceleration, w_free, added_mass)
+        if tau is None:
+            tau, realised, saturated = self.mpc.torque_map(q, v, acceleration, w_free, added_mass)
         self._saturated = bool(saturated.any())
         self._commanded = realised
         w_hat = w_free if added_mass is None else w_free - added_mass @ realised
@@ -140,6 +222,29 @@ class PhysicsInformedIDMPC:
             disturbance_mean=w_hat,
             acceleration=realised,
         )
+
+    def _planned_torque(self, t, y, reference, acceleration, w_free, added_mass):
+        """``(tau, a, saturated)`` from the planner, or ``(None, None, None)`` when it has nothing to
+        say (``planner = "auto"``: the limits do not bind and no plan is running)."""
+        n, mode, hold = self.n, self.model.config.planner, self.model.config.planner_hold
+        q, v = y[:n], y[n:]
+        model, data = self.arm.model, self.mpc.nominal.data
+        mass = pin.crba(model, data, q)
+        mass = np.triu(mass) + np.triu(mass, 1).T
+        if added_mass is not None:
+            mass = mass + added_mass
+        bias = pin.nonLinearEffects(model, data, q, v) - w_free
+        if self._plan is not None:
+            self._plan_step += 1
+        if self._plan is None or self._plan_step >= hold:
+            if mode == "auto" and (self._plan is None or not self.planner.last_active):
+                self._plan = None
+                if np.all(np.abs(mass @ acceleration + bias) <= self.torque_limit):
+                    return None, None, None  # the IDMPC's own plan fits the limits
+            if not self._replan(t, y, reference, mass, bias, w_free):
+                return None, None, None
+        a = self._follow_plan(q, v)
+        return allocate(mass, bias, a, self.torque_limit)
 
     def observe(self, t: float, y: np.ndarray, u: np.ndarray, y_next: np.ndarray) -> None:
         """Learn the transition (the basis's added mass at the commanded acceleration, free of the
