@@ -38,6 +38,12 @@ from hydroarm.control.observers import DisturbanceObserver
 from hydroarm.control.water_model import PhysicsInformedModel, WaterModelConfig
 from hydroarm.model.arm import Arm
 
+PLAN_TRUST = (20.0, 1000.0)
+"""A plan is followed only if its accelerations over the held steps are within ``20 x`` the largest
+of the IDMPC's own closed loop on the model (per joint) ``+ 1000 rad/s^2``; measured on the paper
+task: without the check one SQP in ~20 left its basin (7e5 rad/s^2 on the wrist) and the run
+diverged; a trust region in the QP itself (within 1-10 x) removed the planner's gain (0.0254-0.0288)."""
+
 
 class PhysicsInformedIDMPC:
     """IDMPC + physics-informed water model + remainder observer (module docstring).
@@ -111,6 +117,7 @@ class PhysicsInformedIDMPC:
         self._plan: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None  # q, v, a (N, n), moves
         self._plan_step = 0
         self.plans = 0  # replans this run
+        self.rejected = 0  # plans refused (outside the trust region)
 
     # --- the controller interface ---------------------------------------------------
     def _along_plan(self, q: np.ndarray, v: np.ndarray, a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -137,17 +144,24 @@ class PhysicsInformedIDMPC:
         c = np.empty((self.planner.horizon, n, 2))
         c[:, :, 0] = q_r[1:] - q_r[:-1] - period * v_r[:-1] - 0.5 * period * period * a_r[:-1]
         c[:, :, 1] = v_r[1:] - v_r[:-1] - period * a_r[:-1]
+        # the IDMPC's own closed loop on the model, within the limits: the first plan's linearisation
+        # point, and the scale of the plausibility check on every plan (PLAN_TRUST)
+        rollout = self._rollout(t, y, reference, a_r)
+        bound = PLAN_TRUST[0] * np.abs(rollout + a_r[:-1]).max(axis=0) + PLAN_TRUST[1]
+        initial = rollout
         if self._plan is not None:  # warm start: the last plan's moves, shifted by the steps followed
             moves = self._plan[3]
             initial = np.zeros_like(moves)
             initial[: moves.shape[0] - self._plan_step] = moves[self._plan_step :]
-        else:  # the first plan: linearise about the IDMPC's own closed loop on the model, within the limits
-            initial = self._rollout(t, y, reference, a_r)
         if self.planner.solve(e0, c, q_r, v_r, a_r[:-1], mass, bias, w_free, initial) is None:
             self._plan = None
             return False
         moves = self.planner.last_moves
         q_p, v_p, a_p = predicted_plan(e0, c, moves, q_r, v_r, a_r[:-1], period)
+        if not (np.all(np.isfinite(a_p)) and np.all(np.abs(a_p[: self.model.config.planner_hold]) <= bound)):
+            self._plan = None  # far outside the model's closed loop: the SQP left its basin
+            self.rejected += 1
+            return False
         self._plan = (q_p, v_p, a_p, moves.copy())
         self._plan_step = 0
         self.plans += 1
@@ -167,10 +181,10 @@ class PhysicsInformedIDMPC:
             added, rest = self.model.terms(q, v)
             mass = pin.crba(model, data, q)
             mass = np.triu(mass) + np.triu(mass, 1).T + added
-            bias = pin.nonLinearEffects(model, data, q, v) - np.clip(
-                rest + self._rest, -self.torque_limit, self.torque_limit
-            )
-            _, a, _ = allocate(mass, bias, a, self.torque_limit)
+            bias = pin.nonLinearEffects(model, data, q, v) - rest - self._rest  # the drag unclipped: it damps
+            bound = np.maximum(np.abs(a), 100.0)
+            # explicit steps of a light joint in strong drag overshoot: bound what the dynamics give
+            a = np.clip(allocate(mass, bias, a, self.torque_limit)[1], -bound, bound)
             moves[k] = a - a_r[k]
             q, v = q + period * v + 0.5 * period * period * a, v + period * a
         self.mpc._last_problem = saved
