@@ -16,6 +16,16 @@ Each step, at the (filtered) state y = [q, v] (2n,):
    horizon (:class:`~hydroarm.control.idmpc_limits.HorizonQP`), so a
    saturated start-up plans with the water it will meet, not the water of now.
 
+The planner (``water_model.planner``; ``"auto"``: while the torque limits bind). Instead of the
+IDMPC's disturbance-blind 5-step plan, a ``planner_horizon``-step plan (35) of the same cost: the
+horizon QP (:class:`~hydroarm.control.idmpc_limits.HorizonQP`) with the model's water at every
+planned state in its torque rows, ``planner_iterations`` SQP steps (3), linearised first about the
+IDMPC's own closed loop run on the dry model plus the water model (:meth:`_rollout`), then about the
+last plan shifted. A plan whose accelerations exceed :data:`PLAN_TRUST` of that closed loop's is
+refused (the step is the IDMPC's). The plan is followed ``planner_hold`` steps (1) with the
+IDMPC's LQR gains on the deviation from it; ``"auto"`` stops at the first plan with no active
+torque row. Measured: docs/controllers.md, "PI-IDMPC".
+
 After the step (``observe``) the model learns the transition (recursive least squares) and the
 remainder observer takes ``r - model(midpoint)``. A model saved by :meth:`save_model` and given
 back with :meth:`load_model` (``hydroarm run --model FILE``) starts a run knowing the water;
