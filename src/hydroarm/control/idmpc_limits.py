@@ -210,42 +210,35 @@ class HorizonQP:
         shift = self._rows @ moves.ravel() - base
         return self._rows, self.limit + shift, -self.limit + shift
 
-    def solve(self, e0, c, q_r, v_r, a_r, mass, bias, w_hat, initial_moves=None, move_bounds=None) -> np.ndarray | None:
+    def solve(self, e0, c, q_r, v_r, a_r, mass, bias, w_hat, initial_moves=None) -> np.ndarray | None:
         """The first acceleration (n,) rad/s^2 of the constrained horizon problem, or None.
 
         ``e0`` (n, 2), ``c`` (N, n, 2), ``q_r, v_r`` (>= N, n), ``a_r`` (N, n): the outer
         problem; ``mass`` (n, n), ``bias`` = h - w_hat (n,) at the current state; ``w_hat`` (n,).
         ``initial_moves`` (N, n): a plan to linearise about first (a warm start: the frozen
-        solve is skipped), or None. ``move_bounds``: ``(lower, upper)`` (N, n) each, simple bounds
-        on the moves (a trust region), or None. The whole plan's moves (N, n) are left in
-        ``last_moves``."""
+        solve is skipped), or None. The whole plan's moves (N, n) are left in ``last_moves``,
+        whether a torque row is active in ``last_active``."""
         gradient = self.gradient(e0, c)
         self.last_iterations = 0
-        sense = self._sense
-        if move_bounds is not None:
-            sense = np.zeros(2 * self.horizon * self.n, dtype=np.int32)
-            box_lower, box_upper = (np.asarray(b, dtype=float).ravel() for b in move_bounds)
-
-        def qp(rows, upper, lower, **warm):
-            if move_bounds is not None:
-                upper, lower = np.concatenate([box_upper, upper]), np.concatenate([box_lower, lower])
-            return daqp.solve(self.hessian, gradient, rows, upper, lower, sense, **warm)
-
         if initial_moves is None:
-            moves, _, flag, info = qp(*self.frozen_rows(mass, bias, a_r))
+            rows, upper, lower = self.frozen_rows(mass, bias, a_r)
         else:
-            plan = np.asarray(initial_moves, dtype=float)
-            moves, _, flag, info = qp(*self.linearised_rows(plan, e0, c, q_r, v_r, a_r, w_hat))
+            rows, upper, lower = self.linearised_rows(
+                np.asarray(initial_moves, dtype=float), e0, c, q_r, v_r, a_r, w_hat
+            )
+        moves, _, flag, info = daqp.solve(self.hessian, gradient, rows, upper, lower, self._sense)
         if int(flag) != 1:
             return None
         for _ in range(self.sqp_iterations):
             plan = np.asarray(moves).reshape(self.horizon, self.n)
             rows, upper, lower = self.linearised_rows(plan, e0, c, q_r, v_r, a_r, w_hat)
-            new, _, flag, new_info = qp(rows, upper, lower, dual_start=info["lam"])
+            new, _, flag, new_info = daqp.solve(
+                self.hessian, gradient, rows, upper, lower, self._sense, dual_start=info["lam"]
+            )
             if int(flag) != 1:
                 break
             moves, info = new, new_info
             self.last_iterations += 1
         self.last_moves = np.asarray(moves).reshape(self.horizon, self.n)
-        self.last_active = bool(np.any(np.asarray(info["lam"])[-self.horizon * self.n :] != 0.0))
+        self.last_active = bool(np.any(np.asarray(info["lam"]) != 0.0))
         return a_r[0] + np.asarray(moves[: self.n])

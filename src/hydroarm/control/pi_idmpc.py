@@ -127,7 +127,8 @@ class PhysicsInformedIDMPC:
         self._plan: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None  # q, v, a (N, n), moves
         self._plan_step = 0
         self.plans = 0  # replans this run
-        self.rejected = 0  # plans refused (outside the trust region)
+        self.rejected = 0  # plans refused (planner_deviation, PLAN_TRUST)
+        self._idmpc_acceleration: np.ndarray | None = None
 
     # --- the controller interface ---------------------------------------------------
     def _along_plan(self, q: np.ndarray, v: np.ndarray, a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -168,6 +169,13 @@ class PhysicsInformedIDMPC:
             return False
         moves = self.planner.last_moves
         q_p, v_p, a_p = predicted_plan(e0, c, moves, q_r, v_r, a_r[:-1], period)
+        deviation = self.model.config.planner_deviation
+        if self._idmpc_acceleration is not None and np.any(
+            np.abs(a_p[0] - self._idmpc_acceleration) > np.abs(self._idmpc_acceleration) + deviation
+        ):
+            self._plan = None  # far from the IDMPC's own move: trust the short plan (stress study)
+            self.rejected += 1
+            return False
         if not (np.all(np.isfinite(a_p)) and np.all(np.abs(a_p[: self.model.config.planner_hold]) <= bound)):
             self._plan = None  # far outside the model's closed loop: the SQP left its basin
             self.rejected += 1
@@ -226,6 +234,7 @@ class PhysicsInformedIDMPC:
         t_model = time.perf_counter()
         tau = None
         if self.planner is not None:
+            self._idmpc_acceleration = acceleration
             tau, realised, saturated = self._planned_torque(t, y, reference, acceleration, w_free, added_mass)
         if tau is None:
             tau, realised, saturated = self.mpc.torque_map(q, v, acceleration, w_free, added_mass)

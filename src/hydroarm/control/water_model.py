@@ -87,6 +87,13 @@ class WaterModelConfig(FrozenModel):
     planner_iterations: int = pydantic.Field(
         3, ge=0, le=10, description="PI-IDMPC planner: SQP steps along the plan per replan, 0 <= x <= 10"
     )
+    planner_deviation: float = pydantic.Field(
+        500.0,
+        ge=0.0,
+        le=1e8,
+        description="PI-IDMPC planner: a plan is followed only while its first acceleration is within "
+        "|a_IDMPC| + this of the IDMPC's own on every joint (rad/s^2), 0 <= x <= 1e8",
+    )
     remainder: ObserverConfig = pydantic.Field(
         ObserverConfig(kind="tde"),
         description="PI-IDMPC: the observer on what the model does not predict (the current, a mismatch) (section)",
