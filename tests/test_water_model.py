@@ -104,8 +104,9 @@ def test_saved_models_round_trip_and_are_refused_on_another_arm(tmp_path):
 
 
 def test_flagship_resolves_to_the_best_measured_controller():
-    """GP-IDMPC: PI-IDMPC wins the paper task (clean) and the 7-joint arm, but loses the whole run
-    on the torque-limited arms and in the Reynolds water (docs/controllers.md)."""
+    """GP-IDMPC: PI-IDMPC with its planner is below every observer variant on every case but the
+    Reynolds water's whole run, ties GP-IDMPC on ur5 noisy and its replans miss the step-time
+    target (docs/controllers.md)."""
     assert canonical_name("flagship") == "GP-IDMPC"
     assert canonical_name("Flagship") == "GP-IDMPC"
 

@@ -210,17 +210,25 @@ class HorizonQP:
         shift = self._rows @ moves.ravel() - base
         return self._rows, self.limit + shift, -self.limit + shift
 
-    def solve(self, e0, c, q_r, v_r, a_r, mass, bias, w_hat) -> np.ndarray | None:
+    def solve(self, e0, c, q_r, v_r, a_r, mass, bias, w_hat, initial_moves=None) -> np.ndarray | None:
         """The first acceleration (n,) rad/s^2 of the constrained horizon problem, or None.
 
         ``e0`` (n, 2), ``c`` (N, n, 2), ``q_r, v_r`` (>= N, n), ``a_r`` (N, n): the outer
-        problem; ``mass`` (n, n), ``bias`` = h - w_hat (n,) at the current state; ``w_hat`` (n,)."""
+        problem; ``mass`` (n, n), ``bias`` = h - w_hat (n,) at the current state; ``w_hat`` (n,).
+        ``initial_moves`` (N, n): a plan to linearise about first (a warm start: the frozen
+        solve is skipped), or None. The whole plan's moves (N, n) are left in ``last_moves``,
+        whether a torque row is active in ``last_active``."""
         gradient = self.gradient(e0, c)
-        rows, upper, lower = self.frozen_rows(mass, bias, a_r)
+        self.last_iterations = 0
+        if initial_moves is None:
+            rows, upper, lower = self.frozen_rows(mass, bias, a_r)
+        else:
+            rows, upper, lower = self.linearised_rows(
+                np.asarray(initial_moves, dtype=float), e0, c, q_r, v_r, a_r, w_hat
+            )
         moves, _, flag, info = daqp.solve(self.hessian, gradient, rows, upper, lower, self._sense)
         if int(flag) != 1:
             return None
-        self.last_iterations = 0
         for _ in range(self.sqp_iterations):
             plan = np.asarray(moves).reshape(self.horizon, self.n)
             rows, upper, lower = self.linearised_rows(plan, e0, c, q_r, v_r, a_r, w_hat)
@@ -231,4 +239,6 @@ class HorizonQP:
                 break
             moves, info = new, new_info
             self.last_iterations += 1
+        self.last_moves = np.asarray(moves).reshape(self.horizon, self.n)
+        self.last_active = bool(np.any(np.asarray(info["lam"]) != 0.0))
         return a_r[0] + np.asarray(moves[: self.n])

@@ -16,6 +16,18 @@ Each step, at the (filtered) state y = [q, v] (2n,):
    horizon (:class:`~hydroarm.control.idmpc_limits.HorizonQP`), so a
    saturated start-up plans with the water it will meet, not the water of now.
 
+The planner (``water_model.planner``; ``"auto"``: while the torque limits bind). Instead of the
+IDMPC's disturbance-blind 5-step plan, a ``planner_horizon``-step plan (35) of the same cost: the
+horizon QP (:class:`~hydroarm.control.idmpc_limits.HorizonQP`) with the model's water at every
+planned state in its torque rows, ``planner_iterations`` SQP steps (3), linearised first about the
+IDMPC's own closed loop run on the dry model plus the water model (:meth:`_rollout`), then about the
+last plan shifted. A plan is refused (the step is the IDMPC's) when its first acceleration leaves
+the IDMPC's own first move ``a_I`` by more than ``|a_I| + planner_deviation`` on a joint (without
+this check 31 of the 200 stress-study worlds diverged), or its accelerations exceed
+:data:`PLAN_TRUST` of that closed loop's. The plan is followed ``planner_hold`` steps (1) with the
+IDMPC's LQR gains on the deviation from it; ``"auto"`` stops at the first plan with no active
+torque row. Measured: docs/controllers.md, "PI-IDMPC".
+
 After the step (``observe``) the model learns the transition (recursive least squares) and the
 remainder observer takes ``r - model(midpoint)``. A model saved by :meth:`save_model` and given
 back with :meth:`load_model` (``hydroarm run --model FILE``) starts a run knowing the water;
@@ -28,12 +40,21 @@ import time
 from pathlib import Path
 
 import numpy as np
+import pinocchio as pin
 
+from hydroarm.config import per_joint
 from hydroarm.control.idmpc import IDMPCConfig, InverseDynamicsMPC
-from hydroarm.control.interface import ControlOutput, Reference
+from hydroarm.control.idmpc_limits import HorizonQP, allocate, predicted_plan
+from hydroarm.control.interface import ControlOutput, Reference, sample_times
 from hydroarm.control.observers import DisturbanceObserver
 from hydroarm.control.water_model import PhysicsInformedModel, WaterModelConfig
 from hydroarm.model.arm import Arm
+
+PLAN_TRUST = (20.0, 1000.0)
+"""A plan is followed only if its accelerations over the held steps are within ``20 x`` the largest
+of the IDMPC's own closed loop on the model (per joint) ``+ 1000 rad/s^2``; measured on the paper
+task: without the check one SQP in ~20 left its basin (7e5 rad/s^2 on the wrist) and the run
+diverged; a trust region in the QP itself (within 1-10 x) removed the planner's gain (0.0254-0.0288)."""
 
 
 class PhysicsInformedIDMPC:
@@ -63,6 +84,22 @@ class PhysicsInformedIDMPC:
         self._loaded: tuple[np.ndarray, np.ndarray, int] | None = None
         if self.mpc.qp is not None:
             self.mpc.qp.disturbance_model = self._along_plan
+        cfg, mcfg = self.mpc.config, self.model.config
+        self.planner = None
+        if mcfg.planner != "off":
+            self.planner = HorizonQP(
+                arm,
+                self.control_period,
+                mcfg.planner_horizon,
+                per_joint(cfg.q_position, self.n, "q_position"),
+                per_joint(cfg.q_velocity, self.n, "q_velocity"),
+                self.mpc.r_acceleration,
+                self.mpc.P,
+                self.torque_limit,
+                mcfg.planner_iterations,
+            )
+            self.planner.disturbance_model = self._along_plan
+            self._plan_offsets = np.arange(mcfg.planner_horizon + 1) * self.control_period
         self._saturated = False
         self.reset()
 
@@ -89,6 +126,11 @@ class PhysicsInformedIDMPC:
         self._rest = np.zeros(self.n)
         self._commanded: np.ndarray | None = None
         self._learn_time = 0.0
+        self._plan: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None  # q, v, a (N, n), moves
+        self._plan_step = 0
+        self.plans = 0  # replans this run
+        self.rejected = 0  # plans refused (planner_deviation, PLAN_TRUST)
+        self._idmpc_acceleration: np.ndarray | None = None
 
     # --- the controller interface ---------------------------------------------------
     def _along_plan(self, q: np.ndarray, v: np.ndarray, a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -104,6 +146,76 @@ class PhysicsInformedIDMPC:
         # a plan far from feasible (light joints, long horizons) reaches speeds where |v| v drag
         # explodes; a force beyond the torque limit cannot be compensated anyway: hold it there
         return np.clip(w, -self.torque_limit, self.torque_limit), added
+
+    # --- the planner ------------------------------------------------------------------
+    def _replan(self, t, y, reference, mass, bias, w_free) -> bool:
+        """Solve the planner's horizon problem from state y (2n,) at time t; ``mass`` (n, n) with
+        the model's added mass, ``bias`` = h - w_free (n,). False if DAQP fails (no plan)."""
+        n, period = self.n, self.control_period
+        q_r, v_r, a_r = sample_times(reference, t + self._plan_offsets)
+        e0 = np.stack([y[:n] - q_r[0], y[n:] - v_r[0]], axis=1)
+        c = np.empty((self.planner.horizon, n, 2))
+        c[:, :, 0] = q_r[1:] - q_r[:-1] - period * v_r[:-1] - 0.5 * period * period * a_r[:-1]
+        c[:, :, 1] = v_r[1:] - v_r[:-1] - period * a_r[:-1]
+        # the IDMPC's own closed loop on the model, within the limits: the first plan's linearisation
+        # point, and the scale of the plausibility check on every plan (PLAN_TRUST)
+        rollout = self._rollout(t, y, reference, a_r)
+        bound = PLAN_TRUST[0] * np.abs(rollout + a_r[:-1]).max(axis=0) + PLAN_TRUST[1]
+        initial = rollout
+        if self._plan is not None:  # warm start: the last plan's moves, shifted by the steps followed
+            moves = self._plan[3]
+            initial = np.zeros_like(moves)
+            initial[: moves.shape[0] - self._plan_step] = moves[self._plan_step :]
+        if self.planner.solve(e0, c, q_r, v_r, a_r[:-1], mass, bias, w_free, initial) is None:
+            self._plan = None
+            return False
+        moves = self.planner.last_moves
+        q_p, v_p, a_p = predicted_plan(e0, c, moves, q_r, v_r, a_r[:-1], period)
+        deviation = self.model.config.planner_deviation
+        if self._idmpc_acceleration is not None and np.any(
+            np.abs(a_p[0] - self._idmpc_acceleration) > np.abs(self._idmpc_acceleration) + deviation
+        ):
+            self._plan = None  # far from the IDMPC's own move: a lighter plant than the model diverged
+            self.rejected += 1
+            return False
+        if not (np.all(np.isfinite(a_p)) and np.all(np.abs(a_p[: self.model.config.planner_hold]) <= bound)):
+            self._plan = None  # far outside the model's closed loop: the SQP left its basin
+            self.rejected += 1
+            return False
+        self._plan = (q_p, v_p, a_p, moves.copy())
+        self._plan_step = 0
+        self.plans += 1
+        return True
+
+    def _rollout(self, t, y, reference, a_r) -> np.ndarray:
+        """The moves (N, n) of the IDMPC with the torque allocation, run N steps on the double
+        integrator from y with the dry model plus the water model (a plan within the limits)."""
+        n, period, horizon = self.n, self.control_period, self.planner.horizon
+        model, data = self.arm.model, self.planner.data
+        saved = self.mpc._last_problem
+        q, v = y[:n].copy(), y[n:].copy()
+        moves = np.empty((horizon, n))
+        for k in range(horizon):
+            x = np.concatenate([q, v])
+            a = self.mpc.planned_acceleration(t + k * period, x, reference)
+            added, rest = self.model.terms(q, v)
+            mass = pin.crba(model, data, q)
+            mass = np.triu(mass) + np.triu(mass, 1).T + added
+            bias = pin.nonLinearEffects(model, data, q, v) - rest - self._rest  # the drag unclipped: it damps
+            bound = np.maximum(np.abs(a), 100.0)
+            # explicit steps of a light joint in strong drag overshoot: bound what the dynamics give
+            a = np.clip(allocate(mass, bias, a, self.torque_limit)[1], -bound, bound)
+            moves[k] = a - a_r[k]
+            q, v = q + period * v + 0.5 * period * period * a, v + period * a
+        self.mpc._last_problem = saved
+        return moves
+
+    def _follow_plan(self, q: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """The plan's acceleration at this step plus the IDMPC's LQR feedback on the deviation from it."""
+        q_p, v_p, a_p, _ = self._plan
+        k = self._plan_step
+        gains = self.mpc.K
+        return a_p[k] - gains[:, 0] * (q - q_p[k]) - gains[:, 1] * (v - v_p[k])
 
     def compute(self, t: float, y: np.ndarray, reference: Reference) -> ControlOutput:
         """The torque at state y (2n,). ``timings["learn"]`` (s): the last ``observe``'s learning
@@ -122,7 +234,12 @@ class PhysicsInformedIDMPC:
         if not (np.all(np.isfinite(w_free)) and np.all(np.isfinite(added_mass))):
             w_free, added_mass = np.where(np.isfinite(w_free), w_free, 0.0), None
         t_model = time.perf_counter()
-        tau, realised, saturated = self.mpc.torque_map(q, v, acceleration, w_free, added_mass)
+        tau = None
+        if self.planner is not None:
+            self._idmpc_acceleration = acceleration
+            tau, realised, saturated = self._planned_torque(t, y, reference, acceleration, w_free, added_mass)
+        if tau is None:
+            tau, realised, saturated = self.mpc.torque_map(q, v, acceleration, w_free, added_mass)
         self._saturated = bool(saturated.any())
         self._commanded = realised
         w_hat = w_free if added_mass is None else w_free - added_mass @ realised
@@ -140,6 +257,29 @@ class PhysicsInformedIDMPC:
             disturbance_mean=w_hat,
             acceleration=realised,
         )
+
+    def _planned_torque(self, t, y, reference, acceleration, w_free, added_mass):
+        """``(tau, a, saturated)`` from the planner, or ``(None, None, None)`` when it has nothing to
+        say (``planner = "auto"``: the limits do not bind and no plan is running)."""
+        n, mode, hold = self.n, self.model.config.planner, self.model.config.planner_hold
+        q, v = y[:n], y[n:]
+        model, data = self.arm.model, self.mpc.nominal.data
+        mass = pin.crba(model, data, q)
+        mass = np.triu(mass) + np.triu(mass, 1).T
+        if added_mass is not None:
+            mass = mass + added_mass
+        bias = pin.nonLinearEffects(model, data, q, v) - w_free
+        if self._plan is not None:
+            self._plan_step += 1
+        if self._plan is None or self._plan_step >= hold:
+            if mode == "auto" and (self._plan is None or not self.planner.last_active):
+                self._plan = None
+                if np.all(np.abs(mass @ acceleration + bias) <= self.torque_limit):
+                    return None, None, None  # the IDMPC's own plan fits the limits
+            if not self._replan(t, y, reference, mass, bias, w_free):
+                return None, None, None
+        a = self._follow_plan(q, v)
+        return allocate(mass, bias, a, self.torque_limit)
 
     def observe(self, t: float, y: np.ndarray, u: np.ndarray, y_next: np.ndarray) -> None:
         """Learn the transition (the basis's added mass at the commanded acceleration, free of the
