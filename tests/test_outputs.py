@@ -119,6 +119,7 @@ def test_a_folder_with_results_but_no_manifest_is_refused(tmp_path):
 
 @pytest.mark.slow
 @pytest.mark.subprocess  # the runs go to worker processes
+@pytest.mark.filterwarnings("error::RuntimeWarning")  # a 0.3 s run has no samples after 1 s: no 'Mean of empty slice'
 def test_reproduce_refuses_other_settings_overwrite_clears_the_ablation_and_the_same_command_resumes(tmp_path):
     out = tmp_path / "results"
     short = ["--set", "duration=0.3", "--seeds", "1", "--workers", "2"]

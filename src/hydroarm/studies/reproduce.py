@@ -340,7 +340,7 @@ def summarise(runs: list, results: dict[str, Trajectory], paper_arm: bool = True
                 "step_ms_median": float(np.median(np.concatenate([t.timings["total"] for t in trajs])) * 1e3),
                 "step_ms_p99": float(np.percentile(np.concatenate([t.timings["total"] for t in trajs]), 99) * 1e3),
             }
-            if trajs and np.all(np.isfinite(trajs[0].disturbance_estimate[after[0]])):
+            if trajs and after[0].any() and np.all(np.isfinite(trajs[0].disturbance_estimate[after[0]])):
                 errors = np.concatenate([t.disturbance_estimate[a] - t.disturbance[a] for t, a in zip(trajs, after)])
                 truth = np.concatenate([t.disturbance[a] for t, a in zip(trajs, after)])
                 entry["disturbance_estimate_rms_after_1s"] = np.sqrt(np.mean(errors**2, axis=0)).tolist()
