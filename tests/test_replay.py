@@ -93,18 +93,8 @@ def test_calibrate_recovers_a_known_damping(tmp_path):
     log = load_csv_trial(DATA / "traj_alt_011-1_joint_states.csv", ARM_JOINTS)
     config = ReplayConfig(rate_window=0.0)  # the synthetic IMU logs no rates: start both at rest
     result = replay_log(log, build_system(truth), config)
-    synthetic = tmp_path / "synthetic"
-    synthetic.mkdir()
-    for stream in ("joint_states", "mocap"):
-        shutil.copy(DATA / f"traj_alt_011-1_{stream}.csv", synthetic / f"traj_alt_011-1_{stream}.csv")
-    import pinocchio as pin
-
-    rows = ["time_secs,x_ori,y_ori,z_ori,w_ori"]
-    for t, (r, p, y) in zip(result.time, result.simulated, strict=True):
-        x, yq, z, w = pin.Quaternion(pin.rpy.rpyToMatrix(r, p, y)).coeffs()
-        rows.append(",".join(repr(float(v)) for v in (t, x, yq, z, w)))
-    (synthetic / "traj_alt_011-1_imu.csv").write_text("\n".join(rows) + "\n")
-    fit = calibrate([synthetic / "traj_alt_011-1_joint_states.csv"], spec, "mount", ["rotational_damping_scale"],
+    joint_states = _synthetic_imu(tmp_path, result)
+    fit = calibrate([joint_states], spec, "mount", ["rotational_damping_scale"],
                     config, workers=0)  # fmt: skip
     assert fit.values["rotational_damping_scale"] == pytest.approx(0.5, rel=0.05), fit
     assert fit.cost < 1e-2 * fit.initial_cost
