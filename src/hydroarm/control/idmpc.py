@@ -265,12 +265,23 @@ class InverseDynamicsMPC:
         minus the estimate ``w_hat`` (n,), within the limits (``config.limits``). ``added_mass``
         (n, n) kg m^2: a model's added-mass inertia, added to M(q) (the estimate is then
         ``w_hat - M_A a`` at whatever acceleration the limits leave)."""
+        mass, bias = self.dynamics_terms(q, v, w_hat, added_mass)
+        return self.limited_torque(mass, bias, acceleration, w_hat)
+
+    def dynamics_terms(
+        self, q: np.ndarray, v: np.ndarray, w_hat: np.ndarray, added_mass: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """``(M, bias)``: the dry model's mass matrix (n, n) at q, plus ``added_mass`` if given,
+        and ``h(q, v) - w_hat`` (n,) N m."""
         model, data = self.arm.model, self.nominal.data
         mass = pin.crba(model, data, q)
         mass = np.triu(mass) + np.triu(mass, 1).T
         if added_mass is not None:
             mass = mass + added_mass
-        bias = pin.nonLinearEffects(model, data, q, v) - w_hat
+        return mass, pin.nonLinearEffects(model, data, q, v) - w_hat
+
+    def limited_torque(self, mass: np.ndarray, bias: np.ndarray, acceleration: np.ndarray, w_hat: np.ndarray):
+        """:meth:`torque_map` on given :meth:`dynamics_terms`."""
         if self.config.limits == "clip":
             tau = mass @ acceleration + bias
             clipped = np.clip(tau, -self.torque_limit, self.torque_limit)

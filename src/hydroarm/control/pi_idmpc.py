@@ -235,11 +235,12 @@ class PhysicsInformedIDMPC:
             w_free, added_mass = np.where(np.isfinite(w_free), w_free, 0.0), None
         t_model = time.perf_counter()
         tau = None
+        mass, bias = self.mpc.dynamics_terms(q, v, w_free, added_mass)  # M (+ M_A) and h - w, once per step
         if self.planner is not None:
             self._idmpc_acceleration = acceleration
-            tau, realised, saturated = self._planned_torque(t, y, reference, acceleration, w_free, added_mass)
+            tau, realised, saturated = self._planned_torque(t, y, reference, acceleration, mass, bias, w_free)
         if tau is None:
-            tau, realised, saturated = self.mpc.torque_map(q, v, acceleration, w_free, added_mass)
+            tau, realised, saturated = self.mpc.limited_torque(mass, bias, acceleration, w_free)
         self._saturated = bool(saturated.any())
         self._commanded = realised
         w_hat = w_free if added_mass is None else w_free - added_mass @ realised
@@ -258,17 +259,12 @@ class PhysicsInformedIDMPC:
             acceleration=realised,
         )
 
-    def _planned_torque(self, t, y, reference, acceleration, w_free, added_mass):
+    def _planned_torque(self, t, y, reference, acceleration, mass, bias, w_free):
         """``(tau, a, saturated)`` from the planner, or ``(None, None, None)`` when it has nothing to
-        say (``planner = "auto"``: the limits do not bind and no plan is running)."""
+        say (``planner = "auto"``: the limits do not bind and no plan is running); ``mass``, ``bias``:
+        the step's :meth:`~hydroarm.control.idmpc.InverseDynamicsMPC.dynamics_terms`."""
         n, mode, hold = self.n, self.model.config.planner, self.model.config.planner_hold
         q, v = y[:n], y[n:]
-        model, data = self.arm.model, self.mpc.nominal.data
-        mass = pin.crba(model, data, q)
-        mass = np.triu(mass) + np.triu(mass, 1).T
-        if added_mass is not None:
-            mass = mass + added_mass
-        bias = pin.nonLinearEffects(model, data, q, v) - w_free
         if self._plan is not None:
             self._plan_step += 1
         if self._plan is None or self._plan_step >= hold:
