@@ -26,6 +26,7 @@ file, the column or the stream, and what is allowed; the CLI exits with code 2).
 
 from __future__ import annotations
 
+import copy
 import csv
 from dataclasses import dataclass
 from pathlib import Path
@@ -271,8 +272,8 @@ class JointSplines:
     def delayed(self, delay: float) -> JointSplines:
         """The same motion ``delay`` seconds later: ``sample(t)`` is this one's at ``t - delay``
         (a clock offset between the joints' log and the IMU's)."""
-        out = JointSplines.__new__(JointSplines)
-        out.__dict__.update(self.__dict__, delay=self.delay + float(delay))
+        out = copy.copy(self)  # the splines are shared, not refitted
+        out.delay = self.delay + float(delay)
         return out
 
     def sample(self, t):

@@ -62,7 +62,8 @@ PARAMETERS: dict[str, tuple[str, float, float, float]] = {
 }
 """The calibratable parameters of a vehicle file: what, start value, bounds."""
 
-REPLAY_SETTINGS = ("joint_time_offset", "trim", "imu_roll_deg", "imu_pitch_deg", "imu_yaw_deg")
+SCALAR_REPLAY_SETTINGS = ("joint_time_offset", "trim")
+REPLAY_SETTINGS = (*SCALAR_REPLAY_SETTINGS, "imu_roll_deg", "imu_pitch_deg", "imu_yaw_deg")
 """The parameters that are replay settings (:class:`~hydroarm.studies.replay.ReplayConfig`), not
 vehicle-file numbers: the calibrated file's header and JSON give them, ``--set`` passes them."""
 
@@ -72,7 +73,7 @@ SCALES = {"cb_": 0.01, "cg_": 0.01, "joint_time_offset": 0.1, "rotational_added_
 
 def replay_config(config: ReplayConfig, values: dict[str, float]) -> ReplayConfig:
     """``config`` with the fitted replay settings among ``values`` (:data:`REPLAY_SETTINGS`)."""
-    update: dict[str, Any] = {k: float(v) for k, v in values.items() if k in ("joint_time_offset", "trim")}
+    update: dict[str, Any] = {k: float(v) for k, v in values.items() if k in SCALAR_REPLAY_SETTINGS}
     mounting = list(config.imu_mounting_rpy_deg)
     for i, axis in enumerate(("roll", "pitch", "yaw")):
         if f"imu_{axis}_deg" in values:
@@ -99,7 +100,7 @@ def check_parameters(names: list[str]) -> list[str]:
 def replay_settings_hint(values: dict[str, float]) -> str:
     """The ``--set`` options that pass the fitted replay settings among ``values`` ('' if none)."""
     config = replay_config(ReplayConfig(), values)
-    out = [f"--set {k}={getattr(config, k):.6g}" for k in ("joint_time_offset", "trim") if k in values]
+    out = [f"--set {k}={getattr(config, k):.6g}" for k in SCALAR_REPLAY_SETTINGS if k in values]
     if any(k.startswith("imu_") for k in values):
         out.append("--set imu_mounting_rpy_deg=[" + ",".join(f"{v:.6g}" for v in config.imu_mounting_rpy_deg) + "]")
     return " ".join(out)
