@@ -84,6 +84,23 @@ def _autoreset_mode(value: AutoresetMode | str) -> AutoresetMode:
         raise ValueError(f"autoreset_mode must be an AutoresetMode or one of {allowed}; got {value!r}") from None
 
 
+def _closing_on_interrupt(method: Callable) -> Callable:
+    """A public vector env call that, interrupted anywhere (Ctrl-C while it checks its arguments,
+    waits for the workers or copies their replies), stops the workers and closes the env before
+    the ``KeyboardInterrupt`` propagates."""
+
+    @functools.wraps(method)
+    def call(self: WorkerVectorEnv, *args: Any, **kwargs: Any) -> Any:
+        try:
+            return method(self, *args, **kwargs)
+        except KeyboardInterrupt:
+            if not self.closed:
+                self._shutdown(force=True)
+            raise
+
+    return call
+
+
 class WorkerVectorEnv(VectorEnv):
     """``num_envs`` copies of the environment ``env_fn()`` makes, in ``workers`` lanes (see the
     module docstring): lane 0 is this process, lanes 1 .. workers - 1 are worker processes.
@@ -329,6 +346,7 @@ class WorkerVectorEnv(VectorEnv):
         return infos
 
     # --- the VectorEnv API --------------------------------------------------------------------
+    @_closing_on_interrupt
     def reset(self, *, seed: int | Sequence[int | None] | None = None, options: dict[str, Any] | None = None):
         """Reset the copies: ``seed`` an int (copy i gets ``seed + i``), a list (one per copy) or
         None; ``options`` passed to every copy, but ``options["reset_mask"]`` (a bool array
@@ -359,6 +377,7 @@ class WorkerVectorEnv(VectorEnv):
         replies = self._run("reset", "reset", per_lane=per_lane)
         return self._arrays["observations"].copy(), self._infos(replies)
 
+    @_closing_on_interrupt
     def step(self, actions):
         """Step every copy with its row of ``actions`` ((num_envs, *action shape), finite)."""
         if self.closed:
@@ -381,6 +400,7 @@ class WorkerVectorEnv(VectorEnv):
             self._infos(replies),
         )
 
+    @_closing_on_interrupt
     def call(self, name: str, *args: Any, **kwargs: Any) -> tuple[Any, ...]:
         """Each copy's attribute ``name``, or its method ``name`` called with the arguments, as a tuple."""
         replies = self._run("call", f"call({name!r})", data=(name, args, kwargs))
@@ -390,6 +410,7 @@ class WorkerVectorEnv(VectorEnv):
         """Each copy's attribute ``name`` (a method is called without arguments)."""
         return self.call(name)
 
+    @_closing_on_interrupt
     def set_attr(self, name: str, values: Any) -> None:
         """Set attribute ``name`` of each copy: ``values`` a list or tuple (one per copy) or one value for all."""
         if not isinstance(values, (list, tuple)):
