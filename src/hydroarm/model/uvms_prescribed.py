@@ -146,6 +146,13 @@ class PrescribedUVMSPlant:
                 out += jac[3:].T @ np.asarray(wrench.moment, dtype=float)
         return out
 
+    def free_force(self, t: float, x: np.ndarray) -> np.ndarray:
+        """The generalised force (nv,) on the system at state x (nq + nv,) with no thrust and no
+        external wrench: gravity, buoyancy, the water and the bias terms, ``M nu' = free_force``
+        for the unactuated system (the right-hand side of :meth:`UVMSDynamics.system`)."""
+        _, rhs = self.dynamics.system(t, x[: self.nq], x[self.nq :], np.zeros(self.nv), self._thrust)
+        return rhs
+
     def accelerations(
         self, t: float, q: np.ndarray, v: np.ndarray, a: np.ndarray, body_wrench: np.ndarray | None = None
     ) -> tuple[np.ndarray, np.ndarray]:

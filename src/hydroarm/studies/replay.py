@@ -157,9 +157,8 @@ def simulate(log: TrialLog, uvms, config: ReplayConfig, motion=None) -> tuple[np
         still = x.copy()
         still[3:7] = _rest_attitude(log, motion, t0, mounting, config.trim_window)
         still[plant.nq :] = 0.0
-        _, rhs = plant.dynamics.system(t0, still[: plant.nq], still[plant.nq :], np.zeros(plant.nv), plant._thrust)
         trim = np.zeros(6)
-        trim[3:6] = -config.trim * rhs[3:6]
+        trim[3:6] = -config.trim * plant.free_force(t0, still)[3:6]
     rpy = np.empty((time.size, 3))
     for k in range(time.size):
         rpy[k] = pin.rpy.matrixToRpy(pin.Quaternion(x[3:7]).normalized().toRotationMatrix() @ mounting)
