@@ -34,7 +34,8 @@ keyword arguments are the environment's, plus ``workers``, ``autoreset_mode`` an
   (killed, crashed) raises ``RuntimeError`` naming it, and closes the rest.
 * **Ctrl-C**: the workers ignore SIGINT (a terminal's Ctrl-C reaches the whole process group);
   the calling process gets the ``KeyboardInterrupt``, and if it arrives during a vector env call
-  the workers are stopped and the env closed before it propagates: no worker is left behind. If
+  (checking the arguments, the copies stepping, their replies copied) the workers are stopped
+  and the env closed before it propagates: no worker is left behind. If
   the calling process dies, its workers see their pipe close and exit.
 * The copies are made, and their compiled code compiled or loaded from numba's cache, in the
   calling process and the workers while :class:`WorkerVectorEnv` is constructed: a first
