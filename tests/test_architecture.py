@@ -28,6 +28,8 @@ LONG_MODULES: dict[str, str] = {
     "studies/reproduce.py": "the paper study from its rows to its files: the rows and the paper's numbers, "
     "the plan, the runs, summary.json's numbers and the tables (split by size before, reproduce and "
     "reproduce_tables were one concept in two files that each needed the other's names)",
+    "envs/vector.py": "the multi-process vector env as one Gymnasium VectorEnv: its lanes' commands, "
+    "errors, a dead worker, Ctrl-C and closing (the workers' side is envs/vector_lanes.py)",
 }
 """The modules allowed above :data:`GUIDE_LINES`, each with the concept that justifies its size."""
 
