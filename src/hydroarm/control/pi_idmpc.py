@@ -192,12 +192,11 @@ class PhysicsInformedIDMPC:
         integrator from y with the dry model plus the water model (a plan within the limits)."""
         n, period, horizon = self.n, self.control_period, self.planner.horizon
         model, data = self.arm.model, self.planner.data
-        saved = self.mpc._last_problem
         q, v = y[:n].copy(), y[n:].copy()
         moves = np.empty((horizon, n))
         for k in range(horizon):
             x = np.concatenate([q, v])
-            a = self.mpc.planned_acceleration(t + k * period, x, reference)
+            a = self.mpc.planned_acceleration(t + k * period, x, reference, remember=False)  # the step's QP kept
             added, rest = self.model.terms(q, v)
             mass = pin.crba(model, data, q)
             mass = np.triu(mass) + np.triu(mass, 1).T + added
@@ -207,7 +206,6 @@ class PhysicsInformedIDMPC:
             a = np.clip(allocate(mass, bias, a, self.torque_limit)[1], -bound, bound)
             moves[k] = a - a_r[k]
             q, v = q + period * v + 0.5 * period * period * a, v + period * a
-        self.mpc._last_problem = saved
         return moves
 
     def _follow_plan(self, q: np.ndarray, v: np.ndarray) -> np.ndarray:
