@@ -112,6 +112,25 @@ def _least_distance_qp(w_mat, rhs, g_mat, h_vec):
     return r_inv @ (z + shift)
 
 
+def test_a_look_ahead_plan_leaves_the_step_s_torque_rows_as_they_were(paper_arm):
+    """``planned_acceleration(..., remember=False)`` (PI-IDMPC's rollout) gives the same a_0 as a
+    remembered call, and the step's constrained solve is the one of the last remembered call."""
+    limit = np.array([60.0, 60, 40, 5, 5, 5])
+    controller = InverseDynamicsMPC(paper_arm.with_torque_limit(limit), IDMPCConfig(limits="qp"))
+    rng = np.random.default_rng(3)
+    y, elsewhere = rng.normal(size=12), rng.normal(size=12)
+    reference = paper_reference()
+    planned = controller.planned_acceleration(0.3, y, reference)
+    mass, bias = paper_arm.mass_matrix(y[:6]), paper_arm.nonlinear_effects(y[:6], y[6:])
+    expected = controller.constrained_acceleration(mass, bias, np.zeros(6))
+    look_ahead = controller.planned_acceleration(0.5, elsewhere, reference, remember=False)
+    np.testing.assert_array_equal(look_ahead, controller.planned_acceleration(0.5, elsewhere, reference))
+    assert not np.array_equal(look_ahead, planned)
+    controller.planned_acceleration(0.3, y, reference)
+    controller.planned_acceleration(0.5, elsewhere, reference, remember=False)
+    np.testing.assert_array_equal(controller.constrained_acceleration(mass, bias, np.zeros(6)), expected)
+
+
 def test_qp_first_move_matches_an_independent_solver_and_holds_the_limits(paper_arm):
     """The horizon QP of ``limits = "qp"`` (DAQP on the condensed Hessian) against the same problem
     built from per-joint least squares and solved by an LSI -> NNLS reduction."""

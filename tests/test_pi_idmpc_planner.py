@@ -1,14 +1,17 @@
-"""PI-IDMPC's planner (``water_model.planner``): the long SQP plan with the learned water and the torque limits."""
+"""PI-IDMPC's planner (the ``pi_idmpc`` section): the long SQP plan with the learned water and the torque limits."""
 
 from __future__ import annotations
 
 import numpy as np
 import pinocchio as pin
 import pytest
+from typer.testing import CliRunner
 
+from hydroarm.cli import app
 from hydroarm.config import ConfigError
-from hydroarm.control.water_model import WaterModelConfig
+from hydroarm.control.pi_idmpc import PIIDMPCConfig
 from hydroarm.sim.experiment import ExperimentConfig, build_experiment, with_overrides
+from hydroarm.studies.sweep import plan_sweep, validate_sweep
 
 
 def _experiment(**overrides):
@@ -25,7 +28,7 @@ def test_without_binding_limits_the_plan_is_the_idmpc_plan():
     """Limits far away: no torque row is active, so the planner's first move is the unconstrained
     optimum of the same cost over its 35 steps: the IDMPC's closed-form LQR move (module idmpc)
     with a 35-step preview."""
-    experiment = _experiment(**{"torque_limit": 1e7, "water_model.planner": "always", "idmpc.horizon": 35})
+    experiment = _experiment(**{"torque_limit": 1e7, "pi_idmpc.planner": "always", "idmpc.horizon": 35})
     controller = experiment.controller.controller
     y = _state_near_the_reference(experiment.reference, 0.4)
     out = controller.compute(0.4, y, experiment.reference)
@@ -94,7 +97,31 @@ def test_a_constant_reference_at_rest_needs_no_plan_in_auto_mode():
 )
 def test_planner_settings_are_validated(settings, field):
     with pytest.raises((ConfigError, ValueError), match=field):
-        WaterModelConfig(**settings)
+        PIIDMPCConfig(**settings)
+
+
+def test_a_planner_setting_under_water_model_names_its_new_key(tmp_path):
+    """The planner's settings moved from ``water_model`` to ``pi_idmpc``: an old key, in ``--set``,
+    a settings file or a sweep, is refused with one message naming the new key (exit code 2)."""
+    for key in PIIDMPCConfig.model_fields:
+        with pytest.raises(ConfigError, match=f"unknown setting 'water_model.{key}': it moved to 'pi_idmpc.{key}'"):
+            with_overrides(ExperimentConfig(), {f"water_model.{key}": 1})
+    moved = "unknown setting 'water_model.planner_hold': it moved to 'pi_idmpc.planner_hold'"
+    runner = CliRunner()
+    out = tmp_path / "a"
+    result = runner.invoke(
+        app, ["run", "--controller", "pi-idmpc", "--set", "water_model.planner_hold=2", "--out", out]
+    )
+    assert result.exit_code == 2 and moved in result.output and not out.exists()
+    config = tmp_path / "old.toml"
+    config.write_text("[water_model]\nplanner_hold = 2\n")
+    result = runner.invoke(app, ["run", "--config", str(config), "--out", str(tmp_path / "b")])
+    assert result.exit_code == 2 and moved in result.output
+    with pytest.raises(ConfigError, match="'base.water_model.planner_hold': it moved to 'base.pi_idmpc.planner_hold'"):
+        validate_sweep({"controllers": ["PI-IDMPC"], "base": {"water_model": {"planner_hold": 2}}}, "s.toml")
+    sweep = validate_sweep({"controllers": ["PI-IDMPC"], "parameters": {"water_model.planner_hold": [2]}}, "s.toml")
+    with pytest.raises(ConfigError, match=f"parameters.water_model.planner_hold: {moved}"):
+        plan_sweep(sweep, source="s.toml")
 
 
 def test_the_unguarded_planner_beats_the_disturbance_blind_plan_on_the_paper_start_up():
@@ -103,7 +130,7 @@ def test_the_unguarded_planner_beats_the_disturbance_blind_plan_on_the_paper_sta
     (docs/controllers.md)."""
     errors = {}
     for mode in ("auto", "off"):
-        overrides = {"duration": 0.6, "water_model.planner": mode, "water_model.planner_deviation": 1e8}
+        overrides = {"duration": 0.6, "pi_idmpc.planner": mode, "pi_idmpc.planner_deviation": 1e8}
         traj = build_experiment(with_overrides(ExperimentConfig(), overrides), "PI-IDMPC").run()
         errors[mode] = float(np.sum((traj.q - traj.q_ref) ** 2))
     assert errors["auto"] < 0.95 * errors["off"], errors
@@ -125,7 +152,7 @@ def _stress_world(deviation):
         "initial_state.position_spread": 0.5,
         "initial_state.velocity_spread": 1.0,
         "initial_state.seed": 230710,
-        "water_model.planner_deviation": deviation,
+        "pi_idmpc.planner_deviation": deviation,
     }
     config = with_overrides(ExperimentConfig(), overrides)
     arm = load_arm(config.arm)

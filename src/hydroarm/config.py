@@ -210,11 +210,18 @@ def close_keys(key: str, known: list[str], count: int = 3) -> list[str]:
     return list(dict.fromkeys(same_leaf + near))[:count]
 
 
-def unknown_key_message(key: str, known: list[str], hint: str | None, prefix: str = "") -> str:
+def unknown_key_message(
+    key: str, known: list[str], hint: str | None, prefix: str = "", moved: Mapping[str, str] | None = None
+) -> str:
     """``unknown setting 'mpc.rr'; did you mean 'mpc.r'? (hint)`` (``prefix``: the path of the
-    mapping ``known`` is relative to, e.g. ``base.`` in a sweep file)."""
+    mapping ``known`` is relative to, e.g. ``base.`` in a sweep file). ``moved`` (old key -> new,
+    relative like ``known``): a key that moved is answered with its new name only
+    (``unknown setting 'water_model.planner': it moved to 'pi_idmpc.planner' (hint)``)."""
     word = "setting" if hint else "key"
     text = f"unknown {word} '{prefix}{key}'"
+    if moved is not None and key in moved:
+        text += f": it moved to '{prefix}{moved[key]}'"
+        return text + (f" ({hint})" if hint else "")
     matches = close_keys(key, known)
     if matches:
         text += "; did you mean " + " or ".join(f"'{prefix}{m}'" for m in matches) + "?"
@@ -223,14 +230,16 @@ def unknown_key_message(key: str, known: list[str], hint: str | None, prefix: st
 
 def _unknown_key_text(model: Any, where: tuple[Any, ...]) -> str:
     """An unknown key's message: the nearest known keys, and where to find them all (a model
-    with a ``settings_hint``, e.g. the experiment settings, names its dotted keys and its hint;
-    other models list the keys allowed at that level)."""
+    with a ``settings_hint``, e.g. the experiment settings, names its dotted keys and its hint,
+    and the new name of a key in its ``moved_settings``; other models list the keys allowed at
+    that level)."""
     classes = _classes_along(model, where[:-1]) if model is not None else [None]
     for k, cls in enumerate(classes):
         hint = getattr(cls, "settings_hint", None)
         if isinstance(hint, str) and all(isinstance(part, str) for part in where[k:]):
             prefix = "".join(f"{part}." for part in where[:k])
-            return unknown_key_message(_location(where[k:]), dotted_keys(cls), hint, prefix)
+            moved = getattr(cls, "moved_settings", None)
+            return unknown_key_message(_location(where[k:]), dotted_keys(cls), hint, prefix, moved)
     known = _fields_of(classes[-1])
     text = unknown_key_message(str(where[-1]), known or [], None, _location(where[:-1]) + "." if where[:-1] else "")
     return text + (f" (allowed: {', '.join(known)})" if known else "")

@@ -239,21 +239,29 @@ class InverseDynamicsMPC:
         self._gp_input: np.ndarray | None = None  # the GP input of the last compute
 
     # --- pieces (public for tests) ------------------------------------------------------
-    def planned_acceleration(self, t: float, y: np.ndarray, reference: Reference) -> np.ndarray:
-        """The outer MPC's first acceleration a_0 (n,) rad/s^2 at measured state y (2n,)."""
+    def planned_acceleration(
+        self, t: float, y: np.ndarray, reference: Reference, *, remember: bool = True
+    ) -> np.ndarray:
+        """The outer MPC's first acceleration a_0 (n,) rad/s^2 at measured state y (2n,).
+
+        ``remember``: keep this step's horizon problem for :meth:`constrained_acceleration` (the
+        torque rows of this step); False for a look-ahead at another state or time (e.g. PI-IDMPC's
+        rollout of this MPC along a plan), which leaves the step's problem as it was."""
         n, period = self.n, self.control_period
         q_r, v_r, a_r = sample_times(reference, t + self._offsets)  # (N + 1, n) each
         e0 = np.stack([y[:n] - q_r[0], y[n:] - v_r[0]], axis=1)
         c = np.empty((self.config.horizon, n, 2))
         c[:, :, 0] = q_r[1:] - q_r[:-1] - period * v_r[:-1] - 0.5 * period * period * a_r[:-1]
         c[:, :, 1] = v_r[1:] - v_r[:-1] - period * a_r[:-1]
-        self._last_problem = (e0, c, a_r[:-1], q_r, v_r)
+        if remember:
+            self._last_problem = (e0, c, a_r[:-1], q_r, v_r)
         return a_r[0] + unconstrained_move(e0, c, self.P, self.K, self._g, period)
 
     def constrained_acceleration(self, mass: np.ndarray, bias: np.ndarray, w_hat: np.ndarray) -> np.ndarray | None:
         """The first acceleration (n,) of the horizon's QP with the torque rows (``limits =
         "qp"``, :class:`~hydroarm.control.idmpc_limits.HorizonQP`) for the problem of the last
-        :meth:`planned_acceleration`; ``bias`` = h - w_hat (n,); None if DAQP fails."""
+        :meth:`planned_acceleration` that kept it (``remember``); ``bias`` = h - w_hat (n,); None if
+        DAQP fails."""
         e0, c, a_r, q_r, v_r = self._last_problem
         return self.qp.solve(e0, c, q_r, v_r, a_r, mass, bias, w_hat)
 

@@ -16,10 +16,11 @@ Each step, at the (filtered) state y = [q, v] (2n,):
    horizon (:class:`~hydroarm.control.idmpc_limits.HorizonQP`), so a
    saturated start-up plans with the water it will meet, not the water of now.
 
-The planner (``water_model.planner``; ``"auto"``: while the torque limits bind). Instead of the
-IDMPC's disturbance-blind 5-step plan, a ``planner_horizon``-step plan (35) of the same cost: the
-horizon QP (:class:`~hydroarm.control.idmpc_limits.HorizonQP`) with the model's water at every
-planned state in its torque rows, ``planner_iterations`` SQP steps (3), linearised first about the
+The planner (the ``pi_idmpc`` section, :class:`PIIDMPCConfig`: ``planner``; ``"auto"``: while the
+torque limits bind). Instead of the IDMPC's disturbance-blind 5-step plan, a
+``planner_horizon``-step plan (35) of the same cost: the horizon QP
+(:class:`~hydroarm.control.idmpc_limits.HorizonQP`) with the model's water at every planned state
+in its torque rows, ``planner_iterations`` SQP steps (3), linearised first about the
 IDMPC's own closed loop run on the dry model plus the water model (:meth:`_rollout`), then about the
 last plan shifted. A plan is refused (the step is the IDMPC's) when its first acceleration leaves
 the IDMPC's own first move ``a_I`` by more than ``|a_I| + planner_deviation`` on a joint (without
@@ -38,11 +39,13 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 import pinocchio as pin
+import pydantic
 
-from hydroarm.config import per_joint
+from hydroarm.config import FrozenModel, per_joint
 from hydroarm.control.idmpc import IDMPCConfig, InverseDynamicsMPC
 from hydroarm.control.idmpc_limits import HorizonQP, allocate, predicted_plan
 from hydroarm.control.interface import ControlOutput, Reference, sample_times
@@ -57,11 +60,48 @@ task: without the check one SQP in ~20 left its basin (7e5 rad/s^2 on the wrist)
 diverged; a trust region in the QP itself (within 1-10 x) removed the planner's gain (0.0254-0.0288)."""
 
 
+class PIIDMPCConfig(FrozenModel):
+    """Settings of :class:`PhysicsInformedIDMPC` beyond its IDMPC's (``idmpc``) and its water
+    model's (``water_model``): the planner (module docstring), the ``pi_idmpc`` section."""
+
+    planner: Literal["off", "auto", "always"] = pydantic.Field(
+        "auto",
+        description="the long plan with the model's water and the torque limits: off, auto (while the limits "
+        "bind) or always",
+    )
+    planner_horizon: int = pydantic.Field(
+        35, ge=2, le=200, description="the planner's preview in control steps, 2 <= x <= 200"
+    )
+    planner_hold: int = pydantic.Field(
+        1, ge=1, le=200, description="control steps a plan is followed before the next, 1 <= x <= 200"
+    )
+    planner_iterations: int = pydantic.Field(
+        3, ge=0, le=10, description="the planner's SQP steps along the plan per replan, 0 <= x <= 10"
+    )
+    planner_deviation: float = pydantic.Field(
+        500.0,
+        ge=0.0,
+        le=1e8,
+        description="a plan is followed only while its first acceleration is within |a_IDMPC| + this of the "
+        "IDMPC's own on every joint (rad/s^2), 0 <= x <= 1e8",
+    )
+
+    @pydantic.model_validator(mode="after")
+    def _hold_within_horizon(self) -> PIIDMPCConfig:
+        if self.planner_hold > self.planner_horizon:
+            raise ValueError(
+                f"planner_hold ({self.planner_hold}) must be at most planner_horizon ({self.planner_horizon}) steps"
+            )
+        return self
+
+
 class PhysicsInformedIDMPC:
     """IDMPC + physics-informed water model + remainder observer (module docstring).
 
-    ``model_config.remainder``: the observer on what the model leaves (``kind = "none"``: the model alone).
-    Attributes: ``mpc`` (the IDMPC), ``model``, ``remainder`` (a DisturbanceObserver or None).
+    ``model_config.remainder``: the observer on what the model leaves (``kind = "none"``: the model alone);
+    ``planner_config``: the planner (:class:`PIIDMPCConfig`, the ``pi_idmpc`` section).
+    Attributes: ``mpc`` (the IDMPC), ``model``, ``remainder`` (a DisturbanceObserver or None),
+    ``config`` (the :class:`PIIDMPCConfig`), ``planner`` (its HorizonQP, None with ``planner = "off"``).
     """
 
     name = "PI-IDMPC"
@@ -72,8 +112,10 @@ class PhysicsInformedIDMPC:
         config: IDMPCConfig | None = None,
         model_config: WaterModelConfig | None = None,
         control_period: float = 0.01,
+        planner_config: PIIDMPCConfig | None = None,
     ):
         self.arm = arm
+        self.config = planner_config if planner_config is not None else PIIDMPCConfig()
         self.n = arm.n_joints
         self.mpc = InverseDynamicsMPC(arm, config, control_period=control_period)
         self.control_period = self.mpc.control_period
@@ -84,22 +126,22 @@ class PhysicsInformedIDMPC:
         self._loaded: tuple[np.ndarray, np.ndarray, int] | None = None
         if self.mpc.qp is not None:
             self.mpc.qp.disturbance_model = self._along_plan
-        cfg, mcfg = self.mpc.config, self.model.config
+        cfg, pcfg = self.mpc.config, self.config
         self.planner = None
-        if mcfg.planner != "off":
+        if pcfg.planner != "off":
             self.planner = HorizonQP(
                 arm,
                 self.control_period,
-                mcfg.planner_horizon,
+                pcfg.planner_horizon,
                 per_joint(cfg.q_position, self.n, "q_position"),
                 per_joint(cfg.q_velocity, self.n, "q_velocity"),
                 self.mpc.r_acceleration,
                 self.mpc.P,
                 self.torque_limit,
-                mcfg.planner_iterations,
+                pcfg.planner_iterations,
             )
             self.planner.disturbance_model = self._along_plan
-            self._plan_offsets = np.arange(mcfg.planner_horizon + 1) * self.control_period
+            self._plan_offsets = np.arange(pcfg.planner_horizon + 1) * self.control_period
         self._saturated = False
         self.reset()
 
@@ -171,14 +213,14 @@ class PhysicsInformedIDMPC:
             return False
         moves = self.planner.last_moves
         q_p, v_p, a_p = predicted_plan(e0, c, moves, q_r, v_r, a_r[:-1], period)
-        deviation = self.model.config.planner_deviation
+        deviation = self.config.planner_deviation
         if self._idmpc_acceleration is not None and np.any(
             np.abs(a_p[0] - self._idmpc_acceleration) > np.abs(self._idmpc_acceleration) + deviation
         ):
             self._plan = None  # far from the IDMPC's own move: a lighter plant than the model diverged
             self.rejected += 1
             return False
-        if not (np.all(np.isfinite(a_p)) and np.all(np.abs(a_p[: self.model.config.planner_hold]) <= bound)):
+        if not (np.all(np.isfinite(a_p)) and np.all(np.abs(a_p[: self.config.planner_hold]) <= bound)):
             self._plan = None  # far outside the model's closed loop: the SQP left its basin
             self.rejected += 1
             return False
@@ -192,12 +234,11 @@ class PhysicsInformedIDMPC:
         integrator from y with the dry model plus the water model (a plan within the limits)."""
         n, period, horizon = self.n, self.control_period, self.planner.horizon
         model, data = self.arm.model, self.planner.data
-        saved = self.mpc._last_problem
         q, v = y[:n].copy(), y[n:].copy()
         moves = np.empty((horizon, n))
         for k in range(horizon):
             x = np.concatenate([q, v])
-            a = self.mpc.planned_acceleration(t + k * period, x, reference)
+            a = self.mpc.planned_acceleration(t + k * period, x, reference, remember=False)  # the step's QP kept
             added, rest = self.model.terms(q, v)
             mass = pin.crba(model, data, q)
             mass = np.triu(mass) + np.triu(mass, 1).T + added
@@ -207,7 +248,6 @@ class PhysicsInformedIDMPC:
             a = np.clip(allocate(mass, bias, a, self.torque_limit)[1], -bound, bound)
             moves[k] = a - a_r[k]
             q, v = q + period * v + 0.5 * period * period * a, v + period * a
-        self.mpc._last_problem = saved
         return moves
 
     def _follow_plan(self, q: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -263,7 +303,7 @@ class PhysicsInformedIDMPC:
         """``(tau, a, saturated)`` from the planner, or ``(None, None, None)`` when it has nothing to
         say (``planner = "auto"``: the limits do not bind and no plan is running); ``mass``, ``bias``:
         the step's :meth:`~hydroarm.control.idmpc.InverseDynamicsMPC.dynamics_terms`."""
-        n, mode, hold = self.n, self.model.config.planner, self.model.config.planner_hold
+        n, mode, hold = self.n, self.config.planner, self.config.planner_hold
         q, v = y[:n], y[n:]
         if self._plan is not None:
             self._plan_step += 1

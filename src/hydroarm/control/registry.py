@@ -73,7 +73,9 @@ def _gp_idmpc(arm: Arm, sections: Mapping[str, Any], period: float) -> Controlle
 
 
 def _pi_idmpc(arm: Arm, sections: Mapping[str, Any], period: float) -> Controller:
-    return PhysicsInformedIDMPC(arm, sections["idmpc"], sections["water_model"], control_period=period)
+    return PhysicsInformedIDMPC(
+        arm, sections["idmpc"], sections["water_model"], control_period=period, planner_config=sections["pi_idmpc"]
+    )
 
 
 def _gpmpc_inputs(sections: Mapping[str, Any], n: int) -> tuple[int, str]:
@@ -142,7 +144,7 @@ REGISTRY: dict[str, ControllerSpec] = {
         ),
         ControllerSpec(
             "PI-IDMPC",
-            ("idmpc", "water_model"),
+            ("idmpc", "water_model", "pi_idmpc"),
             "the inverse-dynamics MPC with a physics-informed water model along the horizon + an observer on the rest",
             _pi_idmpc,
             default_estimator="kalman",

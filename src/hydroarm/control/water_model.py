@@ -73,39 +73,10 @@ class WaterModelConfig(FrozenModel):
         le=1e3,
         description="each coefficient is kept within [0, max_ratio x its textbook value] (projection) (-)",
     )
-    planner: Literal["off", "auto", "always"] = pydantic.Field(
-        "auto",
-        description="PI-IDMPC's long plan with the model's water and the torque limits: off, auto (while the "
-        "limits bind) or always",
-    )
-    planner_horizon: int = pydantic.Field(
-        35, ge=2, le=200, description="PI-IDMPC planner: preview in control steps, 2 <= x <= 200"
-    )
-    planner_hold: int = pydantic.Field(
-        1, ge=1, le=200, description="PI-IDMPC planner: control steps a plan is followed before the next, 1 <= x <= 200"
-    )
-    planner_iterations: int = pydantic.Field(
-        3, ge=0, le=10, description="PI-IDMPC planner: SQP steps along the plan per replan, 0 <= x <= 10"
-    )
-    planner_deviation: float = pydantic.Field(
-        500.0,
-        ge=0.0,
-        le=1e8,
-        description="PI-IDMPC planner: a plan is followed only while its first acceleration is within "
-        "|a_IDMPC| + this of the IDMPC's own on every joint (rad/s^2), 0 <= x <= 1e8",
-    )
     remainder: ObserverConfig = pydantic.Field(
         ObserverConfig(kind="tde"),
         description="PI-IDMPC: the observer on what the model does not predict (the current, a mismatch) (section)",
     )
-
-    @pydantic.model_validator(mode="after")
-    def _hold_within_horizon(self) -> WaterModelConfig:
-        if self.planner_hold > self.planner_horizon:
-            raise ValueError(
-                f"planner_hold ({self.planner_hold}) must be at most planner_horizon ({self.planner_horizon}) steps"
-            )
-        return self
 
 
 def arm_fingerprint(arm: Arm) -> str:

@@ -39,6 +39,7 @@ from hydroarm.control.idmpc import IDMPCConfig
 from hydroarm.control.interface import CONTROL_PERIOD_RANGE, DEFAULT_CONTROL_PERIOD, Controller, Reference
 from hydroarm.control.mpc import MPCConfig
 from hydroarm.control.observers import ObserverConfig
+from hydroarm.control.pi_idmpc import PIIDMPCConfig
 from hydroarm.control.registry import CONTROLLERS, canonical_name, controller_sections, controller_spec
 from hydroarm.control.smc import SMCConfig
 from hydroarm.control.water_model import WaterModelConfig
@@ -86,11 +87,16 @@ REAL_LOOP_SECTIONS: tuple[str, ...] = ("sensor", "actuator", "friction")
 left out of :meth:`ExperimentConfig.canonical` (digests, run ids), so results made before they
 existed still match."""
 
-OPTIONAL_SECTIONS: tuple[str, ...] = (*REAL_LOOP_SECTIONS, "vehicle", "observer", "water_model", "task")
+OPTIONAL_SECTIONS: tuple[str, ...] = (*REAL_LOOP_SECTIONS, "vehicle", "observer", "water_model", "pi_idmpc", "task")
 """The sections left out of :meth:`ExperimentConfig.canonical` at their defaults: the real loop's,
 the vehicle's (off unless ``vehicle.name`` is set), the disturbance observer's (none), the
-physics-informed water model's (read by PI-IDMPC only) and the task's (the arm's own): results
-made before they existed still match."""
+physics-informed water model's and PI-IDMPC's planner's (read by PI-IDMPC only) and the task's
+(the arm's own): results made before they existed still match."""
+
+MOVED_SETTINGS: dict[str, str] = {f"water_model.{key}": f"pi_idmpc.{key}" for key in PIIDMPCConfig.model_fields}
+"""Settings that moved, old dotted key -> new: an old key is refused with a message naming the new
+one (:attr:`ExperimentConfig.moved_settings`): the planner's settings are PI-IDMPC's, not its water
+model's."""
 
 REAL_LOOP_ESTIMATOR_KEYS: tuple[str, ...] = ("measures", "delay", "repeated")
 """The estimator's real-loop settings, left out of :meth:`ExperimentConfig.canonical` at their defaults."""
@@ -141,6 +147,7 @@ class ExperimentConfig(FrozenModel):
     """
 
     settings_hint: ClassVar[str] = SETTINGS_HINT
+    moved_settings: ClassVar[dict[str, str]] = MOVED_SETTINGS
 
     arm: str = pydantic.Field(
         "paper", description="a built-in arm (`hydroarm arms`) or an arm file: DH .toml, .urdf, .hydro.toml"
@@ -177,6 +184,9 @@ class ExperimentConfig(FrozenModel):
     )
     water_model: WaterModelConfig = pydantic.Field(
         WaterModelConfig(), description="PI-IDMPC's physics-informed water model and its remainder observer (section)"
+    )
+    pi_idmpc: PIIDMPCConfig = pydantic.Field(
+        PIIDMPCConfig(), description="PI-IDMPC's planner: the long plan with the model's water and the limits (section)"
     )
     observer: ObserverConfig = pydantic.Field(
         ObserverConfig(), description="the disturbance observer (TDE, NDOB) under SMC, MPC or IDMPC (section)"
@@ -269,10 +279,14 @@ def with_overrides(config: ExperimentConfig, overrides: dict[str, Any]) -> Exper
         parts = key.split(".")
         for part in parts[:-1]:
             if not isinstance(target, dict) or part not in target:
-                raise ConfigError(unknown_key_message(key, dotted_keys(ExperimentConfig), SETTINGS_HINT))
+                raise ConfigError(
+                    unknown_key_message(key, dotted_keys(ExperimentConfig), SETTINGS_HINT, moved=MOVED_SETTINGS)
+                )
             target = target[part]
         if not isinstance(target, dict) or parts[-1] not in target:
-            raise ConfigError(unknown_key_message(key, dotted_keys(ExperimentConfig), SETTINGS_HINT))
+            raise ConfigError(
+                unknown_key_message(key, dotted_keys(ExperimentConfig), SETTINGS_HINT, moved=MOVED_SETTINGS)
+            )
         target[parts[-1]] = value
     return validate(ExperimentConfig, data, "settings")
 

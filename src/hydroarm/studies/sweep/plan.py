@@ -194,7 +194,8 @@ def plan_sweep(config: SweepConfig, folder: Path | None = None, source: str = "s
             if message.startswith("unknown setting"):
                 bad = message.split("'")[1] if "'" in message else message
                 mismatch_keys = [MISMATCH_PREFIX + f for f in Mismatch.model_fields]
-                text = unknown_key_message(bad, dotted_keys(ExperimentConfig) + mismatch_keys, None)
+                known = dotted_keys(ExperimentConfig) + mismatch_keys
+                text = unknown_key_message(bad, known, None, moved=ExperimentConfig.moved_settings)
                 raise ConfigError(
                     f"{source}: parameters.{bad}: {text.replace('unknown key', 'unknown setting', 1)} "
                     f"(a dotted key of the experiment settings, which `hydroarm settings` lists, "
