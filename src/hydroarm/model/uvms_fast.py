@@ -28,13 +28,15 @@ from __future__ import annotations
 import numba
 import numpy as np
 import pydantic
+from numba.core import types
+from numba.experimental import structref
 
 from hydroarm.config import FrozenModel
 from hydroarm.model.current import current_at
 from hydroarm.model.integrator import inner_steps
-from hydroarm.model.strips import StripGeometry
-from hydroarm.model.uvms import UVMS, vehicle_water
-from hydroarm.model.uvms_fast_kernels import evaluate, new_rigid_tree, workspace
+from hydroarm.model.strips import STRIPS_TYPE, StripGeometry
+from hydroarm.model.uvms import UVMS, VEHICLE_WATER_TYPE, vehicle_water
+from hydroarm.model.uvms_fast_kernels import RIGID_TREE_TYPE, WORK_TYPE, evaluate, new_rigid_tree, workspace
 from hydroarm.model.uvms_plant import UVMSPlant, UVMSStepInfo, integrate_configuration, rkmk4_update, thrust_at
 from hydroarm.model.water import Water
 
@@ -65,6 +67,33 @@ def cylinder_added_inertia(start: np.ndarray, axis: np.ndarray, length: float, m
         block = np.block([[proj, -proj @ r], [r @ proj, -r @ proj @ r]])
         out += 0.5 * length * block
     return out
+
+
+@structref.register
+class FastUVMSType(types.StructRef):
+    """numba type of :class:`FastUVMS`."""
+
+
+class FastUVMS(structref.StructRefProxy):
+    """What :func:`fast_step_kernel` reads, as one compiled handle (one argument to unbox per
+    control step, not three): ``tree``, ``vehicle``, ``strips`` (:class:`FastUVMSDynamics`'s) and
+    ``work``, their :func:`~hydroarm.model.uvms_fast_kernels.workspace`, built once (the plant
+    owns it, as it owns its Pinocchio data: one plant per thread)."""
+
+
+structref.define_boxing(FastUVMSType, FastUVMS)
+FAST_UVMS_TYPE = FastUVMSType([
+    ("tree", RIGID_TREE_TYPE), ("vehicle", VEHICLE_WATER_TYPE), ("strips", STRIPS_TYPE), ("work", WORK_TYPE),
+])  # fmt: skip
+
+
+@numba.njit(cache=True)
+def new_fast_uvms(nv, tree, vehicle, strips):  # pragma: no cover - compiled
+    """A :class:`FastUVMS` of the three structures and a new workspace for nv velocities."""
+    s = structref.new(FAST_UVMS_TYPE)
+    s.tree, s.vehicle, s.strips = tree, vehicle, strips
+    s.work = workspace(nv, tree, vehicle, strips)
+    return s
 
 
 class FastUVMSDynamics:
@@ -152,15 +181,16 @@ class FastUVMSDynamics:
 
 
 @numba.njit(cache=True)
-def fast_step_kernel(t, x, u_tau, target, steps, h, tree, vehicle, strips):  # pragma: no cover - compiled
+def fast_step_kernel(t, x, u_tau, target, steps, h, fast):  # pragma: no cover - compiled
     """The whole control step: ``steps`` RKMK4 steps of h (the floating plant's arithmetic,
     :func:`~hydroarm.model.uvms_plant.rkmk4_update` and
-    :func:`~hydroarm.model.uvms_plant.integrate_configuration`); returns (x_next, thrust wrench sum)."""
+    :func:`~hydroarm.model.uvms_plant.integrate_configuration`); returns (x_next, thrust wrench sum).
+    ``fast``: the plant's :class:`FastUVMS`."""
     nv = u_tau.shape[0]
     nq = nv + 1
+    tree, vehicle, strips, work = fast.tree, fast.vehicle, fast.strips, fast.work
     allocation, lag, current_world = vehicle.allocation, vehicle.lag, vehicle.current_world
     n_thr = allocation.shape[1]
-    work = workspace(nv, tree, vehicle, strips)
     q0 = x[:nq].copy()
     v0 = x[nq : nq + nv].copy()
     thrust0 = x[nq + nv :].copy()
@@ -207,6 +237,8 @@ class FastUVMSPlant(UVMSPlant):
         super().__init__(uvms, water)
         self.config = config
         self.fast = FastUVMSDynamics(uvms, self.water, config)
+        fast = self.fast
+        self._compiled = new_fast_uvms(self.nv, fast.tree, fast.vehicle, fast.strips)
         self._tau = np.zeros(self.nv)
 
     def step(self, t: float, x: np.ndarray, u: np.ndarray, dt: float) -> tuple[np.ndarray, UVMSStepInfo]:
@@ -216,9 +248,8 @@ class FastUVMSPlant(UVMSPlant):
         u = np.asarray(u, dtype=float)
         self._tau[6:] = u[: self.n_arm]
         target = np.clip(u[self.n_arm :], vehicle.thrust_min, vehicle.thrust_max)
-        fast = self.fast
         x_next, wrench = fast_step_kernel(
-            float(t), np.asarray(x, dtype=float), self._tau, target, steps, h, fast.tree, fast.vehicle, fast.strips
+            float(t), np.asarray(x, dtype=float), self._tau, target, steps, h, self._compiled
         )
         return x_next, UVMSStepInfo(thrust_wrench=wrench / (6.0 * steps), disturbance=self._unknown.copy())
 

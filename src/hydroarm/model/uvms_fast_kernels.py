@@ -65,12 +65,22 @@ def new_rigid_tree(arrays, gravity, arm_current):  # pragma: no cover - compiled
     return s
 
 
+_F1, _F2, _F3, _I1 = types.float64[::1], types.float64[:, ::1], types.float64[:, :, ::1], types.int64[::1]
+WORK_TYPE = types.Tuple([
+    types.Tuple([_F3, _F2, _F3, _F2, _F2, _F2, _F3, _F2, _F1, _F1, _F1, _F2, _F2, _F2, _F1]),
+    types.Tuple([_I1, _F3, _F2, _F2, _F3, _F3]), types.Tuple([_F2, _F2, _F1, _F1, _F1]),
+    types.Tuple([_I1, _F2, _F2, _F2]),
+])  # fmt: skip
+"""numba type of what :func:`workspace` returns."""
+
+
 @numba.njit(cache=True)
 def workspace(nv, tree, vehicle, strips):  # pragma: no cover - compiled
-    """What :func:`evaluate` works with, built once per control step: scratch arrays, the strip
+    """What :func:`evaluate` works with (numba type :data:`WORK_TYPE`): scratch arrays, the strip
     water's body frame (:func:`~hydroarm.model.water_effects.new_frame`) and a (6,), then the
     arrays of ``tree``, ``vehicle`` and ``strips`` it reads (taken out of the structures here,
-    once, rather than at every evaluation)."""
+    once, rather than at every evaluation). Every evaluation writes the scratch before it reads
+    it, so one workspace serves any number of evaluations (the fast plant builds it once)."""
     nj = tree.parents.shape[0]
     frame = new_frame(6, True, strips.nodes, strips.weights, strips.curve_log_re, strips.curve_cd)
     scratch = (
