@@ -274,7 +274,7 @@ class FastUVMSPlant(UVMSPlant):
             steps, h = inner_steps(dt, self.config.inner_step)
             self._split = (dt, self.config, steps, h)
         x_next, wrench = fast_step_kernel(
-            float(t), np.asarray(x, dtype=float), np.asarray(u, dtype=float), steps, h, self._compiled
+            float(t), np.asarray(x, dtype=float), np.ascontiguousarray(u, dtype=float), steps, h, self._compiled
         )
         return x_next, UVMSStepInfo(thrust_wrench=wrench, disturbance=self._unknown.copy())
 
