@@ -91,3 +91,21 @@ def test_arm_switches_only_touch_the_arm(system):
     mass = pin.crba(system.model, data, q)
     mass = np.triu(mass) + np.triu(mass, 1).T
     assert np.allclose(mass @ (on - off), buoyancy, rtol=0, atol=1e-10)
+
+
+def test_the_compiled_step_clips_the_thrust_command_as_np_clip(system):
+    """The command's clip runs inside the compiled step with np.clip's arithmetic: commands beyond
+    the limits, at them, signed zeros and infinities step bit for bit as the command np.clip gives;
+    a u of the wrong length is refused."""
+    plant = FastUVMSPlant(system, CURRENT)
+    vehicle = system.vehicle
+    x = plant.initial_state(system.neutral(q_arm=[1.5, 1.0, 1.0, 0.5]))
+    command = np.array([1e3, -1e3, vehicle.thrust_max[2], vehicle.thrust_min[3], -0.0, 0.0, np.inf, -np.inf])
+    u = np.r_[0.1, -0.1, 0.05, 0.0, command]
+    clipped = np.r_[u[:4], np.clip(command, vehicle.thrust_min, vehicle.thrust_max)]
+    stepped, info = plant.step(0.0, x, u, 0.01)
+    expected, expected_info = plant.step(0.0, x, clipped, 0.01)
+    assert np.array_equal(stepped, expected)
+    assert np.array_equal(info.thrust_wrench, expected_info.thrust_wrench)
+    with pytest.raises(ValueError, match="u: expected"):
+        plant.step(0.0, x, u[:-1], 0.01)

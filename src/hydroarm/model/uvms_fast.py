@@ -28,13 +28,15 @@ from __future__ import annotations
 import numba
 import numpy as np
 import pydantic
+from numba.core import types
+from numba.experimental import structref
 
 from hydroarm.config import FrozenModel
 from hydroarm.model.current import current_at
 from hydroarm.model.integrator import inner_steps
-from hydroarm.model.strips import StripGeometry
-from hydroarm.model.uvms import UVMS, vehicle_water
-from hydroarm.model.uvms_fast_kernels import evaluate, new_rigid_tree, workspace
+from hydroarm.model.strips import STRIPS_TYPE, StripGeometry
+from hydroarm.model.uvms import UVMS, VEHICLE_WATER_TYPE, vehicle_water
+from hydroarm.model.uvms_fast_kernels import RIGID_TREE_TYPE, WORK_TYPE, evaluate, new_rigid_tree, workspace
 from hydroarm.model.uvms_plant import UVMSPlant, UVMSStepInfo, integrate_configuration, rkmk4_update, thrust_at
 from hydroarm.model.water import Water
 
@@ -65,6 +67,47 @@ def cylinder_added_inertia(start: np.ndarray, axis: np.ndarray, length: float, m
         block = np.block([[proj, -proj @ r], [r @ proj, -r @ proj @ r]])
         out += 0.5 * length * block
     return out
+
+
+@structref.register
+class FastUVMSType(types.StructRef):
+    """numba type of :class:`FastUVMS`."""
+
+
+class FastUVMS(structref.StructRefProxy):
+    """What :func:`fast_step_kernel` reads, as one compiled handle (one argument to unbox per
+    control step, not three): ``tree``, ``vehicle``, ``strips`` (:class:`FastUVMSDynamics`'s) and
+    ``work``, their :func:`~hydroarm.model.uvms_fast_kernels.workspace`, built once (the plant
+    owns it, as it owns its Pinocchio data: one plant per thread), the held generalised force
+    ``tau`` (nv,; its base part zero) and the thrusters' limits ``thrust_min``/``thrust_max``
+    (n_thr,) N."""
+
+
+structref.define_boxing(FastUVMSType, FastUVMS)
+FAST_UVMS_TYPE = FastUVMSType([
+    ("tree", RIGID_TREE_TYPE), ("vehicle", VEHICLE_WATER_TYPE), ("strips", STRIPS_TYPE), ("work", WORK_TYPE),
+    ("tau", types.float64[::1]), ("thrust_min", types.float64[::1]), ("thrust_max", types.float64[::1]),
+])  # fmt: skip
+
+
+@numba.njit(cache=True)
+def new_fast_uvms(nv, tree, vehicle, strips, thrust_min, thrust_max):  # pragma: no cover - compiled
+    """A :class:`FastUVMS` of the three structures, the thrust limits and a new workspace for nv
+    velocities."""
+    s = structref.new(FAST_UVMS_TYPE)
+    s.tree, s.vehicle, s.strips = tree, vehicle, strips
+    s.work = workspace(nv, tree, vehicle, strips)
+    s.tau = np.zeros(nv)
+    s.thrust_min, s.thrust_max = thrust_min, thrust_max
+    return s
+
+
+@numba.njit(cache=True, inline="always")
+def clip(value, low, high):  # pragma: no cover - compiled
+    """``np.clip`` of one float, its arithmetic (numpy's ``_NPY_MIN(_NPY_MAX(value, low), high)``:
+    NaN passes through, ties keep the bound)."""
+    value = value if (value != value or value > low) else low
+    return value if (value != value or value < high) else high
 
 
 class FastUVMSDynamics:
@@ -152,15 +195,26 @@ class FastUVMSDynamics:
 
 
 @numba.njit(cache=True)
-def fast_step_kernel(t, x, u_tau, target, steps, h, tree, vehicle, strips):  # pragma: no cover - compiled
-    """The whole control step: ``steps`` RKMK4 steps of h (the floating plant's arithmetic,
+def fast_step_kernel(t, x, u, steps, h, fast):  # pragma: no cover - compiled
+    """The whole control step under the held input ``u = [tau_arm, f_cmd]`` (the command clipped
+    to the thrusters' limits): ``steps`` RKMK4 steps of h (the floating plant's arithmetic,
     :func:`~hydroarm.model.uvms_plant.rkmk4_update` and
-    :func:`~hydroarm.model.uvms_plant.integrate_configuration`); returns (x_next, thrust wrench sum)."""
+    :func:`~hydroarm.model.uvms_plant.integrate_configuration`); returns (x_next, the thrust
+    wrench averaged with the RK4 weights). ``fast``: the plant's :class:`FastUVMS`."""
+    tree, vehicle, strips, work, u_tau = fast.tree, fast.vehicle, fast.strips, fast.work, fast.tau
     nv = u_tau.shape[0]
     nq = nv + 1
+    n_arm = nv - 6
     allocation, lag, current_world = vehicle.allocation, vehicle.lag, vehicle.current_world
     n_thr = allocation.shape[1]
-    work = workspace(nv, tree, vehicle, strips)
+    if u.shape[0] != n_arm + n_thr:
+        raise ValueError("u: expected [tau_arm (n_arm,), thrust command (n_thr,)]")
+    for i in range(n_arm):
+        u_tau[6 + i] = u[i]
+    low, high = fast.thrust_min, fast.thrust_max
+    target = np.empty(n_thr)
+    for b in range(n_thr):
+        target[b] = clip(u[n_arm + b], low[b], high[b])
     q0 = x[:nq].copy()
     v0 = x[nq : nq + nv].copy()
     thrust0 = x[nq + nv :].copy()
@@ -195,7 +249,7 @@ def fast_step_kernel(t, x, u_tau, target, steps, h, tree, vehicle, strips):  # p
     out[:nq] = q0
     out[nq : nq + nv] = v0
     out[nq + nv :] = thrust_at(target, thrust0, time - t, lag)
-    return out, wrench
+    return out, wrench / (6.0 * steps)
 
 
 class FastUVMSPlant(UVMSPlant):
@@ -207,20 +261,22 @@ class FastUVMSPlant(UVMSPlant):
         super().__init__(uvms, water)
         self.config = config
         self.fast = FastUVMSDynamics(uvms, self.water, config)
-        self._tau = np.zeros(self.nv)
+        fast = self.fast
+        vehicle = uvms.vehicle
+        limits = (np.array(vehicle.thrust_min, dtype=float), np.array(vehicle.thrust_max, dtype=float))
+        self._compiled = new_fast_uvms(self.nv, fast.tree, fast.vehicle, fast.strips, *limits)
+        self._split = (None, None, 0, 0.0)  # (dt, config, steps, h) of the last step
 
     def step(self, t: float, x: np.ndarray, u: np.ndarray, dt: float) -> tuple[np.ndarray, UVMSStepInfo]:
         """Integrate from (t, x) over dt (s) under the held input ``u = [tau_arm, f_cmd]``."""
-        steps, h = inner_steps(dt, self.config.inner_step)
-        vehicle = self.uvms.vehicle
-        u = np.asarray(u, dtype=float)
-        self._tau[6:] = u[: self.n_arm]
-        target = np.clip(u[self.n_arm :], vehicle.thrust_min, vehicle.thrust_max)
-        fast = self.fast
+        last_dt, config, steps, h = self._split
+        if dt != last_dt or config is not self.config:
+            steps, h = inner_steps(dt, self.config.inner_step)
+            self._split = (dt, self.config, steps, h)
         x_next, wrench = fast_step_kernel(
-            float(t), np.asarray(x, dtype=float), self._tau, target, steps, h, fast.tree, fast.vehicle, fast.strips
+            float(t), np.asarray(x, dtype=float), np.ascontiguousarray(u, dtype=float), steps, h, self._compiled
         )
-        return x_next, UVMSStepInfo(thrust_wrench=wrench / (6.0 * steps), disturbance=self._unknown.copy())
+        return x_next, UVMSStepInfo(thrust_wrench=wrench, disturbance=self._unknown.copy())
 
     def acceleration(self, t: float, x: np.ndarray, u: np.ndarray) -> np.ndarray:
         q, v, thrust = self.split(np.asarray(x, dtype=float))

@@ -65,18 +65,28 @@ def new_rigid_tree(arrays, gravity, arm_current):  # pragma: no cover - compiled
     return s
 
 
+_F1, _F2, _F3, _I1 = types.float64[::1], types.float64[:, ::1], types.float64[:, :, ::1], types.int64[::1]
+WORK_TYPE = types.Tuple([
+    types.Tuple([_F3, _F2, _F3, _F2, _F2, _F2, _F3, _F2, _F1, _F1, _F1, _F2, _F2, _F2, _F1, _F2]),
+    types.Tuple([_I1, _F3, _F2, _F2, _F3, _F3]), types.Tuple([_F2, _F2, _F1, _F1, _F1]),
+    types.Tuple([_I1, _F2, _F2, _F2]),
+])  # fmt: skip
+"""numba type of what :func:`workspace` returns."""
+
+
 @numba.njit(cache=True)
 def workspace(nv, tree, vehicle, strips):  # pragma: no cover - compiled
-    """What :func:`evaluate` works with, built once per control step: scratch arrays, the strip
-    water's body frame (:func:`~hydroarm.model.water_effects.new_frame`) and a (6,), then the
-    arrays of ``tree``, ``vehicle`` and ``strips`` it reads (taken out of the structures here,
-    once, rather than at every evaluation)."""
+    """What :func:`evaluate` works with (numba type :data:`WORK_TYPE`): scratch arrays, the strip
+    water's body frame (:func:`~hydroarm.model.water_effects.new_frame`), a (6,) and a joint
+    rotation (3, 3), then the arrays of ``tree``, ``vehicle`` and ``strips`` it reads (taken out
+    of the structures here, once, rather than at every evaluation). Every evaluation writes the scratch before it reads
+    it, so one workspace serves any number of evaluations (the fast plant builds it once)."""
     nj = tree.parents.shape[0]
     frame = new_frame(6, True, strips.nodes, strips.weights, strips.curve_log_re, strips.curve_cd)
     scratch = (
         np.zeros((nj, 3, 3)), np.zeros((nj, 3)), np.zeros((nj, 3, 3)), np.zeros((nj, 6)), np.zeros((nj, 6)),
         np.zeros((nj, 6)), np.zeros((nj, 6, 6)), np.zeros((nv, nv)), np.zeros(nv), np.zeros(6), np.zeros(6),
-        np.zeros((6, 6)), np.zeros((6, 6)), frame, np.zeros(6),
+        np.zeros((6, 6)), np.zeros((6, 6)), frame, np.zeros(6), np.zeros((3, 3)),
     )  # fmt: skip
     tree_arrays = (tree.parents, tree.place_rotation, tree.place_translation, tree.axes, tree.rigid, tree.total)
     vehicle_arrays = (vehicle.allocation, vehicle.added_mass, vehicle.linear_damping, vehicle.quadratic_damping,
@@ -167,12 +177,11 @@ def evaluate(q, v, tau, thrust, water_velocity, tree, vehicle, strips, work, out
     arm's body-frame strips (their scalars and switches; their arrays, as the tree's and the
     vehicle's, come in ``work``: :func:`workspace`)."""
     scratch, tree_arrays, vehicle_arrays, strip_arrays = work
-    rot, pos, rot_world, vel, acc, force, composite, mass, rhs, tmp, tmp2, tmp6, xm, frame, unused = scratch
+    rot, pos, rot_world, vel, acc, force, composite, mass, rhs, tmp, tmp2, tmp6, xm, frame, unused, rj = scratch
     parents, place_rotation, place_translation, axes, rigid, total = tree_arrays
     allocation, added_mass, linear_damping, quadratic_damping, cb = vehicle_arrays
     bodies, start, axis, table = strip_arrays
     gravity = tree.gravity
-    rj = tmp6[:3, :3].copy()
     nj = parents.shape[0]
     nv = v.shape[0]
     # root: world placement from q; body twist = v[:6]; no velocity-product acceleration
