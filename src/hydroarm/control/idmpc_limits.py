@@ -16,7 +16,9 @@ stacked moves U (N n,), step-major (``U[k n + j]`` = joint j's move ``a - a_r`` 
     min 1/2 U' H U + U' (F_e vec(e0) + F_c vec(c))
     s.t. -tau_max <= tau_k(U) <= tau_max,   k = 0..N-1
 
-H, F_e, F_c from :func:`condensed_problem` (the per-joint costs of the module idmpc, summed).
+H, F_e, F_c from :func:`condensed_problem` (the per-joint costs of the module idmpc, summed): the
+double integrators' special case of :func:`hydroarm.control.mpc.condense`, equal to it up to
+rounding, kept because GP-IDMPC's runs amplify last-bit differences (docs/controllers.md).
 First solve (frozen rows): ``tau_k = M(q) (a_r,k + u_k) + h(q, v) - w_hat`` with M, h at the
 current state for every k, exact at k = 0. Then ``sqp_iterations`` Gauss-Newton (SQP) steps:
 along the predicted plan of the last solution U^ (states ``q_k, v_k``, accelerations ``a_k``
