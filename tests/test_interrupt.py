@@ -6,10 +6,12 @@ readable, and the same command resumes without recomputing them."""
 from __future__ import annotations
 
 import json
+import multiprocessing
 import os
 import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -157,3 +159,8 @@ def test_an_interrupt_while_writing_keeps_the_runs_that_were_running(tmp_path):
     assert len(set(written)) == len(files) and not list(tmp_path.glob(".*.tmp"))
     finished, todo = TrajectoryFiles(tmp_path).lookup(specs)
     assert sorted(finished) == sorted(f.stem for f in files) and len(todo) == len(specs) - len(files)
+    # the pool is shut down and joined before the interrupt propagates: no manager thread or
+    # worker left for the interpreter's exit hook, which can race the manager thread closing its
+    # wake-up pipe ("OSError: [Errno 9] Bad file descriptor" printed after an interrupted sweep)
+    managers = [t for t in threading.enumerate() if type(t).__name__ == "_ExecutorManagerThread" and t.is_alive()]
+    assert managers == [] and multiprocessing.active_children() == []

@@ -329,6 +329,7 @@ class LocalExecutor:
         futures = {pool.submit(_call_in_worker, run, task): task for task in tasks}
         pending: set[Future] = set(futures)
         ready: deque[Future] = deque()  # finished, not yet yielded
+        drained = False  # no run left running: the pool can be shut down and joined at once
         try:
             while pending or ready:
                 if not ready:
@@ -339,6 +340,7 @@ class LocalExecutor:
                 item = futures[ready[0]], _result(ready[0])
                 ready.popleft()
                 yield item
+            drained = True
         except KeyboardInterrupt:
             for future in pending:
                 future.cancel()  # fails for a run that has started
@@ -348,9 +350,15 @@ class LocalExecutor:
                 relay()
                 for future in done:
                     yield futures[future], _result(future)
+            drained = True
             raise
         finally:
-            pool.shutdown(wait=False, cancel_futures=True)
+            # Joined when nothing runs: a pool left to the interpreter's exit can meet CPython's
+            # race between its exit hook waking the pool's manager thread and that thread closing
+            # the wake-up pipe (concurrent.futures.process._python_exit: "OSError: [Errno 9] Bad
+            # file descriptor" printed after an interrupted sweep). Otherwise (the caller stopped
+            # consuming) the runs still running are not waited for here.
+            pool.shutdown(wait=drained, cancel_futures=True)
             if steps is not None:
                 steps.close()
                 steps.cancel_join_thread()
