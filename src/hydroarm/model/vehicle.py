@@ -373,10 +373,9 @@ def quaternion_matrix(x, y, z, w):  # pragma: no cover - compiled
     return out
 
 
-@numba.njit(cache=True, inline="always")
-def _cross3(a0, a1, a2, b0, b1, b2):  # pragma: no cover - compiled
-    """The cross product a x b of two 3-vectors given by their components."""
-    return a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
+@numba.njit(cache=True)
+def _cross(a, b):  # pragma: no cover - compiled
+    return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
 
 
 @numba.njit(cache=True)
@@ -400,42 +399,32 @@ def vehicle_generalised_force(
     The weight is not here: Pinocchio's gravity acts on the rigid body.
     """
     out = np.zeros(6)
-    # the 3-vectors in registers (no array per cross product: this runs at every evaluation)
-    c0 = rot[0, 0] * water_velocity[0] + rot[1, 0] * water_velocity[1] + rot[2, 0] * water_velocity[2]
-    c1 = rot[0, 1] * water_velocity[0] + rot[1, 1] * water_velocity[1] + rot[2, 1] * water_velocity[2]
-    c2 = rot[0, 2] * water_velocity[0] + rot[1, 2] * water_velocity[1] + rot[2, 2] * water_velocity[2]
+    current = np.empty(3)
+    for i in range(3):
+        current[i] = rot[0, i] * water_velocity[0] + rot[1, i] * water_velocity[1] + rot[2, i] * water_velocity[2]
     rel = nu.copy()
-    rel[0] -= c0
-    rel[1] -= c1
-    rel[2] -= c2
-    o0, o1, o2 = nu[3], nu[4], nu[5]
+    for i in range(3):
+        rel[i] -= current[i]
+    omega = nu[3:]
     if use_added_mass:
         momentum = added_mass @ rel
-        l0, l1, l2 = momentum[0], momentum[1], momentum[2]
-        a0, a1, a2 = _cross3(o0, o1, o2, l0, l1, l2)  # linear part of nu_r x* p uses nu_r's angular part = omega
-        b0, b1, b2 = _cross3(o0, o1, o2, momentum[3], momentum[4], momentum[5])
-        r0, r1, r2 = _cross3(rel[0], rel[1], rel[2], l0, l1, l2)
-        b0, b1, b2 = b0 + r0, b1 + r1, b2 + r2
-        d0, d1, d2 = _cross3(o0, o1, o2, c0, c1, c2)
-        d0, d1, d2 = -d0, -d1, -d2  # nu_c' (linear part)
+        lin = momentum[:3]
+        ang = momentum[3:]
+        a = _cross(omega, lin)  # linear part of nu_r x* p uses nu_r's angular part = omega
+        b = _cross(omega, ang) + _cross(rel[:3], lin)
+        drift = -_cross(omega, current)  # nu_c' (linear part)
         for i in range(6):
-            out[i] += added_mass[i, 0] * d0 + added_mass[i, 1] * d1 + added_mass[i, 2] * d2
-        out[0] -= a0
-        out[1] -= a1
-        out[2] -= a2
-        out[3] -= b0
-        out[4] -= b1
-        out[5] -= b2
+            out[i] += added_mass[i, 0] * drift[0] + added_mass[i, 1] * drift[1] + added_mass[i, 2] * drift[2]
+        for i in range(3):
+            out[i] -= a[i]
+            out[3 + i] -= b[i]
     if use_drag:
         for i in range(6):
             out[i] -= (linear_damping[i] + quadratic_damping[i] * abs(rel[i])) * rel[i]
     if use_buoyancy and buoyancy != 0.0:
-        f0, f1, f2 = rot[2, 0] * buoyancy, rot[2, 1] * buoyancy, rot[2, 2] * buoyancy
-        m0, m1, m2 = _cross3(cb[0], cb[1], cb[2], f0, f1, f2)
-        out[0] += f0
-        out[1] += f1
-        out[2] += f2
-        out[3] += m0
-        out[4] += m1
-        out[5] += m2
+        force = np.array([rot[2, 0] * buoyancy, rot[2, 1] * buoyancy, rot[2, 2] * buoyancy])
+        moment = _cross(cb, force)
+        for i in range(3):
+            out[i] += force[i]
+            out[3 + i] += moment[i]
     return out
