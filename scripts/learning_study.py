@@ -10,6 +10,7 @@ and after 2 s, and, over the first second, the RMS of the estimate's error and o
 on each joint. Results: docs/data/learning_study.json (and .md), written after every case.
 
     python scripts/learning_study.py [--duration 10] [--out docs/data/learning_study] [--cases "paper|ur5"]
+        [--rows "PI-IDMPC|PI-IDMPC, start-up learned"]   (other rows of OUT.json kept)
 """
 
 from __future__ import annotations
@@ -31,6 +32,9 @@ CASES = {
     "iiwa14 (7 joints)": {"arm": "examples/urdf/iiwa14.urdf"},
     "paper, Reynolds water": {"arm": "paper", "water.drag_model": "reynolds"},
 }
+STARTUP_LEARNED = {"water_model.max_acceleration": 1e6, "water_model.noise_std": 1.5}
+"""Every transition learned, the start-up's too (the default skips those beyond 500 rad/s^2), with
+the residual's noise the learner assumes at 1.5 N m (the default 1)."""
 ROWS = {  # row -> (controller, overrides)
     "IDMPC": ("IDMPC", {}),
     "GP-IDMPC": ("GP-IDMPC", {}),
@@ -39,6 +43,12 @@ ROWS = {  # row -> (controller, overrides)
     "IDMPC+NDOB": ("IDMPC", {"observer.kind": "ndob"}),
     "IDMPC+NDOB-gated": ("IDMPC", {"observer.kind": "ndob", "observer.gate": True}),
     "PI-IDMPC": ("PI-IDMPC", {}),
+    # not the defaults: learning the start-up's transitions too (docs/controllers.md, "Learning the start-up")
+    "PI-IDMPC, start-up learned": ("PI-IDMPC", STARTUP_LEARNED),
+    "PI-IDMPC, start-up learned, gated remainder": (
+        "PI-IDMPC",
+        {**STARTUP_LEARNED, "water_model.remainder.gate": True},
+    ),
 }
 SEEDS = {"clean": [0], "noisy": [1, 2, 3]}
 
@@ -89,16 +99,30 @@ def main() -> None:
     parser.add_argument("--duration", type=float, default=10.0)
     parser.add_argument("--out", type=Path, default=Path("docs/data/learning_study"))
     parser.add_argument("--cases", default="|".join(CASES), help="cases to run, separated by |")
+    parser.add_argument(
+        "--rows",
+        default="|".join(ROWS),
+        help="rows to run, separated by |; the other rows of an existing OUT.json are kept",
+    )
     args = parser.parse_args()
-    results: dict = {}
+    rows = args.rows.split("|")
+    unknown = [row for row in rows if row not in ROWS]
+    if unknown:
+        parser.error(f"--rows: unknown row(s) {unknown}; rows: {list(ROWS)}")
+    existing = args.out.with_suffix(".json")
+    results: dict = json.loads(existing.read_text()) if rows != list(ROWS) and existing.is_file() else {}
     for case in args.cases.split("|"):
         base = with_overrides(ExperimentConfig(), {**CASES[case], "duration": args.duration})
-        results[case] = {}
+        kept = results.get(case, {})
+        results[case] = {row: kept[row] for row in ROWS if row in kept}  # the rows in ROWS' order
         for row, (controller, extra) in ROWS.items():
+            if row not in rows:
+                continue
             results[case][row] = {}
             for table, seeds in SEEDS.items():
                 config = with_overrides(base, {**extra, "plant.noise_variance": 1e-3 if table == "noisy" else 0.0})
                 results[case][row][table] = [run_one(config, controller, seed) for seed in seeds]
+            results[case] = {name: results[case][name] for name in ROWS if name in results[case]}
             clean = results[case][row]["clean"][0]
             print(case, row, f"clean {clean['Ep_mean']:.5g} / {clean['Ep_mean_after_2s']:.3g}", flush=True)
         args.out.with_suffix(".json").write_text(json.dumps(results, indent=1))

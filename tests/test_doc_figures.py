@@ -250,3 +250,34 @@ def test_the_campaigns_fit_times_are_its_results():
 def test_no_page_cites_files_users_do_not_have():
     for path in [ROOT / "README.md", *sorted((ROOT / "docs").rglob("*.md")), *sorted((ROOT / "src").rglob("*.py"))]:
         assert "../shared" not in path.read_text(), path
+
+
+def test_the_start_up_learning_table_is_the_learning_studys():
+    """docs/controllers.md, "Learning the start-up": every cell of its table (whole-run mean E_p,
+    clean / noisy) is docs/data/learning_study.json's, the best observer's column included."""
+    study = json.loads((ROOT / "docs" / "data" / "learning_study.json").read_text())
+    text = _text("docs/controllers.md")
+    observers = ("IDMPC+TDE", "IDMPC+TDE-gated", "IDMPC+NDOB", "IDMPC+NDOB-gated")
+    columns = ("PI-IDMPC", "PI-IDMPC, start-up learned", "PI-IDMPC, start-up learned, gated remainder")
+
+    def cell(runs_by_table) -> str:
+        return " / ".join(
+            f"{np.mean([run['Ep_mean'] for run in runs_by_table[table]]):.5g}" for table in ("clean", "noisy")
+        )
+
+    for case, rows in study.items():
+        best = " / ".join(
+            f"{min(np.mean([run['Ep_mean'] for run in rows[o][table]]) for o in observers):.5g}"
+            for table in ("clean", "noisy")
+        )
+        line = "| " + " | ".join([case, best, *(cell(rows[column]) for column in columns)]) + " |"
+        assert line in text.replace("**", ""), line
+
+
+def test_the_transfer_limit_is_the_transfer_studys():
+    """docs/controllers.md: the plant's own coefficients against the prior over the first 2 s."""
+    rows = json.loads((ROOT / "docs" / "data" / "transfer_study.json").read_text())["clean"]["rows"]
+    own = rows["PI-IDMPC, the plant's own coefficients"]["Ep_mean_first_2s"]
+    prior = rows["PI-IDMPC, textbook prior"]["Ep_mean_first_2s"]
+    phrase = f"PI-IDMPC's first 2 s are {own:.1e}, {prior / own:.1f}x below the prior's {prior:.1e}"
+    assert phrase in _text("docs/controllers.md"), phrase
