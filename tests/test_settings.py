@@ -95,6 +95,23 @@ def test_an_unknown_setting_names_the_nearest_ones_and_where_to_find_all(tmp_pat
     assert HINT in result.output and not (tmp_path / "out").exists()
 
 
+def test_a_value_is_pointed_at_settings_and_a_section_given_a_value_names_its_settings(tmp_path):
+    """``--set vehicle_controller=pid`` is answered with settings (``vehicle.control.kind``), not
+    with the section ``vehicle.control`` (setting that to a string only moved the error); a table
+    is still answered with sections; a section given a value names its settings, in one line."""
+    with pytest.raises(ConfigError) as error:
+        with_overrides(ExperimentConfig(), {"vehicle_controller": "pid"})
+    assert "did you mean 'vehicle.control.kind'" in str(error.value)
+    assert "'vehicle.control'" not in str(error.value)
+    config = tmp_path / "c.toml"
+    config.write_text("[vehicle_control]\nkind = 'pid'\n")
+    result = RUNNER.invoke(app, ["run", "--config", str(config), "--out", str(tmp_path / "out")])
+    assert result.exit_code == 2 and "did you mean 'vehicle.control'?" in result.output
+    result = RUNNER.invoke(app, ["run", "--set", "vehicle.control=pid", "--out", str(tmp_path / "out")])
+    assert result.exit_code == 2 and "Traceback" not in result.output
+    assert "vehicle.control = 'pid': a section, not a setting: set its settings (kind," in result.output
+
+
 def test_an_unknown_setting_in_a_config_file_or_a_sweep_file(tmp_path):
     config = tmp_path / "c.toml"
     config.write_text("[mpc]\nrr = 0.001\n")

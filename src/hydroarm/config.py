@@ -210,25 +210,39 @@ def close_keys(key: str, known: list[str], count: int = 3) -> list[str]:
     return list(dict.fromkeys(same_leaf + near))[:count]
 
 
+def leaf_keys(known: list[str]) -> list[str]:
+    """The keys of ``known`` (dotted) that are not a section of another one."""
+    sections = {key.rsplit(".", 1)[0] for key in known if "." in key}
+    return [key for key in known if key not in sections]
+
+
 def unknown_key_message(
-    key: str, known: list[str], hint: str | None, prefix: str = "", moved: Mapping[str, str] | None = None
+    key: str,
+    known: list[str],
+    hint: str | None,
+    prefix: str = "",
+    moved: Mapping[str, str] | None = None,
+    value: Any = None,
 ) -> str:
     """``unknown setting 'mpc.rr'; did you mean 'mpc.r'? (hint)`` (``prefix``: the path of the
     mapping ``known`` is relative to, e.g. ``base.`` in a sweep file). ``moved`` (old key -> new,
     relative like ``known``): a key that moved is answered with its new name only
-    (``unknown setting 'water_model.planner': it moved to 'pi_idmpc.planner' (hint)``)."""
+    (``unknown setting 'water_model.planner': it moved to 'pi_idmpc.planner' (hint)``).
+    ``value``: what the key was given; anything but a mapping (a table) is only answered with
+    settings, not sections (``vehicle_controller = "pid"``: ``vehicle.control.kind``, not
+    ``vehicle.control``)."""
     word = "setting" if hint else "key"
     text = f"unknown {word} '{prefix}{key}'"
     if moved is not None and key in moved:
         text += f": it moved to '{prefix}{moved[key]}'"
         return text + (f" ({hint})" if hint else "")
-    matches = close_keys(key, known)
+    matches = close_keys(key, known if isinstance(value, Mapping) else leaf_keys(known))
     if matches:
         text += "; did you mean " + " or ".join(f"'{prefix}{m}'" for m in matches) + "?"
     return text + (f" ({hint})" if hint else "")
 
 
-def _unknown_key_text(model: Any, where: tuple[Any, ...]) -> str:
+def _unknown_key_text(model: Any, where: tuple[Any, ...], value: Any = None) -> str:
     """An unknown key's message: the nearest known keys, and where to find them all (a model
     with a ``settings_hint``, e.g. the experiment settings, names its dotted keys and its hint,
     and the new name of a key in its ``moved_settings``; other models list the keys allowed at
@@ -239,9 +253,10 @@ def _unknown_key_text(model: Any, where: tuple[Any, ...]) -> str:
         if isinstance(hint, str) and all(isinstance(part, str) for part in where[k:]):
             prefix = "".join(f"{part}." for part in where[:k])
             moved = getattr(cls, "moved_settings", None)
-            return unknown_key_message(_location(where[k:]), dotted_keys(cls), hint, prefix, moved)
+            return unknown_key_message(_location(where[k:]), dotted_keys(cls), hint, prefix, moved, value)
     known = _fields_of(classes[-1])
-    text = unknown_key_message(str(where[-1]), known or [], None, _location(where[:-1]) + "." if where[:-1] else "")
+    location = _location(where[:-1]) + "." if where[:-1] else ""
+    text = unknown_key_message(str(where[-1]), known or [], None, location, value=value)
     return text + (f" (allowed: {', '.join(known)})" if known else "")
 
 
@@ -264,6 +279,11 @@ def format_validation_error(error: pydantic.ValidationError, source: str, data: 
         if isinstance(cause, ConfigError) and cause.field is not None:
             where = where + tuple(cause.field.split("."))
             value, message = cause.value, cause.reason
+        if item["type"] == "model_type" and model is not None and not isinstance(value, Mapping):
+            fields = _fields_of(_classes_along(model, where)[-1]) or []
+            if fields:  # a section given a value: name its settings
+                listed = ", ".join(fields[:4]) + (", ..." if len(fields) > 4 else "")
+                message = f"a section, not a setting: set its settings ({listed})"
         items.append((where, item["type"], value, message))
     # Drop the wrong-type errors of union alternatives when another alternative got further:
     # to a range error of the same value, or into its items (``r = [true]`` for
@@ -279,7 +299,7 @@ def format_validation_error(error: pydantic.ValidationError, source: str, data: 
     lines: dict[tuple, list] = {}
     for where, kind, value, message in kept:
         if kind in ("extra_forbidden", "unexpected_keyword_argument"):
-            lines.setdefault((where, _UNKNOWN), [where, value, [_unknown_key_text(model, where)], 0])
+            lines.setdefault((where, _UNKNOWN), [where, value, [_unknown_key_text(model, where, value)], 0])
             continue
         group = (where[:-1], message) if where and isinstance(where[-1], int) else (where, None)
         if group in lines and group[1] is not None:

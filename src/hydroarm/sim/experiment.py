@@ -274,19 +274,20 @@ def arm_for_settings_file(arm: str, settings_file: str | Path) -> str:
 def with_overrides(config: ExperimentConfig, overrides: dict[str, Any]) -> ExperimentConfig:
     """A copy with dotted-key overrides (``{"mpc.r": 1e-3}``), validated like a file."""
     data = config.model_dump(mode="python")
+
+    def unknown(key: str, value: Any) -> ConfigError:
+        known = dotted_keys(ExperimentConfig)
+        return ConfigError(unknown_key_message(key, known, SETTINGS_HINT, moved=MOVED_SETTINGS, value=value))
+
     for key, value in overrides.items():
         target = data
         parts = key.split(".")
         for part in parts[:-1]:
             if not isinstance(target, dict) or part not in target:
-                raise ConfigError(
-                    unknown_key_message(key, dotted_keys(ExperimentConfig), SETTINGS_HINT, moved=MOVED_SETTINGS)
-                )
+                raise unknown(key, value)
             target = target[part]
         if not isinstance(target, dict) or parts[-1] not in target:
-            raise ConfigError(
-                unknown_key_message(key, dotted_keys(ExperimentConfig), SETTINGS_HINT, moved=MOVED_SETTINGS)
-            )
+            raise unknown(key, value)
         target[parts[-1]] = value
     return validate(ExperimentConfig, data, "settings")
 
