@@ -316,6 +316,9 @@ def test_ctrl_c_stops_the_workers_and_closes_the_env(where):
         text=True,
         cwd=ROOT,
         start_new_session=True,
+        # a terminal's SIGINT: a background job of a non-interactive shell, or a pytest-xdist
+        # worker, passes it on ignored, and Python then never raises KeyboardInterrupt
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
     )
     try:
         out, err = process.communicate(timeout=120)
