@@ -281,3 +281,27 @@ def test_the_transfer_limit_is_the_transfer_studys():
     prior = rows["PI-IDMPC, textbook prior"]["Ep_mean_first_2s"]
     phrase = f"PI-IDMPC's first 2 s are {own:.1e}, {prior / own:.1f}x below the prior's {prior:.1e}"
     assert phrase in _text("docs/controllers.md"), phrase
+
+
+def test_the_identification_figures_are_the_identification_studys():
+    """docs/controllers.md, "Identification from a log": the largest errors over the noisy seeds
+    (instrumental variables, and least squares in brackets) are docs/data/water_identification.json's."""
+    runs = json.loads((ROOT / "docs" / "data" / "water_identification.json").read_text())["runs"]
+
+    def largest(method: str, key: str, cylinders: list[int]) -> float:
+        chosen = [r for name, r in runs.items() if name.startswith("noisy") and name.endswith(method)]
+        return 100 * max(abs(r["relative_error"][key][c - 1]) for r in chosen for c in cylinders)
+
+    iv, ls = "instrumental variables", "least squares"
+    text = _text("docs/controllers.md")
+    phrases = [
+        f"C_m of cylinders 2, 3, 5, 6 within {largest(iv, 'cm', [2, 3, 5, 6]):.1f} %",
+        f"volumes of cylinders 5-6 within {largest(iv, 'volume', [5, 6]):.1f} %",
+        f"(least squares without the instruments: {largest(ls, 'cm', [2, 3, 5, 6]):.1f} % and "
+        f"{largest(ls, 'volume', [5, 6]):.1f} %)",
+        f"cylinders 3, 5, 6 within {largest(iv, 'cd', [3, 5, 6]):.1f} %",
+        f"reach {largest(iv, 'cd', [2]):.2f} % and {largest(iv, 'cd', [4]):.1f} % in one seed",
+        f"(least squares: {largest(ls, 'cd', [2]):.1f} % and {largest(ls, 'cd', [4]):.1f} %)",
+    ]
+    for phrase in phrases:
+        assert phrase in text, phrase

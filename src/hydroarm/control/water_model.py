@@ -27,18 +27,24 @@ The prior's standard deviation is ``prior_std`` times the textbook value of each
 
 A model is saved and loaded as JSON (:meth:`save`, :meth:`load`): theta_hat, P, the settings and
 the arm's fingerprint (a model learned on one arm is refused on another).
+
+Offline, :func:`fit_water` fits the same basis to a logged run (smoothing splines on the measured
+positions, weighted least squares, instrumental variables against the measurement noise): an
+identification run in still water gives C_d, C_m and the volumes (docs/controllers.md).
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
 
 import numpy as np
 import pinocchio as pin
 import pydantic
+from scipy.interpolate import make_smoothing_spline
 
 from hydroarm.config import ConfigError, FrozenModel
 from hydroarm.control.observers import ObserverConfig
@@ -222,3 +228,100 @@ class PhysicsInformedModel:
             raise ConfigError(f"model file '{source}': theta is not finite")
         self.theta, self.covariance = theta, covariance
         self.samples = int(payload.get("samples", 0))
+
+
+# --- offline identification from a logged run ------------------------------------------
+
+
+@dataclass(frozen=True)
+class WaterFit:
+    """What :func:`fit_water` found.
+
+    ``theta`` (3C,) the basis' coefficients; ``coefficients`` C_d, C_m and volume (m^3) (C,) each;
+    ``identifiable`` (3C,) bool: excited by the data (False: in the basis' null space over the
+    samples, left at the prior); ``residual_std`` (n,) N m per joint after the fit; ``samples``:
+    the steps used.
+    """
+
+    theta: np.ndarray
+    coefficients: dict[str, np.ndarray]
+    identifiable: np.ndarray
+    residual_std: np.ndarray
+    samples: int
+
+
+def fit_water(
+    model: PhysicsInformedModel,
+    t: np.ndarray,
+    q: np.ndarray,
+    u: np.ndarray,
+    instruments: np.ndarray | None = None,
+    trim: float = 0.5,
+    reweight: int = 3,
+) -> WaterFit:
+    """Fit the Morison basis of ``model`` offline to a logged run of its arm.
+
+    ``t`` (K,) s, evenly spaced; ``q`` (K, n) measured joint positions (rad), noisy or not;
+    ``u`` (K, n) the torques (N m), each held from t_k to t_k+1. A smoothing spline per joint
+    (:func:`scipy.interpolate.make_smoothing_spline`, its smoothing chosen by generalised
+    cross-validation) gives q, q' and q'' at the middle of every step, where the step's residual
+    ``M(q) q'' + h(q, q') - u_k`` is the water's force ``Phi(q, q', q'') theta``. The first and
+    last ``trim`` seconds (the spline's ends) are left out. Least squares, each joint's rows
+    weighted by the inverse of its residual's std (re-estimated ``reweight`` times).
+
+    ``instruments`` (K, n): positions free of the measurement noise that the arm followed (the
+    reference it tracked). With them the estimate is an instrumental-variable one: the basis at
+    the instruments' states (splined the same way) multiplies both sides, so the noise that enters
+    the residual and the basis together through q (errors in the variables, which pull the added
+    mass towards zero) averages out. Directions the data does not excite keep ``model``'s prior
+    mean.
+    """
+    t, q, u = (np.asarray(x, dtype=float) for x in (t, q, u))
+    n = model.n
+    if q.ndim != 2 or q.shape[1] != n or u.shape != q.shape or t.shape != (q.shape[0],):
+        raise ValueError(f"t (K,), q and u (K, {n}) expected; got {t.shape}, {q.shape}, {u.shape}")
+    period = float(np.median(np.diff(t)))
+    middle = t[:-1] + 0.5 * period
+    keep = (middle >= t[0] + trim) & (middle <= t[-1] - trim)
+    if keep.sum() < model.regressor.n_parameters:
+        raise ValueError(f"too few steps after trimming {trim} s at each end: {int(keep.sum())}")
+
+    def splined(positions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        out = np.zeros((3, int(keep.sum()), n))
+        for joint in range(n):
+            spline = make_smoothing_spline(t, positions[:, joint])
+            for order in range(3):
+                out[order, :, joint] = spline.derivative(order)(middle[keep]) if order else spline(middle[keep])
+        return out[0], out[1], out[2]
+
+    arm, data = model.arm, model.data
+    basis, target, basis_z = [], [], []
+    states = splined(q)
+    reference = splined(np.asarray(instruments, dtype=float)) if instruments is not None else None
+    for k, u_k in enumerate(u[:-1][keep]):
+        qk, vk, ak = states[0][k], states[1][k], states[2][k]
+        mass = pin.crba(arm.model, data, qk)
+        mass = np.triu(mass) + np.triu(mass, 1).T
+        target.append(mass @ ak + pin.nonLinearEffects(arm.model, data, qk, vk) - u_k)
+        basis.append(model.regressor.basis(qk, vk, ak))
+        if reference is not None:
+            basis_z.append(model.regressor.basis(reference[0][k], reference[1][k], reference[2][k]))
+    phi, r = np.concatenate(basis), np.concatenate(target)
+    z = np.concatenate(basis_z) if reference is not None else phi
+    _, singular, vt = np.linalg.svd(phi, full_matrices=False)
+    null = vt[singular < 1e-9 * singular[0]]
+    weights = np.ones(n)
+    for _ in range(reweight + 1):
+        w = np.tile(weights, len(target))[:, None]
+        theta = np.linalg.pinv((z * w).T @ (phi * w), rcond=1e-9) @ ((z * w).T @ (r * w[:, 0]))
+        residual = (r - phi @ theta).reshape(-1, n)
+        weights = 1.0 / np.maximum(residual.std(axis=0), 1e-12)
+    theta = theta - null.T @ (null @ theta) + null.T @ (null @ model._prior_mean)
+    identifiable = np.abs(null).max(axis=0) < 1e-6 if len(null) else np.ones(theta.shape[0], dtype=bool)
+    return WaterFit(
+        theta=theta,
+        coefficients=model.regressor.physical(theta),
+        identifiable=identifiable,
+        residual_std=residual.std(axis=0),
+        samples=len(target),
+    )
