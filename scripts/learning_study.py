@@ -113,8 +113,7 @@ def main() -> None:
     results: dict = json.loads(existing.read_text()) if rows != list(ROWS) and existing.is_file() else {}
     for case in args.cases.split("|"):
         base = with_overrides(ExperimentConfig(), {**CASES[case], "duration": args.duration})
-        kept = results.get(case, {})
-        results[case] = {row: kept[row] for row in ROWS if row in kept}  # the rows in ROWS' order
+        results.setdefault(case, {})
         for row, (controller, extra) in ROWS.items():
             if row not in rows:
                 continue
@@ -122,9 +121,9 @@ def main() -> None:
             for table, seeds in SEEDS.items():
                 config = with_overrides(base, {**extra, "plant.noise_variance": 1e-3 if table == "noisy" else 0.0})
                 results[case][row][table] = [run_one(config, controller, seed) for seed in seeds]
-            results[case] = {name: results[case][name] for name in ROWS if name in results[case]}
             clean = results[case][row]["clean"][0]
             print(case, row, f"clean {clean['Ep_mean']:.5g} / {clean['Ep_mean_after_2s']:.3g}", flush=True)
+        results[case] = {name: results[case][name] for name in ROWS if name in results[case]}  # ROWS' order
         args.out.with_suffix(".json").write_text(json.dumps(results, indent=1))
         args.out.with_suffix(".md").write_text(markdown(results))
 
