@@ -300,9 +300,7 @@ def fit_water(
     reference = splined(np.asarray(instruments, dtype=float)) if instruments is not None else None
     for k, u_k in enumerate(u[:-1][keep]):
         qk, vk, ak = states[0][k], states[1][k], states[2][k]
-        mass = pin.crba(arm.model, data, qk)
-        mass = np.triu(mass) + np.triu(mass, 1).T
-        target.append(mass @ ak + pin.nonLinearEffects(arm.model, data, qk, vk) - u_k)
+        target.append(pin.rnea(arm.model, data, qk, vk, ak) - u_k)  # M(q) q'' + h(q, q') - u
         basis.append(model.regressor.basis(qk, vk, ak))
         if reference is not None:
             basis_z.append(model.regressor.basis(reference[0][k], reference[1][k], reference[2][k]))
