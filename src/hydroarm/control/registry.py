@@ -222,11 +222,14 @@ def controller_spec(name: str) -> ControllerSpec:
     return REGISTRY[canonical_name(name)]
 
 
-def estimator_kind(name: str, estimator: EstimatorConfig | None) -> str:
-    """``"none"`` or ``"kalman"``: the estimator controller ``name`` runs behind (``"auto"`` =
-    the controller's default)."""
-    kind = "auto" if estimator is None else estimator.kind
-    return controller_spec(name).default_estimator if kind == "auto" else kind
+def estimator_kind(
+    name: str, estimator: EstimatorConfig | None, sensor: SensorConfig | None = None, loop_delay: int = 0
+) -> str:
+    """``"none"`` or ``"kalman"``: the estimator controller ``name`` runs behind (``"auto"``:
+    :meth:`EstimatorConfig.resolved_kind`, the filter behind a non-ideal sensor or a loop delay,
+    else the controller's default)."""
+    config = EstimatorConfig() if estimator is None else estimator
+    return config.resolved_kind(controller_spec(name).default_estimator, sensor, loop_delay)
 
 
 def build_controller(
@@ -262,11 +265,11 @@ def build_controller(
             )
         controller = ObservedController(controller, DisturbanceObserver(arm, control_period, observer))
     estimator = sections.get("estimator")
-    if estimator_kind(spec.name, estimator) == "kalman":
+    if estimator_kind(spec.name, estimator, sensor, loop_delay) == "kalman":
         config = estimator if estimator is not None else EstimatorConfig()
+        design = config.design(sensor_variance, sensor, loop_delay)  # "plant": the noise and the quantum
         if sensor_variance is not None:
             config = config.for_sensor(sensor_variance)
-        design = config.design(sensor_variance, sensor, loop_delay)
         kalman = JointKalmanFilter(arm.n_joints, control_period, config, design)
         controller = FilteredController(controller, kalman, NominalModel(arm, inner_step=None))
     return controller
