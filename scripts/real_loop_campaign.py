@@ -60,6 +60,7 @@ EFFECTS: dict[str, dict] = {
 
 TARGET_EXTRA: dict[str, dict] = {
     "target + rate limit + bandwidth": {"actuator.rate_limit": RATE_LIMIT, "actuator.bandwidth": BANDWIDTH},
+    f"target + bandwidth {BANDWIDTH:g} Hz": {"actuator.bandwidth": BANDWIDTH},
     "target + actuator delay 1 (2 periods in all)": {"actuator.delay": 1},
 }
 """Worlds on top of the target world (the sweep file's base)."""

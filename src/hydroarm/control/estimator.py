@@ -47,6 +47,16 @@ The real loop (issue 23, :mod:`hydroarm.model.sensing`):
   (the pass-through filter of a noise-free sensor too), and the transitions into and out of the
   bridged sample are not passed to a learning controller (as the runner does for a held one).
 
+Defaults that follow the sensor (issue 32; docs/robustness.md, section 6):
+
+* ``kind = "auto"``: the filter behind any sensor but the ideal q-and-v one, or with a loop delay
+  (:meth:`EstimatorConfig.resolved_kind`); else the controller's own default.
+* ``acceleration_variance = null``: :func:`derived_acceleration_variance`: 100 with q and v
+  measured; position only, ``min(100, 30^2 sigma_m^2 / T^4)`` with sigma_m^2 the noise plus
+  ``resolution^2 / 12``, i.e. a tracking index of at most :data:`TRACKING_INDEX_LIMIT`.
+* after a bridged sample the correction's gain is the one of the covariance grown over the gap
+  (``P C^T (C P C^T + R)^-1``), until it is back at the steady gain.
+
 With the defaults on the idealised loop (state measured, no delay) every number is as before.
 """
 
@@ -63,7 +73,7 @@ import pydantic
 from hydroarm.config import ConfigError, FrozenModel
 from hydroarm.control.interface import Controller, ControlOutput, Reference
 from hydroarm.model.nominal import NominalModel
-from hydroarm.model.sensing import SensorConfig
+from hydroarm.model.sensing import Actuator, ActuatorConfig, SensorConfig
 
 EstimatorKind = Literal["auto", "none", "kalman"]
 
@@ -450,7 +460,13 @@ class FilteredController:
     periods ahead (:meth:`predicted`).
     """
 
-    def __init__(self, controller: Controller, kalman: JointKalmanFilter, nominal: NominalModel):
+    def __init__(
+        self,
+        controller: Controller,
+        kalman: JointKalmanFilter,
+        nominal: NominalModel,
+        drives: ActuatorConfig | None = None,
+    ):
         self.controller = controller
         self.kalman = kalman
         self.nominal = nominal
@@ -464,6 +480,36 @@ class FilteredController:
         self._next: np.ndarray | None = None
         self._accelerations: deque[np.ndarray] = deque(maxlen=self.delay + 1)
         self._torques: deque[np.ndarray] = deque(maxlen=self.delay + 1)
+        lagging = drives is not None and (drives.rate_limit is not None or drives.bandwidth is not None)
+        self.drives = drives if lagging or (drives is not None and drives.torque_limit is not None) else None
+        self._drives: Actuator | None = None
+        self._commands: deque[np.ndarray] = deque()
+        self._corrections: deque[np.ndarray] = deque(maxlen=self.delay + 1)
+        self.reset_drives()
+
+    def reset_drives(self) -> None:
+        """A fresh copy of the drives' model (``drives``: their clip, lag and rate limit)."""
+        if self.drives is not None:
+            n = self.kalman.n
+            self._drives = Actuator(self.drives, n, self.kalman.period)
+            self._commands = deque(maxlen=self.delay - self.sensor_delay + 1)
+        self._corrections.clear()
+
+    def _drive_correction(self, state: np.ndarray, tau: np.ndarray) -> np.ndarray:
+        """The acceleration (n,) the drives add this step to the command acting now: the drives'
+        model given ``tau`` (n,) N m, its output against the command it answers (the one of
+        ``actuator.delay`` steps ago, none before), through the dry M(q) at ``state`` (2n,).
+        Zero without a drives' model."""
+        n = self.kalman.n
+        if self._drives is None:
+            return np.zeros(n)
+        applied = self._drives.apply(tau)
+        self._commands.append(tau)
+        nominal = self._commands[0] if len(self._commands) == self._commands.maxlen else np.zeros(n)
+        difference = applied - nominal
+        if not np.any(difference):
+            return np.zeros(n)
+        return np.linalg.solve(self.nominal.mass_matrix(state[:n]), difference)
 
     def reset(self) -> None:
         self.controller.reset()
@@ -472,6 +518,7 @@ class FilteredController:
         self._next = None
         self._accelerations.clear()
         self._torques.clear()
+        self.reset_drives()
         self._steps = 0
         self._bridged = False
 
@@ -499,11 +546,14 @@ class FilteredController:
         steps = min(self._steps, self.sensor_delay) + d - self.sensor_delay
         flight = list(self._accelerations)[-steps:] if self._accelerations and steps > 0 else []
         missing = steps - len(flight)
+        past = min(self._steps, self.sensor_delay)  # steps already acted: the drives' output is known
         for k in range(steps):
             if k < missing:
                 acceleration = self._unforced(np.concatenate([q, v]))
             else:
                 acceleration = flight[k - missing]
+            if k < past and past - k <= len(self._corrections):
+                acceleration = acceleration + self._corrections[k - past]
             q = q + period * v + 0.5 * period * period * acceleration
             v = v + period * acceleration
         return np.concatenate([q, v])
@@ -525,14 +575,18 @@ class FilteredController:
             acceleration = np.asarray(out.acceleration, dtype=float)
         else:
             acceleration = self.nominal.forward_dynamics(state[:n], state[n:], out.tau)
+        correction = self._drive_correction(state, np.asarray(out.tau, dtype=float))
         if self.delay == 0:
-            self.kalman.predict(acceleration)
+            self.kalman.predict(acceleration + correction if self._drives is not None else acceleration)
         else:
             self._accelerations.append(acceleration)
             self._torques.append(np.asarray(out.tau, dtype=float))
+            self._corrections.append(correction)
             full = len(self._accelerations) == self.delay + 1
             if self._steps >= self.sensor_delay:  # before: the first sample is held, the filter waits at t = 0
-                self.kalman.predict(self._accelerations[0] if full else self._unforced(filtered))
+                acting = self._accelerations[0] if full else self._unforced(filtered)
+                lag = self._corrections[-(self.sensor_delay + 1)] if self._drives is not None else 0.0
+                self.kalman.predict(acting + lag)
         self._steps += 1
         self._filtered = filtered
         out.timings["estimator"] = elapsed + time.perf_counter() - start

@@ -27,7 +27,7 @@ from hydroarm.control.pi_idmpc import PhysicsInformedIDMPC
 from hydroarm.control.smc import SlidingModeController
 from hydroarm.model.arm import Arm
 from hydroarm.model.nominal import NominalModel
-from hydroarm.model.sensing import SensorConfig
+from hydroarm.model.sensing import ActuatorConfig, SensorConfig
 
 
 @dataclass(frozen=True)
@@ -240,6 +240,7 @@ def build_controller(
     sensor_variance: float | None = None,
     sensor: SensorConfig | None = None,
     loop_delay: int = 0,
+    actuator: ActuatorConfig | None = None,
 ) -> Controller:
     """Controller ``name`` on ``arm`` from its config ``sections`` (section name -> config
     model, e.g. ``{"mpc": MPCConfig()}``) with the control period (s), behind the state
@@ -252,7 +253,8 @@ def build_controller(
     ``sensor_variance``: the measurement-noise variance of the plant it will run on (rad^2),
     what ``estimator.measurement_variance = "plant"`` stands for; needed only then. ``sensor``:
     the plant's sensor (None: q and v measured) and ``loop_delay`` (periods, ``sensor.delay +
-    actuator.delay``): what ``estimator.measures`` and ``estimator.delay = "plant"`` stand for."""
+    actuator.delay``): what ``estimator.measures`` and ``estimator.delay = "plant"`` stand for;
+    ``actuator``: the drives (their clip, lag and rate limit go into the filter's prediction)."""
     spec = controller_spec(name)
     controller = spec.build(arm, sections, control_period)
     observer = sections.get("observer")
@@ -271,5 +273,5 @@ def build_controller(
         if sensor_variance is not None:
             config = config.for_sensor(sensor_variance)
         kalman = JointKalmanFilter(arm.n_joints, control_period, config, design)
-        controller = FilteredController(controller, kalman, NominalModel(arm, inner_step=None))
+        controller = FilteredController(controller, kalman, NominalModel(arm, inner_step=None), actuator)
     return controller

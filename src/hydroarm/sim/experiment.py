@@ -377,6 +377,7 @@ def build_controller(name: str, arm: Arm, config: ExperimentConfig) -> Controlle
         sensor_variance=config.plant.noise_variance,
         sensor=config.sensor,
         loop_delay=config.sensor.delay + config.actuator.delay,
+        actuator=config.actuator,
     )
 
 
