@@ -46,6 +46,9 @@ def test_no_margin_leaves_the_weights_alone_and_a_margin_floors_them():
     margin = InverseDynamicsMPC(arm, IDMPCConfig(delay_margin=1), T)
     floor = delay_margin_weight(T, 300.0, 0.01, 1)
     np.testing.assert_array_equal(margin.r_acceleration, np.maximum(plain.r_acceleration, floor))
+    # off, it is left out of the settings' digest: run ids made before it still match
+    assert "delay_margin" not in ExperimentConfig().canonical()["idmpc"]
+    assert with_overrides(ExperimentConfig(), {"idmpc.delay_margin": 1}).digest() != ExperimentConfig().digest()
 
 
 @pytest.mark.parametrize(("margin", "diverges"), [(0, True), (1, False)])

@@ -239,6 +239,8 @@ class ExperimentConfig(FrozenModel):
         for key in LATER_WATER_KEYS:
             if getattr(self.water, key) == getattr(water_defaults, key):
                 data["water"].pop(key)
+        if self.idmpc.delay_margin == 0:  # added after run ids were first made (issue 32)
+            data["idmpc"].pop("delay_margin")
         return data
 
     def digest(self) -> str:
