@@ -32,7 +32,7 @@ from hydroarm.config import (
     validate,
 )
 from hydroarm.control import registry
-from hydroarm.control.estimator import EstimatorConfig
+from hydroarm.control.estimator import MEASURED_VELOCITY_ACCELERATION_VARIANCE, EstimatorConfig
 from hydroarm.control.gp import GPConfig
 from hydroarm.control.gpmpc import GPMPCConfig
 from hydroarm.control.idmpc import IDMPCConfig
@@ -229,6 +229,9 @@ class ExperimentConfig(FrozenModel):
             if getattr(self, section) == type(getattr(self, section))():
                 data.pop(section)
         defaults = EstimatorConfig()
+        if self.estimator.acceleration_variance is None and self.estimator.measures_velocity(self.sensor):
+            # sigma_a^2 = null means 100 behind a sensor that measures v: the digest of before it was derived
+            data["estimator"]["acceleration_variance"] = MEASURED_VELOCITY_ACCELERATION_VARIANCE
         for key in REAL_LOOP_ESTIMATOR_KEYS:
             if getattr(self.estimator, key) == getattr(defaults, key):
                 data["estimator"].pop(key)
@@ -236,6 +239,8 @@ class ExperimentConfig(FrozenModel):
         for key in LATER_WATER_KEYS:
             if getattr(self.water, key) == getattr(water_defaults, key):
                 data["water"].pop(key)
+        if self.idmpc.delay_margin == 0:  # added after run ids were first made (issue 32)
+            data["idmpc"].pop("delay_margin")
         return data
 
     def digest(self) -> str:
@@ -374,6 +379,7 @@ def build_controller(name: str, arm: Arm, config: ExperimentConfig) -> Controlle
         sensor_variance=config.plant.noise_variance,
         sensor=config.sensor,
         loop_delay=config.sensor.delay + config.actuator.delay,
+        actuator=config.actuator,
     )
 
 
