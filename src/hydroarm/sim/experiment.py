@@ -53,7 +53,14 @@ from hydroarm.model.task_file import SplineReference, TaskConfig, reference_for
 from hydroarm.model.water import Water
 from hydroarm.sim.plant import Plant
 from hydroarm.sim.runner import Trajectory, run_closed_loop
-from hydroarm.sim.vehicle import VehicleRun, source_name, station_keeper, station_keeping_metrics, vehicle_parts
+from hydroarm.sim.vehicle import (
+    VehicleRun,
+    check_vehicle_settings,
+    source_name,
+    station_keeper,
+    station_keeping_metrics,
+    vehicle_parts,
+)
 
 TorqueLimit = Annotated[float, pydantic.Field(gt=0.0, le=1e12)]
 
@@ -468,7 +475,9 @@ def build_experiment(
 
 
 def _build_vehicle_experiment(config: ExperimentConfig, controller: str | None, arm: Arm | None) -> Experiment:
-    """:func:`build_experiment` for a vehicle run (``config.vehicle.name`` set)."""
+    """:func:`build_experiment` for a vehicle run (``config.vehicle.name`` set); the fixed-base
+    plant's settings are refused there (:func:`check_vehicle_settings`)."""
+    check_vehicle_settings(config)
     parts = vehicle_parts(config.vehicle, config.arm if arm is None else arm, config.water, config.torque_limit)
     check_settings_for_arm(config, parts.arm, controllers=() if controller is None else (controller,))
     built = None

@@ -42,6 +42,7 @@ import numpy as np
 
 from hydroarm.control.interface import FAULT_EVENTS, Controller, Reference
 from hydroarm.sim.files import atomic_file
+from hydroarm.sim.loop import Loop
 from hydroarm.sim.plant import Plant
 
 DIVERGENCE_SPEED = 1e3  # rad/s: beyond this the run is declared diverged
@@ -175,20 +176,10 @@ def run_closed_loop(
             extra[key][k] = value
 
     controller.reset()
-    last_valid = x.copy()  # before any valid measurement: the known initial state
-    sensor = plant.new_sensor(period, rng, seed)  # None: the plant's own measure (the ideal sensor)
-    actuator = plant.new_actuator(period)  # None: the torque acts as commanded, at once
-    commands = None if actuator is None else np.full((steps, n), np.nan)
-
-    def measure(state: np.ndarray) -> tuple[np.ndarray, bool]:
-        nonlocal last_valid
-        measured = plant.measure(state, rng) if sensor is None else sensor.sample(state)
-        if np.all(np.isfinite(measured)):
-            last_valid = measured
-            return measured, True
-        return last_valid.copy(), False
-
-    y, y_valid = measure(x)
+    loop = Loop(plant, period)
+    y = loop.reset(x, rng, seed)
+    y_valid = loop.y_valid
+    commands = None if loop.ideal_drives else np.full((steps, n), np.nan)
     step_events: list[str] = [] if y_valid else ["measurement_held"]
     stopped, error, used, stop_time = None, None, steps, None
     final = x  # the last state the plant reached
@@ -204,8 +195,8 @@ def run_closed_loop(
             stopped, error, used, stop_time = "controller_error", f"{type(exc).__name__}: {exc}", k, float(t)
             faults["controller_error"] += 1
             break
-        applied = tau if actuator is None else actuator.apply(tau)
-        x_next, info = plant.step(t, x, applied, period)
+        step = loop.step(t, tau)
+        applied, x_next, info = step.applied, step.x_next, step.info
         final = x_next
         rows["x"][k], rows["y"][k], rows["u"][k] = plant.joint_state(x), plant.joint_state(y), applied[:n]
         if commands is not None:
@@ -234,7 +225,7 @@ def run_closed_loop(
         events[k] = ",".join(step_events)
         if stopped is not None:
             break
-        y_next, next_valid = measure(x_next)
+        y_next, next_valid = loop.measure_next()
         step_events = [] if next_valid else ["measurement_held"]
         if y_valid and next_valid:
             try:
@@ -261,8 +252,8 @@ def run_closed_loop(
         "faults": faults,
         "final_state": np.asarray(final, dtype=float).tolist(),
     }
-    if sensor is not None:
-        meta["sensor"] = {"samples": sensor.samples, "dropped": sensor.dropped}
+    if loop.sensor_counts() is not None:
+        meta["sensor"] = loop.sensor_counts()
     extra = {key: value[:used] for key, value in extra.items()}
     if commands is not None:
         extra["u_command"] = commands[:used]
