@@ -7,12 +7,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hydroarm.control.estimator import (
+from hydroarm.control.estimator import EstimatorConfig, JointKalmanFilter
+from hydroarm.control.filter_design import (
     MEASURED_VELOCITY_ACCELERATION_VARIANCE,
     TRACKING_INDEX_LIMIT,
-    EstimatorConfig,
     FilterDesign,
-    JointKalmanFilter,
     derived_acceleration_variance,
     double_integrator,
     tracking_index,

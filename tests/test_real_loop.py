@@ -14,7 +14,8 @@ from typer.testing import CliRunner
 
 from hydroarm.cli import app
 from hydroarm.config import ConfigError
-from hydroarm.control.estimator import EstimatorConfig, FilterDesign, FilteredController, JointKalmanFilter
+from hydroarm.control.estimator import EstimatorConfig, FilteredController, JointKalmanFilter
+from hydroarm.control.filter_design import FilterDesign
 from hydroarm.control.interface import ControlOutput
 from hydroarm.model.friction import PUBLISHED_COULOMB, PUBLISHED_WIDTH, FrictionConfig
 from hydroarm.model.loading import load_arm

@@ -32,7 +32,8 @@ from hydroarm.config import (
     validate,
 )
 from hydroarm.control import registry
-from hydroarm.control.estimator import MEASURED_VELOCITY_ACCELERATION_VARIANCE, EstimatorConfig
+from hydroarm.control.estimator import EstimatorConfig
+from hydroarm.control.filter_design import MEASURED_VELOCITY_ACCELERATION_VARIANCE
 from hydroarm.control.gp import GPConfig
 from hydroarm.control.gpmpc import GPMPCConfig
 from hydroarm.control.idmpc import IDMPCConfig
@@ -90,9 +91,8 @@ MAX_CONTROL_STEPS = 1_000_000
 """Most control steps of one run (duration / control_period): every step's row is stored."""
 
 REAL_LOOP_SECTIONS: tuple[str, ...] = ("sensor", "actuator", "friction")
-"""The sections of the real loop (issue 23). At their defaults (the idealised loop) they are
-left out of :meth:`ExperimentConfig.canonical` (digests, run ids), so results made before they
-existed still match."""
+"""The sections of the real loop (issue 23); at their defaults (the idealised loop) left out of
+:meth:`ExperimentConfig.canonical` (digests, run ids): results made before them still match."""
 
 OPTIONAL_SECTIONS: tuple[str, ...] = (*REAL_LOOP_SECTIONS, "vehicle", "observer", "water_model", "pi_idmpc", "task")
 """The sections left out of :meth:`ExperimentConfig.canonical` at their defaults: the real loop's,
@@ -237,8 +237,7 @@ class ExperimentConfig(FrozenModel):
                 data.pop(section)
         defaults = EstimatorConfig()
         if self.estimator.acceleration_variance is None and self.estimator.measures_velocity(self.sensor):
-            # sigma_a^2 = null means 100 behind a sensor that measures v: the digest of before it was derived
-            data["estimator"]["acceleration_variance"] = MEASURED_VELOCITY_ACCELERATION_VARIANCE
+            data["estimator"]["acceleration_variance"] = MEASURED_VELOCITY_ACCELERATION_VARIANCE  # null = 100 here
         for key in REAL_LOOP_ESTIMATOR_KEYS:
             if getattr(self.estimator, key) == getattr(defaults, key):
                 data["estimator"].pop(key)
@@ -475,8 +474,7 @@ def build_experiment(
 
 
 def _build_vehicle_experiment(config: ExperimentConfig, controller: str | None, arm: Arm | None) -> Experiment:
-    """:func:`build_experiment` for a vehicle run (``config.vehicle.name`` set); the fixed-base
-    plant's settings are refused there (:func:`check_vehicle_settings`)."""
+    """:func:`build_experiment` for a vehicle run; fixed-base settings are refused (:func:`check_vehicle_settings`)."""
     check_vehicle_settings(config)
     parts = vehicle_parts(config.vehicle, config.arm if arm is None else arm, config.water, config.torque_limit)
     check_settings_for_arm(config, parts.arm, controllers=() if controller is None else (controller,))
