@@ -1,0 +1,141 @@
+"""``hydroarm ros2 sim``: the simulated arm as a participant of a ROS 2 graph.
+
+The node runs the one closed loop's blocks (:class:`~hydroarm.sim.loop.Loop`: plant, sensor,
+drives) with the controller's slot cut at the graph: it publishes what the sensor delivers as
+``sensor_msgs/JointState`` on ``/joint_states`` (the sensor's delay, quantisation, noise and
+dropout included; ``effort`` the torque the drives applied), the simulated time on ``/clock``
+and the arm's URDF on ``/robot_description`` (latched), and takes the joint torques from
+``/<controller_name>/commands`` (``std_msgs/Float64MultiArray``, as ros2_control's forward effort
+controller takes them, in the arm's joint order) through a :class:`~hydroarm.ros2.gate.CommandGate`.
+
+Clock (``ros2.clock``): ``"wall"`` steps every control period of wall-clock time with the newest
+good command; ``"lockstep"`` steps the simulated time one period when a new command arrives (or
+after ``command_timeout`` s without one, counted stale), so that a controller node on the other
+side runs exactly the in-process loop.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from hydroarm.ros2.gate import CommandGate
+from hydroarm.ros2.messages import Clock, Float64MultiArray, Header, JointState, String, Time, dds_topic
+from hydroarm.ros2.participant import Ros2Config, command_qos, latched_qos, open_domain, sensor_qos
+from hydroarm.sim.loop import Loop
+
+
+@dataclass
+class SimResult:
+    """A ``ros2 sim`` run: ``t`` (K,) s, the true state ``x`` (K, 2n), the applied torque ``u`` (K, n)
+    N m, the reference ``q_ref`` (K, n) rad, the gate's ``counts`` and whether it ``diverged``."""
+
+    t: np.ndarray
+    x: np.ndarray
+    u: np.ndarray
+    q_ref: np.ndarray
+    counts: dict[str, int]
+    diverged: bool
+
+    def ep(self) -> list[float]:
+        """E_p per joint (rad^2): the mean of (q_r - q)^2 over the steps, as the runner's metrics."""
+        n = self.u.shape[1]
+        return np.mean((self.q_ref - self.x[:, :n]) ** 2, axis=0).tolist()
+
+
+class SimNode:
+    """The simulated fixed-base arm of ``experiment`` (:func:`~hydroarm.sim.experiment.build_experiment`
+    with no controller) on the graph of ``ros`` (module docstring)."""
+
+    def __init__(self, experiment, ros: Ros2Config, urdf: str = ""):
+        from cyclonedds.pub import DataWriter
+        from cyclonedds.sub import DataReader
+        from cyclonedds.topic import Topic
+
+        self.experiment, self.ros = experiment, ros
+        self.n = experiment.arm.n_joints
+        self.names = [str(name) for name in experiment.arm.model.names[1 : self.n + 1]]
+        self.period = experiment.control_period
+        self.loop = Loop(experiment.plant, self.period)
+        self.gate = CommandGate(self.n, ros.command_timeout, ros.on_stale)
+        self._domain, participant = open_domain(ros)
+        self._states = DataWriter(participant, Topic(participant, dds_topic("/joint_states"), JointState), sensor_qos())
+        self._clock = DataWriter(participant, Topic(participant, dds_topic("/clock"), Clock), sensor_qos())
+        description = Topic(participant, dds_topic("/robot_description"), String)
+        self._description = DataWriter(participant, description, latched_qos())
+        commands = Topic(participant, dds_topic(ros.command_topic), Float64MultiArray)
+        self._commands = DataReader(participant, commands, command_qos())
+        if urdf:
+            self._description.write(String(urdf))
+        # the compiled step compiled (or loaded from numba's cache) now, not while a peer waits
+        experiment.plant.step(0.0, experiment.x0, np.zeros(self.n), self.period)
+
+    def _take_commands(self) -> int:
+        """Offer every command that arrived to the gate; the number accepted."""
+        accepted = 0
+        for sample in self._commands.take(N=64):
+            if isinstance(sample, Float64MultiArray):
+                accepted += self.gate.offer(sample.data, time.monotonic())
+        return accepted
+
+    def _publish(self, t: float, y: np.ndarray, applied: np.ndarray) -> None:
+        stamp = Time.of(t)
+        n = self.n
+        state = JointState(Header(stamp, ""), self.names, y[:n].tolist(), y[n : 2 * n].tolist(), applied.tolist())
+        self._clock.write(Clock(stamp))
+        self._states.write(state)
+
+    def _next_command(self, wait: bool) -> np.ndarray:
+        """The torque for this step: in lockstep, wait for a new good command (up to the timeout)."""
+        if wait:
+            deadline = time.monotonic() + self.ros.command_timeout
+            while time.monotonic() < deadline:
+                if self._take_commands():
+                    return self.gate.torque(time.monotonic())
+                time.sleep(0.0002)
+            self.gate.counts["stale"] += 1
+            return self.gate.last.copy() if self.ros.on_stale == "hold" else np.zeros(self.n)
+        self._take_commands()
+        return self.gate.torque(time.monotonic())
+
+    def run(self, duration: float, seed: int = 0, wait_for_subscriber: float = 10.0, progress=None) -> SimResult:
+        """Simulate ``duration`` s (module docstring); ``seed`` drives the sensor's noise and
+        dropout as the runner's; waits up to ``wait_for_subscriber`` s for a first command reader
+        to match before the first step."""
+        from hydroarm.sim.runner import DIVERGENCE_SPEED
+
+        steps = int(round(duration / self.period))
+        n, lockstep = self.n, self.ros.clock == "lockstep"
+        x0 = self.experiment.x0
+        y = self.loop.reset(x0, np.random.default_rng(seed), seed)
+        rows = {"t": np.arange(steps) * self.period, "x": np.full((steps, 2 * n), np.nan)}
+        rows |= {"u": np.full((steps, n), np.nan), "q_ref": np.full((steps, n), np.nan)}
+        self._wait_for_peer(wait_for_subscriber)
+        applied, used, diverged = np.zeros(n), steps, False
+        start = time.monotonic()
+        for k in range(steps):
+            t = rows["t"][k]
+            self._publish(t, y, applied)
+            if not lockstep:
+                time.sleep(max(0.0, start + (k + 1) * self.period - time.monotonic()))
+            step = self.loop.step(t, self._next_command(lockstep))
+            applied = step.applied
+            rows["x"][k], rows["u"][k] = step.x, applied
+            rows["q_ref"][k] = self.experiment.reference.sample(t)[0]
+            speeds = np.abs(step.x_next[n : 2 * n])
+            if not np.all(np.isfinite(step.x_next)) or np.max(speeds, initial=0.0) > DIVERGENCE_SPEED:
+                used, diverged = k + 1, True
+                break
+            y, _ = self.loop.measure_next()
+            if progress is not None:
+                progress(k + 1, steps)
+        t, x, u, q_ref = (rows[key][:used] for key in ("t", "x", "u", "q_ref"))
+        return SimResult(t, x, u, q_ref, dict(self.gate.counts), diverged)
+
+    def _wait_for_peer(self, seconds: float) -> None:
+        """Until a command writer matched the node's reader, or ``seconds`` passed."""
+        deadline = time.monotonic() + seconds
+        while time.monotonic() < deadline and not self._commands.get_matched_publications():
+            time.sleep(0.01)
