@@ -10,6 +10,7 @@ import subprocess
 import sys
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -271,4 +272,26 @@ def test_the_controller_node_drops_bad_states():
     assert all(node.handle(state) is None for state in bad)
     good = node.handle(m.JointState(header, names[::-1], [0.1] * 6, [0.0] * 6, []))
     assert good is not None and good.shape == (6,)
-    assert node.counts == {"states": 4, "commands": 1, "dropped_states": 3, "timeouts": 0}
+    assert node.counts == {"states": 4, "commands": 1, "dropped_states": 3, "repeated_states": 0, "timeouts": 0}
+    assert node.handle(m.JointState(header, names, [0.1] * 6, [0.0] * 6, [])) is None  # the same stamp again
+    assert node.counts["repeated_states"] == 1
+
+
+def test_the_docs_loop_figures_are_ros2_loop_json():
+    """docs/ros2.md's measured loop (scripts/ros2_loop.py) is docs/data/ros2_loop.json's."""
+    root = Path(__file__).resolve().parents[1]
+    data = json.loads((root / "docs" / "data" / "ros2_loop.json").read_text())
+    text = " ".join((root / "docs" / "ros2.md").read_text().split())
+    wall, lockstep = data["wall"], data["lockstep"]
+    assert lockstep["equal"] and lockstep["Ep"] == lockstep["in_process_Ep"] and not wall["diverged"]
+    relative = max(abs(a - b) / b for a, b in zip(wall["Ep"], lockstep["in_process_Ep"]))
+    for phrase in (
+        f"{data['machine']['date']}, a {data['machine']['cpu_count']}-core x86-64 VM",
+        f"{lockstep['counts']['accepted']} of 1000 commands accepted, {lockstep['counts']['stale']} stale",
+        f"jitter median {wall['jitter_median_ms']:.2f} ms, p99 {wall['jitter_p99_ms']:.2f} ms, "
+        f"max {wall['jitter_max_ms']:.2f} ms",
+        f"median {wall['latency_median_ms']:.2f} ms, p99 {wall['latency_p99_ms']:.2f} ms, "
+        f"max {wall['latency_max_ms']:.2f} ms; {wall['overruns']} overruns",
+        f"within {relative:.0e} of the in-process run's",
+    ):
+        assert phrase in text, phrase

@@ -87,6 +87,7 @@ def sim(
     console.print(f"ros2 sim: {experiment.arm.name}, {len(node.names)} joints, {where}")
     result = node.run(duration or config.duration, seed=seed)
     summary = {"Ep": result.ep(), "steps": len(result.t), "diverged": result.diverged, "counts": result.counts}
+    summary["timing"] = result.timing
     _write(out, "ros2_sim.json", summary)
     console.print(f"E_p per joint (rad^2): {[round(v, 6) for v in summary['Ep']]}; commands {result.counts}")
     if result.diverged:

@@ -35,12 +35,13 @@ class ControlNode:
         self.n = experiment.arm.n_joints
         self.names = [str(name) for name in experiment.arm.model.names[1 : self.n + 1]]
         self.period = experiment.control_period
-        self.counts = {"states": 0, "commands": 0, "dropped_states": 0, "timeouts": 0}
+        self.counts = {"states": 0, "commands": 0, "dropped_states": 0, "repeated_states": 0, "timeouts": 0}
         self._domain, participant = open_domain(ros)
         self._states = DataReader(participant, Topic(participant, dds_topic("/joint_states"), JointState), sensor_qos())
         topic = Topic(participant, dds_topic(ros.command_topic), Float64MultiArray)
         self._commands = DataWriter(participant, topic, command_qos())
         self._last: tuple[float, np.ndarray, np.ndarray] | None = None
+        self._answered = -np.inf  # the stamp of the last state answered (s)
         # the controller's compiled code compiled (or loaded from numba's cache) now, not while the arm waits
         self.controller.compute(0.0, experiment.x0, experiment.reference)
         self.controller.reset()
@@ -69,6 +70,9 @@ class ControlNode:
         t = state.header.stamp.seconds()
         if self.ros.clock == "lockstep":
             t = round(t / self.period) * self.period
+        if t <= self._answered:
+            self.counts["repeated_states"] += 1  # answered already (the simulator published it again)
+            return None
         if self._last is not None:
             self.controller.observe(*self._last, y)
         tau = np.asarray(self.controller.compute(t, y, self.experiment.reference).tau, dtype=float)
@@ -77,7 +81,7 @@ class ControlNode:
             return None  # the controller's own fault: no command rather than a bad one
         self._commands.write(Float64MultiArray(data=tau.tolist()))
         self.counts["commands"] += 1
-        self._last = (t, y, tau)
+        self._last, self._answered = (t, y, tau), t
         return tau
 
     def run(self, duration: float, wait: float = 30.0, log=print) -> dict[str, int]:
@@ -85,6 +89,7 @@ class ControlNode:
         for ``command_timeout`` s after one did); the counts. Never commands before a state: waits
         up to ``wait`` s for the first one."""
         self.controller.reset()
+        self._last, self._answered = None, -np.inf
         first, last_state, started = None, None, time.monotonic()
         while True:
             now = time.monotonic()

@@ -17,7 +17,7 @@ side runs exactly the in-process loop.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -25,6 +25,12 @@ from hydroarm.ros2.gate import CommandGate
 from hydroarm.ros2.messages import Clock, Float64MultiArray, Header, JointState, String, Time, dds_topic
 from hydroarm.ros2.participant import Ros2Config, command_qos, latched_qos, open_domain, sensor_qos
 from hydroarm.sim.loop import Loop
+
+POLL_PERIOD = 0.0005
+"""s: in wall-clock time, the commands are taken this often between two steps."""
+
+RESEND_PERIOD = 0.05
+"""s: in lockstep, the state the simulator waits on is published again this often."""
 
 
 @dataclass
@@ -38,6 +44,7 @@ class SimResult:
     q_ref: np.ndarray
     counts: dict[str, int]
     diverged: bool
+    timing: dict[str, float] = field(default_factory=dict)
 
     def ep(self) -> list[float]:
         """E_p per joint (rad^2): the mean of (q_r - q)^2 over the steps, as the runner's metrics."""
@@ -60,6 +67,9 @@ class SimNode:
         self.period = experiment.control_period
         self.loop = Loop(experiment.plant, self.period)
         self.gate = CommandGate(self.n, ros.command_timeout, ros.on_stale)
+        self._arrivals: list[float] = []
+        self.resent = 0
+        self.overruns = 0
         self._domain, participant = open_domain(ros)
         self._states = DataWriter(participant, Topic(participant, dds_topic("/joint_states"), JointState), sensor_qos())
         self._clock = DataWriter(participant, Topic(participant, dds_topic("/clock"), Clock), sensor_qos())
@@ -73,11 +83,15 @@ class SimNode:
         experiment.plant.step(0.0, experiment.x0, np.zeros(self.n), self.period)
 
     def _take_commands(self) -> int:
-        """Offer every command that arrived to the gate; the number accepted."""
+        """Offer every command that arrived to the gate; the number accepted (their arrival
+        times kept for :func:`loop_timing`)."""
         accepted = 0
         for sample in self._commands.take(N=64):
             if isinstance(sample, Float64MultiArray):
-                accepted += self.gate.offer(sample.data, time.monotonic())
+                now = time.monotonic()
+                if self.gate.offer(sample.data, now):
+                    accepted += 1
+                    self._arrivals.append(now)
         return accepted
 
     def _publish(self, t: float, y: np.ndarray, applied: np.ndarray) -> None:
@@ -87,13 +101,20 @@ class SimNode:
         self._clock.write(Clock(stamp))
         self._states.write(state)
 
-    def _next_command(self, wait: bool) -> np.ndarray:
-        """The torque for this step: in lockstep, wait for a new good command (up to the timeout)."""
+    def _next_command(self, wait: bool, resend=None) -> np.ndarray:
+        """The torque for this step: in lockstep, wait for a new good command (up to the timeout),
+        calling ``resend()`` every :data:`RESEND_PERIOD` s meanwhile (a best-effort state can be
+        lost, or sent before the controller's reader matched: the step must not stall on it)."""
         if wait:
-            deadline = time.monotonic() + self.ros.command_timeout
+            now = time.monotonic()
+            deadline, again = now + self.ros.command_timeout, now + RESEND_PERIOD
             while time.monotonic() < deadline:
                 if self._take_commands():
                     return self.gate.torque(time.monotonic())
+                if resend is not None and time.monotonic() > again:
+                    resend()
+                    self.resent += 1
+                    again = time.monotonic() + RESEND_PERIOD
                 time.sleep(0.0002)
             self.gate.counts["stale"] += 1
             return self.gate.last.copy() if self.ros.on_stale == "hold" else np.zeros(self.n)
@@ -114,13 +135,20 @@ class SimNode:
         rows |= {"u": np.full((steps, n), np.nan), "q_ref": np.full((steps, n), np.nan)}
         self._wait_for_peer(wait_for_subscriber)
         applied, used, diverged = np.zeros(n), steps, False
+        published = np.full(steps, np.nan)
         start = time.monotonic()
         for k in range(steps):
             t = rows["t"][k]
             self._publish(t, y, applied)
+            published[k] = time.monotonic()
             if not lockstep:
-                time.sleep(max(0.0, start + (k + 1) * self.period - time.monotonic()))
-            step = self.loop.step(t, self._next_command(lockstep))
+                late = time.monotonic() - (start + (k + 1) * self.period)
+                if late > self.period:  # an overrun: move on from now, no burst of late steps
+                    start += late
+                    self.overruns += 1
+                self._serve_until(start + (k + 1) * self.period)
+            resend = (lambda t=t, y=y, a=applied: self._publish(t, y, a)) if lockstep else None
+            step = self.loop.step(t, self._next_command(lockstep, resend))
             applied = step.applied
             rows["x"][k], rows["u"][k] = step.x, applied
             rows["q_ref"][k] = self.experiment.reference.sample(t)[0]
@@ -132,10 +160,42 @@ class SimNode:
             if progress is not None:
                 progress(k + 1, steps)
         t, x, u, q_ref = (rows[key][:used] for key in ("t", "x", "u", "q_ref"))
-        return SimResult(t, x, u, q_ref, dict(self.gate.counts), diverged)
+        timing = loop_timing(published[:used], np.asarray(self._arrivals), self.period)
+        timing |= {"overruns": self.overruns, "resent_states": self.resent}
+        return SimResult(t, x, u, q_ref, dict(self.gate.counts), diverged, timing)
+
+    def _serve_until(self, tick: float) -> None:
+        """Take the commands as they arrive (their arrival times to within :data:`POLL_PERIOD`)
+        until the monotonic time ``tick`` (s)."""
+        while (left := tick - time.monotonic()) > 0.0:
+            self._take_commands()
+            time.sleep(min(POLL_PERIOD, left))
 
     def _wait_for_peer(self, seconds: float) -> None:
         """Until a command writer matched the node's reader, or ``seconds`` passed."""
         deadline = time.monotonic() + seconds
         while time.monotonic() < deadline and not self._commands.get_matched_publications():
             time.sleep(0.01)
+
+
+def loop_timing(published: np.ndarray, arrivals: np.ndarray, period: float) -> dict[str, float]:
+    """The loop's timing over the graph, in ms: the period's jitter (the spacing of the states'
+    publications minus the period T, s) and the command latency (from a state's publication to the
+    first command that arrived after it and before the next state: the controller answers each
+    state with one command), each as median, p99 and max of the absolute values."""
+
+    def stats(name: str, values: np.ndarray) -> dict[str, float]:
+        values = np.abs(values[np.isfinite(values)]) * 1e3
+        if values.size == 0:
+            return {}
+        return {f"{name}_median_ms": float(np.median(values)), f"{name}_p99_ms": float(np.percentile(values, 99)),
+                f"{name}_max_ms": float(np.max(values)), f"{name}_samples": int(values.size)}  # fmt: skip
+
+    jitter = np.diff(published) - period
+    latency = np.full(published.size, np.nan)
+    ends = np.append(published[1:], np.inf)
+    for k, (begin, end) in enumerate(zip(published, ends)):
+        later = arrivals[(arrivals > begin) & (arrivals <= end)]
+        if later.size:
+            latency[k] = later[0] - begin
+    return stats("jitter", jitter) | stats("latency", latency)
