@@ -176,7 +176,7 @@ class PlainJointState(IdlStruct, typename="sensor_msgs::msg::dds_::JointState_")
 
 
 def _domain_id() -> int:
-    return 10 + os.getpid() % 50  # one per test process (<= 59; the tests add up to 150): xdist workers apart
+    return 10 + os.getpid() % 50  # one per test process (<= 59; the tests add up to 170): xdist workers apart
 
 
 def test_a_plain_cyclonedds_subscriber_receives_the_simulated_joint_states(tmp_path):
@@ -295,3 +295,65 @@ def test_the_docs_loop_figures_are_ros2_loop_json():
         f"within {relative:.0e} of the in-process run's",
     ):
         assert phrase in text, phrase
+
+
+VETH, PEER, NETNS = "hxtest0", "hxtest1", "hydroarm-ros2-test"
+
+
+@pytest.fixture(scope="module")
+def private_link():
+    """A virtual Ethernet link of this test's own: ``hxtest0`` here, its peer in a network namespace
+    made for the test (no other host; multicast on it reaches that namespace only). Skipped where
+    the machine does not let the test make one (not root, no iproute2)."""
+    steps = [
+        ["ip", "link", "add", VETH, "type", "veth", "peer", "name", PEER],
+        ["ip", "netns", "add", NETNS],
+        ["ip", "link", "set", PEER, "netns", NETNS],
+        ["ip", "addr", "add", "10.254.254.1/30", "dev", VETH],
+        ["ip", "link", "set", VETH, "up"],
+        ["ip", "netns", "exec", NETNS, "ip", "link", "set", PEER, "up"],
+    ]
+    try:
+        for step in steps:
+            subprocess.run(step, check=True, capture_output=True, timeout=30)
+    except (OSError, subprocess.CalledProcessError) as error:
+        subprocess.run(["ip", "link", "del", VETH], capture_output=True)
+        subprocess.run(["ip", "netns", "del", NETNS], capture_output=True)
+        pytest.skip(f"cannot make a private veth link here: {error}")
+    yield VETH
+    subprocess.run(["ip", "link", "del", VETH], capture_output=True)
+    subprocess.run(["ip", "netns", "del", NETNS], capture_output=True)
+
+
+def _heard_on(interface: str, node_interface: str | None, domain_id: int) -> int:
+    """Joint states a participant bound to ``interface`` (multicast discovery, ROS 2's default)
+    hears from `hydroarm ros2 sim` started with ``--interface node_interface`` (None: its default)."""
+    xml = (
+        f'<CycloneDDS><Domain id="any"><General><Interfaces><NetworkInterface name="{interface}"/>'
+        "</Interfaces></General></Domain></CycloneDDS>"
+    )
+    domain = Domain(domain_id, config=xml)
+    participant = DomainParticipant(domain_id)
+    reader = DataReader(
+        participant, Topic(participant, "rt/joint_states", PlainJointState), qos=Qos(Policy.Reliability.BestEffort)
+    )
+    command = [*HYDROARM, "ros2", "sim", "--set", "duration=1", "--domain-id", str(domain_id), "--wait", "2"]
+    command += [] if node_interface is None else ["--interface", node_interface]
+    sim = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    heard, deadline = 0, time.monotonic() + 120
+    while sim.poll() is None and time.monotonic() < deadline:
+        heard += sum(isinstance(s, PlainJointState) for s in reader.take(N=100))
+        time.sleep(0.01)
+    _, err = sim.communicate(timeout=30)
+    assert sim.returncode == 0, err
+    del domain
+    return heard
+
+
+def test_a_default_node_is_not_discovered_from_another_interface(private_link):
+    """Safe by default: a participant bound to another interface of the machine (the test's own
+    veth link) hears nothing from a node with the defaults (loopback only); with --interface naming
+    that interface, the node is discovered and heard (the setting opens it)."""
+    base = _domain_id() + 160
+    assert _heard_on(private_link, None, base) == 0
+    assert _heard_on(private_link, private_link, base + 10) > 20

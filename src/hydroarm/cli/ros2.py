@@ -62,6 +62,9 @@ def sim(
     command_timeout: TimeoutOption = 0.5,
     on_stale: StaleOption = "hold",
     controller_name: NameOption = "effort_controller",
+    wait: Annotated[
+        float, typer.Option("--wait", min=0.0, max=3600.0, help="Seconds to wait for a command publisher.")
+    ] = 10.0,
     out: Annotated[Path | None, typer.Option("--out", help="Folder for ros2_sim.json (E_p, counts).")] = None,
 ) -> None:
     """The simulated arm on the graph: /joint_states (through the sensor model), /clock,
@@ -85,7 +88,7 @@ def sim(
         _fail(str(error))
     where = f"domain {ros.domain_id} on {ros.interface}"
     console.print(f"ros2 sim: {experiment.arm.name}, {len(node.names)} joints, {where}")
-    result = node.run(duration or config.duration, seed=seed)
+    result = node.run(duration or config.duration, seed=seed, wait_for_subscriber=wait)
     summary = {"Ep": result.ep(), "steps": len(result.t), "diverged": result.diverged, "counts": result.counts}
     summary["timing"] = result.timing
     _write(out, "ros2_sim.json", summary)
