@@ -232,6 +232,8 @@ def test_two_processes_in_lockstep_are_the_in_process_run(tmp_path):
     assert result["Ep"] == tracking_metrics(run_experiment(config, "idmpc", seed=0))["Ep"]
     counts = json.loads((tmp_path / "control" / "ros2_control.json").read_text())["counts"]
     assert counts["commands"] == 50 and counts["dropped_states"] == 0
+    # the simulator stopped after its 0.5 s: the controller node stopped commanding and said so
+    assert counts["timeouts"] == 1 and "stopped commanding" in control.stderr
 
 
 def test_the_controller_node_never_commands_blind(tmp_path):
