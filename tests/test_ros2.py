@@ -359,3 +359,31 @@ def test_a_default_node_is_not_discovered_from_another_interface(private_link):
     base = _domain_id() + 160
     assert _heard_on(private_link, None, base) == 0
     assert _heard_on(private_link, private_link, base + 10) > 20
+
+
+def test_tf_is_the_links_of_the_published_urdf():
+    """/tf at a joint state: each link's frame in its parent's equals what Pinocchio computes from
+    the URDF the node publishes on /robot_description (an independent parse of the exported file),
+    with the URDF's link names."""
+    import pinocchio as pin
+
+    from hydroarm.model.urdf_export import arm_to_urdf
+    from hydroarm.ros2.sim_node import SimNode
+    from hydroarm.sim.experiment import build_experiment
+
+    experiment = build_experiment(with_overrides(ExperimentConfig(), {"arm": "ur5", "duration": 0.1}), None)
+    node = SimNode(experiment, Ros2Config(domain_id=_domain_id() + 130))
+    q = np.random.default_rng(3).uniform(-3.0, 3.0, experiment.arm.n_joints)
+    message = node._transforms(m.Time(1, 0), q)
+    urdf_model = pin.buildModelFromXML(arm_to_urdf(experiment.arm))
+    urdf_data = urdf_model.createData()
+    pin.forwardKinematics(urdf_model, urdf_data, q)
+    assert [t.child_frame_id for t in message.transforms] == [f"link{j}" for j in range(1, 7)]
+    assert message.transforms[0].header.frame_id == "base_link" and message.transforms[1].header.frame_id == "link1"
+    for joint, stamped in enumerate(message.transforms, start=1):
+        placement = urdf_data.liMi[urdf_model.getJointId(f"joint{joint}")]
+        rotation = stamped.transform.rotation
+        quaternion = pin.Quaternion(rotation.w, rotation.x, rotation.y, rotation.z)
+        np.testing.assert_allclose(quaternion.toRotationMatrix(), placement.rotation, atol=1e-12)
+        translation = stamped.transform.translation
+        np.testing.assert_allclose([translation.x, translation.y, translation.z], placement.translation, atol=1e-12)

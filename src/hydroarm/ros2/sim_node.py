@@ -22,7 +22,20 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from hydroarm.ros2.gate import CommandGate
-from hydroarm.ros2.messages import Clock, Float64MultiArray, Header, JointState, String, Time, dds_topic
+from hydroarm.ros2.messages import (
+    Clock,
+    Float64MultiArray,
+    Header,
+    JointState,
+    Quaternion,
+    String,
+    TFMessage,
+    Time,
+    Transform,
+    TransformStamped,
+    Vector3,
+    dds_topic,
+)
 from hydroarm.ros2.participant import Ros2Config, command_qos, latched_qos, open_domain, sensor_qos
 from hydroarm.sim.loop import Loop
 
@@ -73,6 +86,9 @@ class SimNode:
         self._domain, participant = open_domain(ros)
         self._states = DataWriter(participant, Topic(participant, dds_topic("/joint_states"), JointState), sensor_qos())
         self._clock = DataWriter(participant, Topic(participant, dds_topic("/clock"), Clock), sensor_qos())
+        self._tf = DataWriter(participant, Topic(participant, dds_topic("/tf"), TFMessage), command_qos())
+        self._links = link_frames(experiment.arm)
+        self._tf_data = experiment.arm.model.createData()
         description = Topic(participant, dds_topic("/robot_description"), String)
         self._description = DataWriter(participant, description, latched_qos())
         commands = Topic(participant, dds_topic(ros.command_topic), Float64MultiArray)
@@ -100,6 +116,24 @@ class SimNode:
         state = JointState(Header(stamp, ""), self.names, y[:n].tolist(), y[n : 2 * n].tolist(), applied.tolist())
         self._clock.write(Clock(stamp))
         self._states.write(state)
+        self._tf.write(self._transforms(stamp, y[:n]))
+
+    def _transforms(self, stamp: Time, q: np.ndarray) -> TFMessage:
+        """Each link's frame in its parent's at the measured ``q`` (rad), as robot_state_publisher
+        gives them from ``/joint_states`` and the URDF of ``/robot_description``."""
+        import pinocchio as pin
+
+        model, data = self.experiment.arm.model, self._tf_data
+        pin.forwardKinematics(model, data, q)
+        transforms = []
+        for joint, (parent, child) in enumerate(self._links, start=1):
+            placement = data.liMi[joint]
+            x, y, z, w = pin.Quaternion(placement.rotation).coeffs()
+            transform = Transform(
+                Vector3(*placement.translation.tolist()), Quaternion(float(x), float(y), float(z), float(w))
+            )
+            transforms.append(TransformStamped(Header(stamp, parent), child, transform))
+        return TFMessage(transforms)
 
     def _next_command(self, wait: bool, resend=None) -> np.ndarray:
         """The torque for this step: in lockstep, wait for a new good command (up to the timeout),
@@ -199,3 +233,13 @@ def loop_timing(published: np.ndarray, arrivals: np.ndarray, period: float) -> d
         if later.size:
             latency[k] = later[0] - begin
     return stats("jitter", jitter) | stats("latency", latency)
+
+
+def link_frames(arm) -> list[tuple[str, str]]:
+    """``(parent, child)`` link names of each joint of ``arm``, as its URDF export names them
+    (:func:`~hydroarm.model.urdf_export.arm_to_urdf`: ``base_link``, then ``link<i>`` for joint i)."""
+    model = arm.model
+    return [
+        ("base_link" if model.parents[j] == 0 else f"link{model.parents[j]}", f"link{j}")
+        for j in range(1, model.njoints)
+    ]
