@@ -3,11 +3,19 @@ files of `hydroarm reproduce` made under different compilations or BLAS kernels,
 
     python scripts/reproducibility.py --reference A/summary.json --label "default" \
         --variant B/summary.json "numba generic x86-64" --variant C/summary.json "OpenBLAS Haswell" \
-        --out docs/data/reproducibility
+        --out docs/data/reproducibility [--check]
 
-Writes ``OUT.json`` (per variant and table row: numbers compared, numbers that differ, the
-largest relative difference) and ``OUT.md`` (the same as a table). Timings and machine facts are
-left out.
+Every number but the timings and machine facts is compared. A row the reproduction reports as a
+distribution (``replicas`` in the clean case, ``Ep_spread`` in the noisy case: the rows whose
+closed loop turns a last-bit difference into another run) is judged on the E_p it prints (the
+replicas' mean per joint and of the joints, or the mean over seeds) against its spread: the two
+means must agree within 4 standard errors of their difference (a false alarm about once in 16000
+numbers), and the table gives the largest difference in units of the row's reported spread too.
+Every other row must agree to 1e-9 relative.
+
+Writes ``OUT.json`` (per variant and row: numbers compared, numbers that differ, the largest
+relative difference, and for a distribution row the largest difference in standard errors and in
+spreads) and ``OUT.md`` (the same as a table). ``--check``: exit 1 if a row fails.
 """
 
 from __future__ import annotations
@@ -16,11 +24,19 @@ import argparse
 import json
 import math
 import re
+import sys
 from collections import defaultdict
 from pathlib import Path
 
 TIMING = re.compile(r"(_ms|seconds|_s$|time|wall|elapsed)")
 SKIP = ("/machine", "/settings", "/files", "/wall_time_s")
+RELATIVE = 1e-9
+"""Rows without a spread: the largest relative difference allowed."""
+DERIVED = ("best", "gain_gp_mpc_over_mpc_percent")
+"""Blocks computed from the distribution rows (which row wins, GP-MPC's gain): compared, not judged;
+the tables print them from the rows' held numbers."""
+STANDARD_ERRORS = 4.0
+"""Rows with a spread: the largest difference of the two means allowed, in standard errors."""
 
 
 def compare(reference: dict, other: dict) -> dict[str, dict]:
@@ -46,7 +62,64 @@ def compare(reference: dict, other: dict) -> dict[str, dict]:
                 row["max_relative"] = max(row["max_relative"], abs(a - b) / max(abs(a), abs(b), 1e-300))
 
     walk(reference, other, "")
-    return dict(sorted(rows.items()))
+    result = dict(sorted(rows.items()))
+    for key, row in result.items():
+        case, _, name = key.partition("/")
+        a, b = reference.get(case, {}).get(name), other.get(case, {}).get(name)
+        judged = _distribution(a, b) if isinstance(a, dict) and isinstance(b, dict) else None
+        if name in DERIVED:
+            row["holds"], row["derived"] = True, True
+        elif judged is not None:
+            row.update(judged)
+            row["holds"] = judged["max_standard_errors"] <= STANDARD_ERRORS
+        else:
+            row["holds"] = row["max_relative"] <= RELATIVE
+    return result
+
+
+def _held(entry: dict) -> tuple[list[float], list[float]] | None:
+    """The E_p a distribution row prints (per joint and the mean of joints) and their standard
+    errors; None for a row without a spread."""
+    replicas = entry.get("replicas")
+    if replicas is not None:
+        root = math.sqrt(replicas["count"])
+        values = [*replicas["Ep_mean"], replicas["Ep_mean_of_joints"]]
+        spreads = [*replicas["Ep_spread"], replicas["Ep_mean_of_joints_spread"]]
+        return values, spreads, [s / root for s in spreads]
+    if entry.get("Ep_spread") is not None and entry.get("Ep_mean_of_joints_spread") is not None:
+        root = math.sqrt(len(entry["seeds"]))
+        values = [*entry["Ep"], entry["Ep_mean"]]
+        errors = [*entry["Ep_spread"], entry["Ep_mean_of_joints_spread"]]  # already the mean's error
+        return values, [e * root for e in errors], errors
+    return None
+
+
+def _distribution(a: dict, b: dict) -> dict | None:
+    held_a, held_b = _held(a), _held(b)
+    if held_a is None or held_b is None:
+        return None
+    worst_se, worst_spread = 0.0, 0.0
+    for x, y, spread_x, spread_y, se_x, se_y in zip(*held_a[:1], *held_b[:1], held_a[1], held_b[1], held_a[2],
+                                                    held_b[2]):  # fmt: skip
+        difference = abs(x - y)
+        if difference == 0.0:
+            continue
+        se = math.hypot(se_x, se_y)
+        worst_se = max(worst_se, difference / se if se > 0 else math.inf)
+        spread = max(spread_x, spread_y)
+        worst_spread = max(worst_spread, difference / spread if spread > 0 else math.inf)
+    return {"distribution": True, "max_standard_errors": worst_se, "max_spreads": worst_spread}
+
+
+def _cell(row: dict | None) -> str:
+    if row is None:
+        return "-"
+    text = f"{row['differ']}/{row['numbers']}, {row['max_relative']:.1e}"
+    if row.get("distribution"):
+        text += f"; E_p {row['max_standard_errors']:.2g} SE, {row['max_spreads']:.2g} spreads"
+    if row.get("derived"):
+        text += " (from the distribution rows)"
+    return text + ("" if row["holds"] else " **FAILS**")
 
 
 def main() -> None:
@@ -55,24 +128,33 @@ def main() -> None:
     parser.add_argument("--label", default="reference")
     parser.add_argument("--variant", nargs=2, action="append", metavar=("SUMMARY", "LABEL"), required=True)
     parser.add_argument("--out", type=Path, required=True)
+    parser.add_argument("--check", action="store_true", help="exit 1 if a row does not hold")
     args = parser.parse_args()
     reference = json.loads(args.reference.read_text())
-    result = {"reference": args.label, "variants": {}}
+    result = {"reference": args.label, "relative": RELATIVE, "standard_errors": STANDARD_ERRORS, "variants": {}}
     for path, label in args.variant:
         result["variants"][label] = compare(reference, json.loads(Path(path).read_text()))
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.with_suffix(".json").write_text(json.dumps(result, indent=1) + "\n")
-    lines = [f"Against `{args.label}`: numbers that differ / numbers compared, largest relative difference.", ""]
+    lines = [
+        f"Against `{args.label}`: numbers that differ / numbers compared, largest relative difference; for a row",
+        "reported as a distribution (its replicas' or seeds' mean ± spread) also the largest difference of",
+        "the E_p it prints, in standard errors of the difference of the two means (SE) and in the row's",
+        f"reported spread. A row holds if it agrees to {RELATIVE:g} relative, or (a distribution row) within",
+        f"{STANDARD_ERRORS:g} SE; **FAILS** marks one that does not.",
+        "",
+    ]
     labels = list(result["variants"])
     lines += ["| row | " + " | ".join(labels) + " |", "|---|" + "---|" * len(labels)]
     keys = sorted({key for rows in result["variants"].values() for key in rows})
     for key in keys:
-        cells = []
-        for label in labels:
-            row = result["variants"][label].get(key)
-            cells.append("-" if row is None else f"{row['differ']}/{row['numbers']}, {row['max_relative']:.1e}")
-        lines.append(f"| {key} | " + " | ".join(cells) + " |")
+        lines.append(f"| {key} | " + " | ".join(_cell(result["variants"][label].get(key)) for label in labels) + " |")
     args.out.with_suffix(".md").write_text("\n".join(lines) + "\n")
+    failed = [(label, key) for label in labels for key, row in result["variants"][label].items() if not row["holds"]]
+    for label, key in failed:
+        print(f"{label}: {key} does not hold", file=sys.stderr)
+    if args.check and failed:
+        sys.exit(1)
 
 
 if __name__ == "__main__":
