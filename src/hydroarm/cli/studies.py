@@ -56,7 +56,7 @@ def reproduce(
             min=1,
             max=64,
             help="Runs of each clean GP row from starts 1e-12 rad apart, reported as mean and spread "
-            "(default 8; quick 3; 1: none).",
+            "(default 8; quick 4; 1: none).",
         ),
     ] = None,
 ) -> None:

@@ -122,7 +122,7 @@ REPLICA_OFFSET = 1e-12
 """rad: the half-width of the uniform draw added to each joint's start position of a replica
 (``initial_state.position_spread``, drawn with ``initial_state.seed`` = the replica's number)."""
 
-DEFAULT_REPLICAS = {"full": 8, "quick": 3}
+DEFAULT_REPLICAS = {"full": 8, "quick": 4}
 """K, the runs per replicated row (the unperturbed one included), by mode."""
 
 MAX_REPLICAS = 64
@@ -789,7 +789,7 @@ def reproduce(
     A folder holding results of other settings is refused
     (:class:`~hydroarm.studies.outputs.OutputConflict`) unless ``overwrite`` (see
     :func:`claim_folder`). ``replicas``: K, the runs of each clean row of
-    :data:`REPLICATED_ROWS` (default :data:`DEFAULT_REPLICAS`: 8, quick 3; 1 = none).
+    :data:`REPLICATED_ROWS` (default :data:`DEFAULT_REPLICAS`: 8, quick 4; 1 = none).
     """
     out = Path(out)
     study = plan_study(quick, noisy_seeds, ablation, config, replicas)
