@@ -109,3 +109,28 @@ def test_reproducibility_judges_plain_rows_to_1e9_and_replicated_rows_by_their_r
     assert math.isclose(rows["clean/GP-MPC"]["max_ranges"], abs(1.05 - 31 / 30) / (0.3 + 0.1))
     rows = script.compare(reference, summary(1.0, [[2.0, 2.0], [2.1, 2.0], [2.2, 2.0]]))  # moved beyond its runs
     assert not rows["clean/GP-MPC"]["holds"]
+
+
+def test_reproducibility_splits_the_ablations_by_controller_and_marks_their_gp_runs():
+    """An ablation's MPC numbers are judged to 1e-9; its GP runs (single, not replicated) are marked
+    chaotic when they differ, which --check reports without failing on; its gains are derived."""
+    script = _script()
+
+    def summary(mpc: float, gp: float, idmpc: float) -> dict:
+        return {
+            "ablation": {"R": {"0.1": {"MPC": {"Ep": [mpc, 1.0]}, "GP-MPC": {"Ep": [gp, 1.0]},
+                                       "gain_mean_of_joints": 100.0 * (1.0 - gp / mpc)}}},
+            "ablation_idmpc": {"GP": {"off": {"controller": "IDMPC+KF", "Ep": [idmpc]},
+                                      "on": {"controller": "GP-IDMPC+KF", "Ep": [gp]}}},
+        }  # fmt: skip
+
+    reference = summary(1.0, 0.5, 2.0)
+    rows = script.compare(reference, summary(1.0, 0.6, 2.0))
+    assert set(rows) == {"ablation/R/MPC", "ablation/R/GP-MPC", "ablation/R/gain",
+                         "ablation_idmpc/GP/IDMPC+KF", "ablation_idmpc/GP/GP-IDMPC+KF"}  # fmt: skip
+    assert rows["ablation/R/MPC"]["holds"] and rows["ablation_idmpc/GP/IDMPC+KF"]["holds"]
+    assert rows["ablation/R/GP-MPC"]["chaotic"] and not rows["ablation/R/GP-MPC"]["holds"]
+    assert rows["ablation_idmpc/GP/GP-IDMPC+KF"]["chaotic"] and rows["ablation/R/gain"]["derived"]
+    rows = script.compare(reference, summary(1.0 + 1e-8, 0.5, 2.0 + 1e-8))  # a plain run moved: fails
+    assert not rows["ablation/R/MPC"]["holds"] and not rows["ablation/R/MPC"].get("chaotic")
+    assert not rows["ablation_idmpc/GP/IDMPC+KF"]["holds"] and rows["ablation/R/GP-MPC"]["holds"]

@@ -294,8 +294,10 @@ def reproducible_digits(metrics: dict) -> list[str]:
     if metrics.get("ablation") or metrics.get("ablation_idmpc"):
         lines += [
             "The ablations' GP-MPC and GP-IDMPC numbers are single runs from the task's start (not",
-            "replicated: K runs for each of their settings would triple the study): read them only to",
-            "the relative spread above.",
+            "replicated: K runs for each of their settings would multiply the ablation's time by K). Their",
+            "loops are as sensitive, and some settings more than the rows above: under another BLAS kernel",
+            "they were measured to move by up to 73 % (docs/data/reproducibility.md). Read them as one",
+            "draw each, not to their digits; their MPC and IDMPC numbers hold like the rows above.",
             "",
         ]
     return lines
