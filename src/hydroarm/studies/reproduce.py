@@ -377,78 +377,98 @@ def summarise(runs: list, results: dict[str, Trajectory], paper_arm: bool = True
     row's ``Ep_spread`` is the standard error of its mean over the seeds (std / sqrt(seeds))."""
     metrics: dict = {}
     for case in ("clean", "noisy"):
-        metrics[case] = {}
-        for name in ROWS:
-            trajs = [results[s.key] for s in runs if s.case == case and s.controller == name]
-            per_seed = [tracking_metrics(t) for t in trajs]
-            ep = np.array([m["Ep"] for m in per_seed])
-            steady = np.array([m["Ep_steady"] for m in per_seed])
-            after = [t.t > 1.0 for t in trajs]
-            entry = {
-                "Ep": ep.mean(axis=0).tolist(),
-                "Ep_std": ep.std(axis=0).tolist(),
-                "Ep_mean": float(ep.mean()),
-                "Ep_steady": steady.mean(axis=0).tolist(),
-                "Ep_per_seed": ep.tolist(),
-                "rms": np.mean([m["rms"] for m in per_seed], axis=0).tolist(),
-                "max": np.max([m["max"] for m in per_seed], axis=0).tolist(),
-                "torque_rms": np.mean([m["torque_rms"] for m in per_seed], axis=0).tolist(),
-                "torque_max": np.max([np.max(np.abs(t.u), axis=0, initial=0.0) for t in trajs], axis=0).tolist(),
-                "time_to_band": np.mean([m["time_to_band"] for m in per_seed], axis=0).tolist(),
-                "seeds": [s.seed for s in runs if s.case == case and s.controller == name],
-                "diverged": any(m["diverged"] for m in per_seed),
-                "faults": fault_totals(trajs),
-                "step_ms_median": float(np.median(np.concatenate([t.timings["total"] for t in trajs])) * 1e3),
-                "step_ms_p99": float(np.percentile(np.concatenate([t.timings["total"] for t in trajs]), 99) * 1e3),
-            }
-            if trajs and after[0].any() and np.all(np.isfinite(trajs[0].disturbance_estimate[after[0]])):
-                errors = np.concatenate([t.disturbance_estimate[a] - t.disturbance[a] for t, a in zip(trajs, after)])
-                truth = np.concatenate([t.disturbance[a] for t, a in zip(trajs, after)])
-                entry["disturbance_estimate_rms_after_1s"] = np.sqrt(np.mean(errors**2, axis=0)).tolist()
-                entry["disturbance_rms_after_1s"] = np.sqrt(np.mean(truth**2, axis=0)).tolist()
-            if name in REPLICATED_ROWS and case == "clean":
-                replicas = [results[s.key] for s in runs if s.controller == name and s.case.startswith("replica")]
-                if replicas:
-                    entry["replicas"] = replica_summary(trajs + replicas)
-            elif name in REPLICATED_ROWS and len(trajs) > 1:  # the seeds are the replicas: the mean's error
-                root = math.sqrt(len(trajs))
-                entry["Ep_spread"] = (_spread(ep) / root).tolist()
-                entry["Ep_steady_spread"] = (_spread(steady) / root).tolist()
-                entry["Ep_mean_of_joints_spread"] = float(_spread(ep.mean(axis=1, keepdims=True))[0] / root)
-            metrics[case][name] = entry
-        bound = [tracking_metrics(results[s.key]) for s in runs if s.case == f"bound-{case}"]
-        bound_ep = np.mean([m["Ep"] for m in bound], axis=0).tolist()
-        bound_gain = gain_percent(metrics[case]["MPC"]["Ep"], bound_ep)
-        metrics[case]["MPC_dry_arm_bound"] = {
-            "Ep": bound_ep,
-            "gain_over_MPC_percent": bound_gain,
-            "gain_mean_of_joints": float(np.mean(bound_gain)),
-            "note": "MPC on the arm without water: what perfect disturbance compensation could reach",
-        }
-        gains = gain_percent(metrics[case]["MPC"]["Ep"], metrics[case]["GP-MPC"]["Ep"])
-        metrics[case]["gain_gp_mpc_over_mpc_percent"] = {
-            "per_joint": gains,
-            "mean_of_joints": float(np.mean(gains)),
-            "of_mean_Ep": 100.0 * (1 - metrics[case]["GP-MPC"]["Ep_mean"] / metrics[case]["MPC"]["Ep_mean"]),
-            "steady_per_joint": gain_percent(metrics[case]["MPC"]["Ep_steady"], metrics[case]["GP-MPC"]["Ep_steady"]),
-        }
-        if paper_arm:
-            metrics[case]["gain_gp_mpc_over_mpc_percent"]["paper_mean_of_joints"] = PAPER_GAIN[case]
+        metrics[case] = {name: _row_entry(runs, results, case, name) for name in ROWS}
+        _add_gains(metrics[case], runs, results, case, paper_arm)
     for case in ("clean", "noisy"):
-        block, best = metrics[case], metrics[case][BEST]
-        others = [name for name in ROWS if name != BEST]
-        block["best"] = {
-            "row": BEST,
-            "beats_on_mean_Ep": [name for name in others if best["Ep_mean"] < block[name]["Ep_mean"]],
-            "loses_on_mean_Ep_to": [name for name in others if best["Ep_mean"] >= block[name]["Ep_mean"]],
-            "joints_beaten_vs_SMC": [j + 1 for j, (a, b) in enumerate(zip(best["Ep"], block["SMC"]["Ep"])) if a < b],
-            "steady_ratio_SMC_over_best": [
-                b / a if a > 0 else math.inf for a, b in zip(best["Ep_steady"], block["SMC"]["Ep_steady"])
-            ],
-            "steady_ratio_SMCKF_over_best": [  # the SMC behind the same estimator
-                b / a if a > 0 else math.inf for a, b in zip(best["Ep_steady"], block["SMC+KF"]["Ep_steady"])
-            ],
-        }
+        metrics[case]["best"] = _best_entry(metrics[case])
+    metrics["ablation"], metrics["ablation_idmpc"] = _ablations(runs, results)
+    return metrics
+
+
+def _row_entry(runs: list, results: dict[str, Trajectory], case: str, name: str) -> dict:
+    """One row of :func:`summarise`'s ``case`` block: its runs' metrics over the seeds."""
+    trajs = [results[s.key] for s in runs if s.case == case and s.controller == name]
+    per_seed = [tracking_metrics(t) for t in trajs]
+    ep = np.array([m["Ep"] for m in per_seed])
+    steady = np.array([m["Ep_steady"] for m in per_seed])
+    after = [t.t > 1.0 for t in trajs]
+    entry = {
+        "Ep": ep.mean(axis=0).tolist(),
+        "Ep_std": ep.std(axis=0).tolist(),
+        "Ep_mean": float(ep.mean()),
+        "Ep_steady": steady.mean(axis=0).tolist(),
+        "Ep_per_seed": ep.tolist(),
+        "rms": np.mean([m["rms"] for m in per_seed], axis=0).tolist(),
+        "max": np.max([m["max"] for m in per_seed], axis=0).tolist(),
+        "torque_rms": np.mean([m["torque_rms"] for m in per_seed], axis=0).tolist(),
+        "torque_max": np.max([np.max(np.abs(t.u), axis=0, initial=0.0) for t in trajs], axis=0).tolist(),
+        "time_to_band": np.mean([m["time_to_band"] for m in per_seed], axis=0).tolist(),
+        "seeds": [s.seed for s in runs if s.case == case and s.controller == name],
+        "diverged": any(m["diverged"] for m in per_seed),
+        "faults": fault_totals(trajs),
+        "step_ms_median": float(np.median(np.concatenate([t.timings["total"] for t in trajs])) * 1e3),
+        "step_ms_p99": float(np.percentile(np.concatenate([t.timings["total"] for t in trajs]), 99) * 1e3),
+    }
+    if trajs and after[0].any() and np.all(np.isfinite(trajs[0].disturbance_estimate[after[0]])):
+        errors = np.concatenate([t.disturbance_estimate[a] - t.disturbance[a] for t, a in zip(trajs, after)])
+        truth = np.concatenate([t.disturbance[a] for t, a in zip(trajs, after)])
+        entry["disturbance_estimate_rms_after_1s"] = np.sqrt(np.mean(errors**2, axis=0)).tolist()
+        entry["disturbance_rms_after_1s"] = np.sqrt(np.mean(truth**2, axis=0)).tolist()
+    if name in REPLICATED_ROWS and case == "clean":
+        replicas = [results[s.key] for s in runs if s.controller == name and s.case.startswith("replica")]
+        if replicas:
+            entry["replicas"] = replica_summary(trajs + replicas)
+    elif name in REPLICATED_ROWS and len(trajs) > 1:  # the seeds are the replicas: the mean's error
+        root = math.sqrt(len(trajs))
+        entry["Ep_spread"] = (_spread(ep) / root).tolist()
+        entry["Ep_steady_spread"] = (_spread(steady) / root).tolist()
+        entry["Ep_mean_of_joints_spread"] = float(_spread(ep.mean(axis=1, keepdims=True))[0] / root)
+    return entry
+
+
+def _add_gains(block: dict, runs: list, results: dict[str, Trajectory], case: str, paper_arm: bool) -> None:
+    """Into a case's ``block``: the dry-arm MPC bound (its ``bound-<case>`` runs) and GP-MPC's gain over MPC."""
+    bound = [tracking_metrics(results[s.key]) for s in runs if s.case == f"bound-{case}"]
+    bound_ep = np.mean([m["Ep"] for m in bound], axis=0).tolist()
+    bound_gain = gain_percent(block["MPC"]["Ep"], bound_ep)
+    block["MPC_dry_arm_bound"] = {
+        "Ep": bound_ep,
+        "gain_over_MPC_percent": bound_gain,
+        "gain_mean_of_joints": float(np.mean(bound_gain)),
+        "note": "MPC on the arm without water: what perfect disturbance compensation could reach",
+    }
+    gains = gain_percent(block["MPC"]["Ep"], block["GP-MPC"]["Ep"])
+    block["gain_gp_mpc_over_mpc_percent"] = {
+        "per_joint": gains,
+        "mean_of_joints": float(np.mean(gains)),
+        "of_mean_Ep": 100.0 * (1 - block["GP-MPC"]["Ep_mean"] / block["MPC"]["Ep_mean"]),
+        "steady_per_joint": gain_percent(block["MPC"]["Ep_steady"], block["GP-MPC"]["Ep_steady"]),
+    }
+    if paper_arm:
+        block["gain_gp_mpc_over_mpc_percent"]["paper_mean_of_joints"] = PAPER_GAIN[case]
+
+
+def _best_entry(block: dict) -> dict:
+    """Where hydroarm's best row (:data:`BEST`) wins and loses in a case's ``block``."""
+    best = block[BEST]
+    others = [name for name in ROWS if name != BEST]
+    return {
+        "row": BEST,
+        "beats_on_mean_Ep": [name for name in others if best["Ep_mean"] < block[name]["Ep_mean"]],
+        "loses_on_mean_Ep_to": [name for name in others if best["Ep_mean"] >= block[name]["Ep_mean"]],
+        "joints_beaten_vs_SMC": [j + 1 for j, (a, b) in enumerate(zip(best["Ep"], block["SMC"]["Ep"])) if a < b],
+        "steady_ratio_SMC_over_best": [
+            b / a if a > 0 else math.inf for a, b in zip(best["Ep_steady"], block["SMC"]["Ep_steady"])
+        ],
+        "steady_ratio_SMCKF_over_best": [  # the SMC behind the same estimator
+            b / a if a > 0 else math.inf for a, b in zip(best["Ep_steady"], block["SMC+KF"]["Ep_steady"])
+        ],
+    }
+
+
+def _ablations(runs: list, results: dict[str, Trajectory]) -> tuple[dict, dict]:
+    """The GP-MPC ablation (group -> value -> controller -> numbers, with the gain) and
+    hydroarm's best's (group -> value -> numbers), from the ``ablation/`` and ``ablation-idmpc/`` runs."""
     ablation: dict = {}
     ablation_idmpc: dict = {}
     for spec in runs:
@@ -485,9 +505,7 @@ def summarise(runs: list, results: dict[str, Trajectory], paper_arm: bool = True
             if "MPC" in row and "GP-MPC" in row:
                 gains = gain_percent(row["MPC"]["Ep"], row["GP-MPC"]["Ep"])
                 row["gain_mean_of_joints"] = float(np.mean(gains))
-    metrics["ablation"] = ablation
-    metrics["ablation_idmpc"] = ablation_idmpc
-    return metrics
+    return ablation, ablation_idmpc
 
 
 # The tables: table1/2 and the ablations (.md and .csv)
@@ -555,54 +573,68 @@ def write_tables(metrics: dict, out: Path) -> None:
     """table1/2 (.md and .csv): ours beside the paper's (on the paper's arm only: elsewhere the
     paper's numbers, of another arm, are left out), steady state, gains; ablation tables."""
     settings = metrics.get("settings", {})
+    for number, case in ((1, "clean"), (2, "noisy")):
+        header, rows = _main_table_rows(metrics[case], case, settings.get("paper_arm", True))
+        _write_table(out / f"table{number}", _main_table_title(metrics[case], case, settings), header, rows)
+    _write_ablation_tables(metrics, out)
+
+
+def _main_table_rows(block: dict, case: str, paper_arm: bool) -> tuple[list[str], list[list[str]]]:
+    """Table 1 (``case`` clean) or 2 (noisy): its header and rows (ours, the paper's on its arm,
+    the bound, hydroarm's rows, steady state, gains)."""
+    n = len(block["MPC"]["Ep"])
+    header = ["row"] + [f"joint {j + 1}" for j in range(n)] + ["mean"]
+    rows = []
+    for name in PAPER_CONTROLLERS:
+        label = f"{name} (ours" + (f", mean of {len(block[name]['seeds'])} seeds)" if case == "noisy" else ")")
+        rows.append([label] + _held_cells(block[name]))
+        if case == "noisy":
+            rows.append([f"{name} (ours, std over seeds)"] + [_fmt(x) for x in block[name]["Ep_std"]] + [""])
+        if paper_arm:
+            paper = PAPER_EP[case][name][:n]
+            rows.append([f"{name} (paper)"] + [_fmt(x) for x in paper] + [_fmt(np.mean(paper))])
+    bound = block["MPC_dry_arm_bound"]["Ep"]
+    rows.append(["MPC on the arm without water (bound)"] + [_fmt(x) for x in bound] + [_fmt(np.mean(bound))])
+    for name in EXTRA_ROWS:
+        label = "hydroarm's best: GP-IDMPC, Kalman filter" if name == BEST else f"{name[:-3]} + Kalman filter"
+        rows.append([label] + _held_cells(block[name]))
+    for name in ROWS:
+        rows.append([f"{name} (ours, t > 2 s)"] + _held_cells(block[name], "Ep_steady"))
+    rows.append(["GP-MPC gain over MPC, % (ours)"] + _gain_cells(block))
+    if paper_arm:
+        paper_gain = gain_percent(PAPER_EP[case]["MPC"][:n], PAPER_EP[case]["GP-MPC"][:n])
+        rows.append(
+            ["GP-MPC gain over MPC, % (paper)"] + [f"{g:.1f}" for g in paper_gain] + [f"{PAPER_GAIN[case]:.2f}"]
+        )
+    bound_gain = block["MPC_dry_arm_bound"]["gain_over_MPC_percent"]
+    rows.append(
+        ["bound: gain of perfect compensation, %"] + [f"{g:.1f}" for g in bound_gain] + [f"{np.mean(bound_gain):.1f}"]
+    )
+    rows.append(["GP-MPC gain, t > 2 s, % (ours)"] + _gain_cells(block, "Ep_steady"))
+    return header, rows
+
+
+def _main_table_title(block: dict, case: str, settings: dict) -> str:
+    """Table 1's or 2's title: the case, the arm if not the paper's, the spread and the task's length."""
     paper_arm = settings.get("paper_arm", True)
     on_arm = "" if paper_arm else f" on the arm `{settings.get('experiment', {}).get('arm', '?')}`"
-    for number, case in ((1, "clean"), (2, "noisy")):
-        block = metrics[case]
-        n = len(block["MPC"]["Ep"])
-        header = ["row"] + [f"joint {j + 1}" for j in range(n)] + ["mean"]
-        rows = []
-        for name in PAPER_CONTROLLERS:
-            label = f"{name} (ours" + (f", mean of {len(block[name]['seeds'])} seeds)" if case == "noisy" else ")")
-            rows.append([label] + _held_cells(block[name]))
-            if case == "noisy":
-                rows.append([f"{name} (ours, std over seeds)"] + [_fmt(x) for x in block[name]["Ep_std"]] + [""])
-            if paper_arm:
-                paper = PAPER_EP[case][name][:n]
-                rows.append([f"{name} (paper)"] + [_fmt(x) for x in paper] + [_fmt(np.mean(paper))])
-        bound = block["MPC_dry_arm_bound"]["Ep"]
-        rows.append(["MPC on the arm without water (bound)"] + [_fmt(x) for x in bound] + [_fmt(np.mean(bound))])
-        for name in EXTRA_ROWS:
-            label = "hydroarm's best: GP-IDMPC, Kalman filter" if name == BEST else f"{name[:-3]} + Kalman filter"
-            rows.append([label] + _held_cells(block[name]))
-        for name in ROWS:
-            rows.append([f"{name} (ours, t > 2 s)"] + _held_cells(block[name], "Ep_steady"))
-        rows.append(["GP-MPC gain over MPC, % (ours)"] + _gain_cells(block))
-        if paper_arm:
-            paper_gain = gain_percent(PAPER_EP[case]["MPC"][:n], PAPER_EP[case]["GP-MPC"][:n])
-            rows.append(
-                ["GP-MPC gain over MPC, % (paper)"] + [f"{g:.1f}" for g in paper_gain] + [f"{PAPER_GAIN[case]:.2f}"]
-            )
-        bound_gain = block["MPC_dry_arm_bound"]["gain_over_MPC_percent"]
-        rows.append(
-            ["bound: gain of perfect compensation, %"]
-            + [f"{g:.1f}" for g in bound_gain]
-            + [f"{np.mean(bound_gain):.1f}"]
+    title = (
+        f"Table 1: E_p (rad^2){on_arm}, no measurement noise"
+        if case == "clean"
+        else f"Table 2: E_p (rad^2){on_arm}, measurement noise of variance 0.001"
+    )
+    title += spread_note(block, case)
+    duration = settings.get("experiment", {}).get("duration", PAPER_DURATION)
+    if paper_arm and duration != PAPER_DURATION:
+        title += (
+            f"; ours over a {duration:g} s task, the paper's over its {PAPER_DURATION:g} s one: the start-up "
+            "weighs more in a shorter task, so compare the rows of a full run"
         )
-        rows.append(["GP-MPC gain, t > 2 s, % (ours)"] + _gain_cells(block, "Ep_steady"))
-        title = (
-            f"Table 1: E_p (rad^2){on_arm}, no measurement noise"
-            if case == "clean"
-            else f"Table 2: E_p (rad^2){on_arm}, measurement noise of variance 0.001"
-        )
-        title += spread_note(block, case)
-        duration = settings.get("experiment", {}).get("duration", PAPER_DURATION)
-        if paper_arm and duration != PAPER_DURATION:
-            title += (
-                f"; ours over a {duration:g} s task, the paper's over its {PAPER_DURATION:g} s one: the start-up "
-                "weighs more in a shorter task, so compare the rows of a full run"
-            )
-        _write_table(out / f"table{number}", title, header, rows)
+    return title
+
+
+def _write_ablation_tables(metrics: dict, out: Path) -> None:
+    """ablation (.md and .csv) of the GP-MPC and ablation_idmpc of hydroarm's best, if they ran."""
     header = [
         "setting",
         "value",
