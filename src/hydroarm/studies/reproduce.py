@@ -781,6 +781,24 @@ def claim_folder(out: Path, study: Study, overwrite: bool = False, dry_run: bool
     claim_output(out, "reproduce", study.settings(), runs, study.description(), overwrite, dry_run)
 
 
+def check_study(
+    out: Path,
+    config: ExperimentConfig,
+    quick: bool = False,
+    noisy_seeds: int | None = None,
+    ablation: bool | None = None,
+    replicas: int | None = None,
+    overwrite: bool = False,
+) -> None:
+    """Everything :func:`reproduce` would refuse, before any run: the settings against the arm
+    (:func:`~hydroarm.sim.experiment.check_settings_for_arm`), the study's plan and whether
+    ``out`` may take it (:func:`claim_folder`, nothing written). Raises :class:`ConfigError`."""
+    from hydroarm.sim.experiment import check_settings_for_arm
+
+    check_settings_for_arm(config, load_arm(config.arm))
+    claim_folder(out, plan_study(quick, noisy_seeds, ablation, config, replicas), overwrite, dry_run=True)
+
+
 def is_paper_arm(arm: Arm) -> bool:
     """True if ``arm`` is the paper's arm (by content, not by name): only then are the
     paper's numbers printed beside ours."""
