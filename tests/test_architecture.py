@@ -25,9 +25,6 @@ CEILING_LINES = 800
 that has parts worth naming), and splitting it along that boundary is the way down."""
 
 LONG_MODULES: dict[str, str] = {
-    "studies/reproduce.py": "the paper study from its rows to its files: the rows and the paper's numbers, "
-    "the plan, the runs, summary.json's numbers and the tables (split by size before, reproduce and "
-    "reproduce_tables were one concept in two files that each needed the other's names)",
     "envs/vector.py": "the multi-process vector env as one Gymnasium VectorEnv: its lanes' commands, "
     "errors, a dead worker, Ctrl-C and closing (the workers' side is envs/vector_lanes.py)",
 }

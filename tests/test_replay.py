@@ -285,6 +285,33 @@ def test_bad_replay_settings_exit_2(tmp_path, setting, message):
     assert message in result.output and "Traceback" not in result.output
 
 
+@pytest.mark.parametrize(
+    "setting",
+    ["sensor.delay=2", "sensor.resolution=0.05", "actuator.bandwidth=20", "actuator.delay=1",
+     "friction.coulomb=0.1", "friction.scale=2", "plant.inner_step=0.001"],
+)  # fmt: skip
+def test_real_loop_settings_are_refused_by_replay_naming_the_field(tmp_path, setting):
+    """The real loop's sections (sensor, drives, joint friction, the fixed-base plant) cannot apply
+    to a replay (the log prescribes the joints' motion; no controller, no commanded torque): each
+    is refused with exit 2 and one message naming the field and why, not as an unknown key and
+    never ignored. Each is a real experiment setting (it validates there)."""
+    from hydroarm.sim.experiment import ExperimentConfig, with_overrides
+    from hydroarm.studies.replay import NOT_ON_REPLAY
+
+    key, value = setting.split("=")
+    with_overrides(ExperimentConfig(), {key: json.loads(value)})  # a setting the experiment takes
+    assert key.split(".")[0] in NOT_ON_REPLAY
+    log = _copy_trial(tmp_path)
+    out = tmp_path / "out"
+    args = ["replay", str(log), "--vehicle", str(VEHICLE), "--out", str(out), "--workers", "0", "--set", setting]
+    result = RUNNER.invoke(app, args)
+    assert result.exit_code == 2, (result.output, result.exception)
+    text = " ".join(result.output.split())
+    assert f"--set {key}: not used by a replay" in text and "unknown key" not in text, text
+    assert text.count("error:") == 1 and "Traceback" not in result.output
+    assert not out.exists()
+
+
 def test_bench_full_dataset_section_is_skipped_without_the_dataset(monkeypatch, tmp_path):
     from hydroarm_bench.replay import FULL_ENV, _render_full, bench_full
 

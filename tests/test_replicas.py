@@ -13,15 +13,9 @@ import pytest
 from hydroarm.config import ConfigError
 from hydroarm.model.loading import load_arm
 from hydroarm.sim.experiment import ExperimentConfig, start_for_arm
-from hydroarm.studies.reproduce import (
-    REPLICA_OFFSET,
-    REPLICATED_ROWS,
-    held,
-    held_digits,
-    plan_runs,
-    plan_study,
-    replica_config,
-)
+from hydroarm.studies.reproduce import plan_runs, plan_study, replica_config
+from hydroarm.studies.reproduce_numbers import held, held_digits
+from hydroarm.studies.reproduce_rows import REPLICA_OFFSET, REPLICATED_ROWS
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -304,7 +304,7 @@ def test_view_out_writes_the_recording_without_a_server_banner(tmp_path, capfd):
 
 
 def test_a_quick_tables_title_says_its_task_is_shorter_than_the_papers(tmp_path):
-    from hydroarm.studies.reproduce import write_tables
+    from hydroarm.studies.reproduce_numbers import write_tables
 
     block = {name: {"Ep": [0.1] * 6, "Ep_steady": [0.01] * 6} for name in ("SMC", "MPC", "GP-MPC")}
     for duration, said in ((3.0, True), (10.0, False)):
@@ -317,7 +317,7 @@ def test_a_quick_tables_title_says_its_task_is_shorter_than_the_papers(tmp_path)
 
 
 def _table_block(block, case):
-    from hydroarm.studies.reproduce import EXTRA_ROWS
+    from hydroarm.studies.reproduce_rows import EXTRA_ROWS
 
     rows = {name: {**row, "seeds": [0, 1], "Ep_std": [0.0] * 6} for name, row in block.items()}
     rows.update({name: {"Ep": [0.1] * 6, "Ep_steady": [0.01] * 6} for name in EXTRA_ROWS})

@@ -33,13 +33,16 @@ def _config(overrides: list[str], base: dict | None = None):
     import copy
 
     from hydroarm.config import validate
-    from hydroarm.studies.replay import ReplayConfig
+    from hydroarm.studies.replay import ReplayConfig, check_replay_key
 
     data: dict = copy.deepcopy(base or {})
+    for key in data:
+        check_replay_key(key, "the vehicle file's [replay] table:")
     for item in overrides:
         if "=" not in item:
             raise ConfigError(f"--set '{item}': expected key=value, e.g. inner_step=0.02 or cleaning.smoothing=1e-3")
         key, text = item.split("=", 1)
+        check_replay_key(key)
         try:
             value = json.loads(text)
         except json.JSONDecodeError:

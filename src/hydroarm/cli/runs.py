@@ -24,10 +24,16 @@ from hydroarm.cli._common import (
     app,
     console,
 )
+from hydroarm.cli._options import (
+    ControllerOption,
+    ModelOption,
+    NoiseOption,
+    RunArmOption,
+    SaveModelOption,
+    VehicleOption,
+    ViewOption,
+)
 from hydroarm.config import ConfigError, not_a_file
-
-STEADY_AFTER = 2.0
-"""s: where ``hydroarm run``'s second E_p line starts (after the start-up from the task's start)."""
 
 
 def _rounded(values: list[float]) -> list[float | None]:
@@ -35,36 +41,11 @@ def _rounded(values: list[float]) -> list[float | None]:
     return [None if x != x else round(x, 5) for x in values]
 
 
-def _noise_in_range(value: float | None) -> float | None:
-    """``--noise``: a finite variance 0 <= x <= 10 (rad^2); NaN is named as such."""
-    if value is not None and not 0.0 <= value <= 10.0:
-        raise typer.BadParameter(f"{value!r}: must be a number 0 <= x <= 10 (rad^2)")
-    return value
-
-
 @app.command()
 def run(
-    controller: Annotated[
-        str | None,
-        typer.Option(
-            "--controller",
-            help="A registered controller (hydroarm controllers; default gp-mpc; on a vehicle the arm's, default smc).",
-        ),
-    ] = None,
-    arm: Annotated[
-        str | None,
-        typer.Option(
-            "--arm", help="Built-in arm name or arm file (default: the settings' arm; on a vehicle its file's)."
-        ),
-    ] = None,
-    noise: Annotated[
-        float | None,
-        typer.Option(
-            "--noise",
-            callback=_noise_in_range,
-            help="Measurement noise variance, 0 <= x <= 10 rad^2 (default: plant.noise_variance, 0).",
-        ),
-    ] = None,
+    controller: ControllerOption = None,
+    arm: RunArmOption = None,
+    noise: NoiseOption = None,
     seed: Annotated[int, typer.Option("--seed", min=0, help="Noise seed.")] = 0,
     out: Annotated[Path, typer.Option("--out", help="Output folder.")] = Path("run"),
     config_file: ConfigOption = None,
@@ -72,24 +53,10 @@ def run(
     overrides: SetOption = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print the metrics as JSON.")] = False,
     overwrite: OverwriteOption = False,
-    view: Annotated[
-        bool, typer.Option("--view", help="Then open the run in the browser viewer (the viewer extra).")
-    ] = False,
-    model: Annotated[
-        Path | None,
-        typer.Option("--model", help="PI-IDMPC: start from the water model saved in this file (JSON)."),
-    ] = None,
-    save_model: Annotated[
-        Path | None,
-        typer.Option("--save-model", help="PI-IDMPC: save the water model learned by the run to this file (JSON)."),
-    ] = None,
-    vehicle: Annotated[
-        str | None,
-        typer.Option(
-            "--vehicle",
-            help="Mount the arm on this vehicle (bluerov2-heavy or a vehicle file): = --set vehicle.name=VEHICLE.",
-        ),
-    ] = None,
+    view: ViewOption = False,
+    model: ModelOption = None,
+    save_model: SaveModelOption = None,
+    vehicle: VehicleOption = None,
 ) -> None:
     """Run one experiment and write its trajectory, metrics and figures.
 
@@ -102,100 +69,54 @@ def run(
     vehicle.control.kind (pid or mpc), and metrics.json adds the station-keeping metrics.
     Example: hydroarm run --vehicle bluerov2-heavy --set vehicle.control.kind=mpc --set duration=5 --out VEHICLE_DIR
     """
-    import numpy as np
-
-    from hydroarm.model.loading import load_arm
-    from hydroarm.sim.experiment import build_experiment, canonical_name, with_overrides
-    from hydroarm.sim.runner import tracking_metrics
-    from hydroarm.studies import figures
     from hydroarm.studies.outputs import claim_output, dumps
-    from hydroarm.studies.sweep.plan import perturbed_arm
+    from hydroarm.studies.single_run import RunRequest, prepare_run, write_run
 
     _check_out(out)
     try:
         settings, mismatch = _split_mismatch(overrides or [])
-        config = _experiment_config(config_file, settings, tuned, arm)
-        options = {"arm": arm, "plant.noise_variance": noise, "vehicle.name": vehicle}
-        config = with_overrides(config, {key: value for key, value in options.items() if value is not None})
-        on_vehicle = config.vehicle.name is not None
-        if on_vehicle and arm is None and config.arm == "paper":
-            config = with_overrides(config, {"arm": "mount"})  # the arm the vehicle file mounts
-        if on_vehicle and noise is not None:
-            raise ConfigError("--noise does not apply on a vehicle: the floating plant gives its true state")
-        name = canonical_name(controller if controller is not None else ("smc" if on_vehicle else "gp-mpc"))
-        if (model is not None or save_model is not None) and name != "PI-IDMPC":
-            raise ConfigError(
-                f"--model / --save-model: only PI-IDMPC has a water model to load or save (controller {name})"
-            )
-        if model is not None and not model.is_file():
-            raise ConfigError(f"--model '{model}': no such file")
-        if on_vehicle:
-            if not mismatch.is_identity:
-                raise ConfigError("mismatch.*: not on a vehicle run (the floating plant's arm is the arm file's)")
-            experiment = build_experiment(config, name)
-        else:
-            arm_model = load_arm(config.arm)
-            experiment = build_experiment(config, name, arm=arm_model, plant_arm=perturbed_arm(arm_model, mismatch))
-        what = {"experiment": config.model_dump(mode="json"), "controller": name, "seed": seed}
-        if not mismatch.is_identity:
-            what["mismatch"] = mismatch.model_dump()
-        made_by = f"hydroarm run --controller {name.lower()} --seed {seed} --arm {config.arm}"
-        if on_vehicle:
-            made_by += f" --vehicle {config.vehicle.name}"
-        claim_output(out, "run", what, description=made_by, overwrite=overwrite)
+        request = RunRequest(
+            _experiment_config(config_file, settings, tuned, arm), controller, arm, noise, vehicle, seed, mismatch,
+            model, save_model,
+        )  # fmt: skip
+        prepared = prepare_run(request)
+        claim_output(out, "run", prepared.what, description=prepared.made_by, overwrite=overwrite)
     except ConfigError as error:
         _fail(str(error) if not str(error).startswith("controller =") else f"--{error}")
-    label = experiment.controller.name
+    label = prepared.experiment.controller.name
     with Progress(
         TextColumn(label), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(), console=console
     ) as progress:
-        task = progress.add_task(label, total=int(round(config.duration / config.control_period)))
-        learner = experiment.controller
-        while model is not None or save_model is not None:  # PI-IDMPC, behind its Kalman filter
-            if hasattr(learner, "load_model"):
-                break
-            learner = learner.controller
-        if model is not None:
-            try:
-                learner.load_model(model)
-            except ConfigError as error:
-                progress.stop()
-                _fail(str(error))
-        traj = experiment.run(seed, progress=lambda k, total: progress.update(task, completed=k))
-        traj.meta["mismatch"] = mismatch.model_dump()
-    if save_model is not None:
-        learner.save_model(save_model)
-        traj.meta["model_saved"] = str(save_model)
-    traj.save(out / "trajectory.npz")
-    metrics = tracking_metrics(traj, steady_after=STEADY_AFTER)
-    if on_vehicle:
-        metrics["station_keeping"] = traj.meta["metrics"]
-    (out / "metrics.json").write_text(dumps(metrics, indent=1))
-    figures.plot_tracking(traj, out / "position.png", f"{label}: position tracking", "position")
-    figures.plot_tracking(traj, out / "velocity.png", f"{label}: velocity tracking", "velocity")
-    figures.plot_torque(traj, out / "torque.png", f"{label}: joint torques", experiment.arm.torque_limit)
-    if np.isfinite(traj.disturbance_estimate).any() and np.isfinite(traj.disturbance).any():
-        figures.plot_disturbance(traj, out / "disturbance.png", f"{label}: true vs estimated disturbance")
+        task = progress.add_task(label, total=int(round(prepared.config.duration / prepared.config.control_period)))
+        traj = prepared.experiment.run(seed, progress=lambda k, total: progress.update(task, completed=k))
+    metrics = write_run(prepared, traj, out)
     if as_json:
         print(dumps(metrics))
     else:
-        console.print(f"E_p per joint (rad^2), whole run: {_rounded(metrics['Ep'])}")
-        console.print(
-            f"E_p per joint (rad^2), after the start-up (t > {STEADY_AFTER:g} s): {_rounded(metrics['Ep_steady'])}"
-        )
-        if on_vehicle:
-            kept = metrics["station_keeping"]
-            console.print(
-                f"station keeping: drift RMS {kept['drift_rms_m'] * 1e3:.2f} mm, "
-                f"attitude RMS {kept['attitude_rms_deg']:.3f} deg"
-            )
-        console.print(f"files in {out}")
+        _print_summary(metrics, out)
     if view:
         from hydroarm.cli.view import serve_run
 
         serve_run(out / "trajectory.npz")
     if traj.diverged:
         raise typer.Exit(1)
+
+
+def _print_summary(metrics: dict, out: Path) -> None:
+    """``hydroarm run``'s summary lines: E_p per joint, whole run and steady, station keeping."""
+    from hydroarm.studies.single_run import STEADY_AFTER
+
+    console.print(f"E_p per joint (rad^2), whole run: {_rounded(metrics['Ep'])}")
+    console.print(
+        f"E_p per joint (rad^2), after the start-up (t > {STEADY_AFTER:g} s): {_rounded(metrics['Ep_steady'])}"
+    )
+    if "station_keeping" in metrics:
+        kept = metrics["station_keeping"]
+        console.print(
+            f"station keeping: drift RMS {kept['drift_rms_m'] * 1e3:.2f} mm, "
+            f"attitude RMS {kept['attitude_rms_deg']:.3f} deg"
+        )
+    console.print(f"files in {out}")
 
 
 def _split_mismatch(overrides: list[str]):

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 from pathlib import Path
 from typing import Annotated
@@ -26,39 +27,63 @@ from hydroarm.cli._common import (
     app,
     console,
 )
+from hydroarm.cli._options import (
+    AblationOption,
+    QuickOption,
+    RayAddressOption,
+    RayOption,
+    ReplicasOption,
+    ReproduceArmOption,
+    ReproduceOutOption,
+    ReproduceWorkersOption,
+    SeedsOption,
+    SweepOutOption,
+    SweepWorkersOption,
+    TrajectoriesOption,
+)
 from hydroarm.config import ConfigError
+
+
+@contextlib.contextmanager
+def _study_progress(step_bars: bool = True):
+    """A progress display of a study: yields ``(on_run, on_step)`` hooks, one bar for the runs
+    (``on_run(done, total, label)``; its description the label unless ``step_bars``) and, if
+    ``step_bars``, one per running run (``on_step(k, total, label)``)."""
+    with Progress(
+        TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(), console=console,
+        transient=False,
+    ) as progress:  # fmt: skip
+        runs = progress.add_task("runs" if step_bars else "sweep", total=None)
+        bars: dict[str, int] = {}
+
+        def on_run(done: int, total: int, label: str) -> None:
+            if step_bars:
+                progress.update(runs, completed=done, total=total)
+            else:
+                progress.update(runs, completed=done, total=total, description=label[:50])
+
+        def on_step(k: int, total: int, label: str) -> None:
+            if label not in bars:
+                bars[label] = progress.add_task(label, total=total)
+            progress.update(bars[label], completed=k, total=total)
+
+        yield on_run, on_step
 
 
 @app.command()
 def reproduce(
-    out: Annotated[Path, typer.Option("--out", help="Output folder (created).")] = Path("results"),
-    quick: Annotated[bool, typer.Option("--quick", help="3 s task, 2 noisy seeds, no ablation (CI).")] = False,
-    seeds: Annotated[
-        int | None, typer.Option("--seeds", min=1, max=100, help="Noisy seeds (default 5; quick 2).")
-    ] = None,
-    ablation: Annotated[
-        bool | None, typer.Option("--ablation/--no-ablation", help="Run the ablation (default: on unless --quick).")
-    ] = None,
-    workers: Annotated[int, typer.Option("--workers", min=1, max=64, help="Parallel processes.")] = 2,
-    arm: Annotated[
-        str | None,
-        typer.Option("--arm", help="Another arm (built-in name or file); the task is scaled to its joint limits."),
-    ] = None,
+    out: ReproduceOutOption = Path("results"),
+    quick: QuickOption = False,
+    seeds: SeedsOption = None,
+    ablation: AblationOption = None,
+    workers: ReproduceWorkersOption = 2,
+    arm: ReproduceArmOption = None,
     config_file: ConfigOption = None,
     tuned: TunedOption = False,
     overrides: SetOption = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print metrics.json's tables to stdout.")] = False,
     overwrite: OverwriteOption = False,
-    replicas: Annotated[
-        int | None,
-        typer.Option(
-            "--replicas",
-            min=1,
-            max=64,
-            help="Runs of each clean GP row from starts 1e-12 rad apart, reported as mean and spread "
-            "(default 8; quick 4; 1: none).",
-        ),
-    ] = None,
+    replicas: ReplicasOption = None,
 ) -> None:
     """Reproduce the paper's Tables 1-2 and Figures 4-15 into OUT.
 
@@ -67,11 +92,9 @@ def reproduce(
     the tables').
     Examples: hydroarm reproduce --out results;  hydroarm reproduce --arm alpha5 --out alpha5
     """
-    from hydroarm.control.registry import PAPER_CONTROLLERS
-    from hydroarm.model.loading import load_arm
-    from hydroarm.sim.experiment import check_settings_for_arm, with_overrides
+    from hydroarm.sim.experiment import with_overrides
     from hydroarm.studies.outputs import dumps
-    from hydroarm.studies.reproduce import claim_folder, plan_study
+    from hydroarm.studies.reproduce import check_study
     from hydroarm.studies.reproduce import reproduce as run
 
     _check_out(out)
@@ -79,39 +102,16 @@ def reproduce(
         config = _experiment_config(config_file, overrides or [], tuned, arm)
         if arm is not None:
             config = with_overrides(config, {"arm": arm})
-        check_settings_for_arm(config, load_arm(config.arm))
-        claim_folder(out, plan_study(quick, seeds, ablation, config, replicas), overwrite, dry_run=True)
+        check_study(out, config, quick, seeds, ablation, replicas, overwrite)
     except ConfigError as error:
         _fail(str(error))
-    with Progress(
-        TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(), console=console,
-        transient=False,
-    ) as progress:  # fmt: skip
-        runs = progress.add_task("runs", total=None)
-        bars: dict[str, int] = {}
-
-        def on_run(done: int, total: int, label: str) -> None:
-            progress.update(runs, completed=done, total=total)
-
-        def on_step(k: int, total: int, label: str) -> None:
-            if label not in bars:
-                bars[label] = progress.add_task(label, total=total)
-            progress.update(bars[label], completed=k, total=total)
-
+    with _study_progress() as (on_run, on_step):
         try:
             with _sigterm_as_interrupt():
                 metrics = run(
-                    out,
-                    quick=quick,
-                    noisy_seeds=seeds,
-                    ablation=ablation,
-                    workers=workers,
-                    config=config,
-                    on_progress=on_run,
-                    on_step=on_step,
-                    overwrite=overwrite,
-                    replicas=replicas,
-                )
+                    out, quick=quick, noisy_seeds=seeds, ablation=ablation, workers=workers, config=config,
+                    on_progress=on_run, on_step=on_step, overwrite=overwrite, replicas=replicas,
+                )  # fmt: skip
         except KeyboardInterrupt as error:
             _interrupted(error, out)
         except ConfigError as error:
@@ -119,6 +119,13 @@ def reproduce(
     if as_json:
         print(dumps({case: metrics[case] for case in ("clean", "noisy")}, indent=1))
         return
+    _print_reproduction(metrics, out)
+
+
+def _print_reproduction(metrics: dict, out: Path) -> None:
+    """``hydroarm reproduce``'s summary: E_p mean over joints per paper row, the gains, the files."""
+    from hydroarm.control.registry import PAPER_CONTROLLERS
+
     table = Table(title=f"E_p mean over joints (rad^2) — full tables in {out}/table1.md, table2.md")
     table.add_column("controller")
     table.add_column("clean")
@@ -141,29 +148,11 @@ def reproduce(
 @app.command()
 def sweep(
     sweep_file: Annotated[Path, typer.Argument(help="Sweep file (TOML/YAML), e.g. examples/sweep.toml.")],
-    out: Annotated[Path, typer.Option("--out", help="Output folder (created; the same command resumes).")] = Path(
-        "sweep"
-    ),
-    workers: Annotated[
-        int, typer.Option("--workers", min=1, max=256, help="Parallel processes (or the CPUs of a local Ray instance).")
-    ] = 2,
-    ray: Annotated[
-        bool,
-        typer.Option(
-            "--ray", help=r"Run on Ray: a local Ray instance with --workers CPUs (pip install 'hydroarm\[ray]')."
-        ),
-    ] = False,
-    ray_address: Annotated[
-        str | None,
-        typer.Option(
-            "--ray-address",
-            metavar="ADDRESS",
-            help="Run on this Ray cluster instead (implies --ray): auto, HOST:6379 or ray://HOST:10001.",
-        ),
-    ] = None,
-    trajectories: Annotated[
-        bool, typer.Option("--trajectories", help="Also keep every trajectory (runs/<id>.npz).")
-    ] = False,
+    out: SweepOutOption = Path("sweep"),
+    workers: SweepWorkersOption = 2,
+    ray: RayOption = False,
+    ray_address: RayAddressOption = None,
+    trajectories: TrajectoriesOption = False,
     as_json: Annotated[bool, typer.Option("--json", help="Print the summary as JSON.")] = False,
     overwrite: OverwriteOption = False,
 ) -> None:
@@ -193,23 +182,12 @@ def sweep(
         claim_sweep_folder(out, plan, str(sweep_file), overwrite, dry_run=True)
     except ConfigError as error:
         _fail(str(error))
-    with Progress(
-        TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(), console=console
-    ) as progress:
-        task = progress.add_task("sweep", total=None)
-
-        def hook(done: int, total: int, label: str) -> None:
-            progress.update(task, completed=done, total=total, description=label[:50])
-
+    with _study_progress(step_bars=False) as (hook, _):
         try:
             with _sigterm_as_interrupt():
+                address = ray_address or ("local" if ray else None)
                 summary = run_sweep(
-                    plan,
-                    out,
-                    workers=workers,
-                    ray_address=ray_address or ("local" if ray else None),
-                    on_progress=hook,
-                    overwrite=overwrite,
+                    plan, out, workers=workers, ray_address=address, on_progress=hook, overwrite=overwrite
                 )
         except ConfigError as error:
             _fail(str(error))
@@ -218,25 +196,27 @@ def sweep(
     if as_json:
         print(dumps(summary))
     else:
-        table = Table(title=f"{summary['metric_label']} — {out}/summary.md, {out}/results.csv")
-        for column in ("controller", "finished", "median", "p90", "diverged"):
-            table.add_column(column)
-        for name, entry in summary["controllers"].items():
-            cell = lambda x: "-" if x is None else f"{x:.4g}"  # noqa: E731
-            table.add_row(
-                name,
-                f"{entry['finished']}/{entry['rows']}",
-                cell(entry["median"]),
-                cell(entry["p90"]),
-                str(entry["diverged"]),
-            )
-        Console().print(table)
-        console.print(
-            f"{summary['ran']} runs done, {summary['reused']} reused, {len(summary['failed'])} failed "
-            f"({summary['wall_s']:.1f} s)"
-        )
+        _print_sweep(summary, out)
     if summary["failed"]:
         raise typer.Exit(1)
+
+
+def _print_sweep(summary: dict, out: Path) -> None:
+    """``hydroarm sweep``'s summary: per controller the finished runs, median, p90, divergences."""
+    table = Table(title=f"{summary['metric_label']} — {out}/summary.md, {out}/results.csv")
+    for column in ("controller", "finished", "median", "p90", "diverged"):
+        table.add_column(column)
+    for name, entry in summary["controllers"].items():
+        cell = lambda x: "-" if x is None else f"{x:.4g}"  # noqa: E731
+        table.add_row(
+            name, f"{entry['finished']}/{entry['rows']}", cell(entry["median"]), cell(entry["p90"]),
+            str(entry["diverged"]),
+        )  # fmt: skip
+    Console().print(table)
+    console.print(
+        f"{summary['ran']} runs done, {summary['reused']} reused, {len(summary['failed'])} failed "
+        f"({summary['wall_s']:.1f} s)"
+    )
 
 
 @app.command()

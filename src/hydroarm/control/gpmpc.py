@@ -35,8 +35,7 @@ import pydantic
 
 from hydroarm.config import FrozenModel
 from hydroarm.control.gp import GPConfig, SlidingWindowGP
-from hydroarm.control.interface import ControlOutput, Reference
-from hydroarm.control.mpc import LinearMPC
+from hydroarm.control.interface import AccelerationFeedforward, ControlOutput, Reference, require_port
 from hydroarm.model import fixed_order
 from hydroarm.model.arm import Arm
 from hydroarm.model.nominal import NominalModel
@@ -73,7 +72,9 @@ def feature_size(features: Features, n: int) -> int:
 class GPMPC:
     """Adaptive MPC with a sliding-window GP disturbance model (see the module docstring).
 
-    Holds a :class:`LinearMPC` and a :class:`SlidingWindowGP`; no inheritance.
+    Holds a :class:`LinearMPC` (any controller with both feed-forward ports,
+    :class:`~hydroarm.control.interface.AccelerationFeedforward`) and a :class:`SlidingWindowGP`;
+    no inheritance.
     """
 
     name = "GP-MPC"
@@ -81,13 +82,14 @@ class GPMPC:
     def __init__(
         self,
         arm: Arm,
-        mpc: LinearMPC,
+        mpc: AccelerationFeedforward,
         gp_config: GPConfig | None = None,
         config: GPMPCConfig | None = None,
     ):
         self.arm = arm
-        self.mpc = mpc
         self.config = config if config is not None else GPMPCConfig()
+        require_port(mpc, self.config.feedforward, "GP-MPC (gpmpc.feedforward)")
+        self.mpc = mpc
         self.n = arm.n_joints
         self.gp = SlidingWindowGP(feature_size(self.config.features, self.n), self.n, gp_config)
         self.control_period = mpc.control_period
@@ -118,7 +120,7 @@ class GPMPC:
         self._features_now = features
         mean = np.zeros(n)
         var = np.full(n, np.nan)
-        feedforward = None
+        acceleration = torque = None  # the MPC's feed-forward ports (interface.FEEDFORWARD_PORTS)
         gp_events: tuple[str, ...] = ()  # the GP's faults of this step, as its calls return them
         if self.gp.n_samples >= self.config.min_samples:
             _, update_events = self.gp.update_hyperparameters(return_events=True)
@@ -133,12 +135,12 @@ class GPMPC:
             if self.config.feedforward == "acceleration":
                 # M^-1 w by a fixed-order Cholesky (LAPACK's solve rounds by its CPU kernel)
                 solved, _ = fixed_order.cholesky_solve(self.nominal.mass_matrix(y[:n]), np.ascontiguousarray(scaled))
-                feedforward = {"feedforward_acceleration": solved}
+                acceleration = solved
             else:
-                feedforward = {"feedforward_torque": scaled}
+                torque = scaled
         gp_time = time.perf_counter() - start
         self._pending_events.extend(gp_events)
-        out = self.mpc.compute(t, y, reference, **(feedforward or {}))
+        out = self.mpc.compute(t, y, reference, feedforward_acceleration=acceleration, feedforward_torque=torque)
         out.events = (*self._pending_events, *out.events)
         self._pending_events = []
         out.disturbance_mean = mean

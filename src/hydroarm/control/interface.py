@@ -10,6 +10,7 @@ the new sample (a no-op for the others).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Protocol, runtime_checkable
 
 import numpy as np
@@ -131,3 +132,109 @@ class Controller(Protocol):
 
     def observe(self, t: float, y: np.ndarray, u: np.ndarray, y_next: np.ndarray) -> None:
         """The step from ``y`` under ``u`` ended at ``y_next`` (measured)."""
+
+
+FEEDFORWARD_PORTS: dict[str, str] = {
+    "torque": "feedforward_torque",
+    "acceleration": "feedforward_acceleration",
+}
+"""The feed-forward ports a controller's ``compute`` may declare: port -> keyword. ``torque``:
+a generalised force w (n,) N m acting with the input (SMC, MPC, IDMPC; what
+:class:`~hydroarm.control.observers.ObservedController` feeds); ``acceleration``: d (n,) rad/s^2
+added to the prediction model's acceleration (MPC; what GP-MPC feeds with ``gpmpc.feedforward =
+"acceleration"``). None means zero."""
+
+
+@runtime_checkable
+class TorqueFeedforward(Protocol):
+    """A controller with the ``torque`` feed-forward port (:data:`FEEDFORWARD_PORTS`): what a
+    disturbance observer or learner wraps. ``torque_limit`` (n,) N m: its actuators' box."""
+
+    name: str
+    control_period: float
+    torque_limit: np.ndarray
+
+    def reset(self) -> None: ...
+
+    def compute(
+        self, t: float, y: np.ndarray, reference: Reference, feedforward_torque: np.ndarray | None = None
+    ) -> ControlOutput: ...
+
+    def observe(self, t: float, y: np.ndarray, u: np.ndarray, y_next: np.ndarray) -> None: ...
+
+
+@runtime_checkable
+class AccelerationFeedforward(Protocol):
+    """A controller with both feed-forward ports (:data:`FEEDFORWARD_PORTS`): the linear MPC."""
+
+    name: str
+    control_period: float
+
+    def reset(self) -> None: ...
+
+    def compute(
+        self,
+        t: float,
+        y: np.ndarray,
+        reference: Reference,
+        feedforward_acceleration: np.ndarray | None = None,
+        feedforward_torque: np.ndarray | None = None,
+    ) -> ControlOutput: ...
+
+    def observe(self, t: float, y: np.ndarray, u: np.ndarray, y_next: np.ndarray) -> None: ...
+
+
+def has_port(controller: object, port: str) -> bool:
+    """Whether ``controller.compute`` declares the feed-forward ``port`` ("torque" or
+    "acceleration", :data:`FEEDFORWARD_PORTS`) as a keyword parameter."""
+    import inspect
+
+    keyword = FEEDFORWARD_PORTS[port]
+    compute = getattr(controller, "compute", None)
+    if compute is None:
+        return False
+    parameter = inspect.signature(compute).parameters.get(keyword)
+    return parameter is not None and parameter.kind in (parameter.POSITIONAL_OR_KEYWORD, parameter.KEYWORD_ONLY)
+
+
+def require_port(controller: object, port: str, user: str) -> None:
+    """TypeError naming ``user``, the controller and the keyword unless ``controller`` declares
+    the feed-forward ``port`` (:func:`has_port`): a wrapper checks its inner controller once,
+    when it is built, rather than failing at its first step."""
+    if not has_port(controller, port):
+        name = getattr(controller, "name", type(controller).__name__)
+        raise TypeError(
+            f"{user} feeds a {port} forward: controller {name}'s compute must take "
+            f"{FEEDFORWARD_PORTS[port]}= (the {port} port, hydroarm.control.interface.FEEDFORWARD_PORTS)"
+        )
+
+
+@runtime_checkable
+class WrapsController(Protocol):
+    """A controller that runs another one: ``controller`` is the wrapped controller (the
+    Kalman filter's, an observer's, the vehicle's arm controller)."""
+
+    controller: Controller
+
+
+@runtime_checkable
+class ModelLearner(Protocol):
+    """A controller whose learned model can be saved and loaded (PI-IDMPC's water model)."""
+
+    def load_model(self, path: str | Path) -> None: ...
+
+    def save_model(self, path: str | Path) -> None: ...
+
+
+def controller_chain(controller: Controller) -> list[Controller]:
+    """``controller`` and the controllers it wraps, outermost first (:class:`WrapsController`)."""
+    chain = [controller]
+    while isinstance(chain[-1], WrapsController) and len(chain) < 64:
+        chain.append(chain[-1].controller)
+    return chain
+
+
+def learner_of(controller: Controller) -> ModelLearner | None:
+    """The outermost controller of ``controller``'s chain (:func:`controller_chain`) whose learned
+    model can be saved and loaded (:class:`ModelLearner`), or None."""
+    return next((inner for inner in controller_chain(controller) if isinstance(inner, ModelLearner)), None)

@@ -44,7 +44,7 @@ import pinocchio as pin
 import pydantic
 
 from hydroarm.config import FrozenModel
-from hydroarm.control.interface import Controller, ControlOutput, Reference
+from hydroarm.control.interface import ControlOutput, Reference, TorqueFeedforward, require_port
 from hydroarm.model.arm import Arm
 
 ObserverKind = Literal["none", "tde", "ndob"]
@@ -143,12 +143,15 @@ SATURATION_TOLERANCE = 1e-9
 class ObservedController:
     """A controller with a :class:`DisturbanceObserver` under it (module docstring).
 
-    ``controller.compute`` must take ``feedforward_torque`` (n,) N m; its ``torque_limit`` (n,)
-    decides saturation. ``name``: the controller's with ``+TDE`` / ``+NDOB`` (``-gated``).
+    ``controller`` must have the torque feed-forward port (``compute(..., feedforward_torque=)``
+    (n,) N m, :class:`~hydroarm.control.interface.TorqueFeedforward`; checked here, TypeError
+    otherwise); its ``torque_limit`` (n,) decides saturation. ``name``: the controller's with
+    ``+TDE`` / ``+NDOB`` (``-gated``).
     ``ControlOutput.disturbance_mean`` is the estimate fed forward.
     """
 
-    def __init__(self, controller: Controller, observer: DisturbanceObserver):
+    def __init__(self, controller: TorqueFeedforward, observer: DisturbanceObserver):
+        require_port(controller, "torque", f"the disturbance observer ({observer.config.label})")
         self.controller = controller
         self.observer = observer
         self.name = f"{controller.name}+{observer.config.label}"

@@ -64,6 +64,12 @@ class UVMSController:
         self._features = None
         self._pending_events: list[str] = []
 
+    @property
+    def controller(self) -> Controller:
+        """The arm's controller: the one this one wraps (:class:`~hydroarm.control.interface.WrapsController`;
+        ``arm`` is the same object)."""
+        return self.arm
+
     def reset(self) -> None:
         self.arm.reset()
         self.vehicle.reset()

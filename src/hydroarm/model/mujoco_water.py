@@ -127,58 +127,10 @@ def arm_to_mjcf(
     keep = [True] * len(cylinders) if blunt is None else list(blunt)
     if len(keep) != len(cylinders):
         raise ValueError(f"blunt has {len(keep)} values for {len(cylinders)} cylinders")
-    model = arm.model
-    axes = revolute_axes(arm)
     children: dict[int, list[int]] = {}
-    for joint_id in range(1, model.njoints):
-        children.setdefault(int(model.parents[joint_id]), []).append(joint_id)
-
-    def geoms(joint_id: int, indent: str) -> list[str]:
-        lines = []
-        for index, cylinder in enumerate(cylinders):
-            if cylinder.joint_id != joint_id:
-                continue
-            coefficient = blunt_coefficient(_cd(cylinder, water)) if keep[index] else 0.0
-            half = cylinder.length / (2.0 * segments)
-            quat = _quat(_z_to(cylinder.axis))
-            for k in range(segments):
-                centre = cylinder.start + (k + 0.5) / segments * (cylinder.end - cylinder.start)
-                lines.append(
-                    f'{indent}<geom name="{cylinder.name}_{k}" type="cylinder" '
-                    f'size="{_fmt([cylinder.diameter / 2.0, half])}" pos="{_fmt(centre)}" quat="{_fmt(quat)}" '
-                    f'fluidshape="ellipsoid" fluidcoef="{coefficient:.17g} 0 0 0 0" contype="0" conaffinity="0"/>'
-                )
-        return lines
-
-    def body(joint_id: int, indent: str) -> list[str]:
-        placement = model.jointPlacements[joint_id]
-        inertia = model.inertias[joint_id]
-        mass = float(inertia.mass)
-        tensor = np.asarray(inertia.inertia, dtype=float)
-        lever = np.asarray(inertia.lever, dtype=float)
-        if mass < TINY_MASS:
-            mass, tensor, lever = TINY_MASS, TINY_MASS * 1e-4 * np.eye(3), np.zeros(3)
-        full = [tensor[0, 0], tensor[1, 1], tensor[2, 2], tensor[0, 1], tensor[0, 2], tensor[1, 2]]
-        name = model.names[joint_id]
-        lines = [
-            f'{indent}<body name="{name}" pos="{_fmt(placement.translation)}" '
-            f'quat="{_fmt(_quat(placement.rotation))}">',
-            f'{indent}  <joint name="{name}" type="hinge" axis="{_fmt(axes[joint_id])}" limited="false" damping="0" '
-            f'armature="{float(model.armature[model.joints[joint_id].idx_v]):.17g}"/>',
-            f'{indent}  <inertial pos="{_fmt(lever)}" mass="{mass:.17g}" fullinertia="{_fmt(full)}"/>',
-        ]
-        wet = geoms(joint_id, indent + "  ")
-        if not wet:  # keep MuJoCo off its inertia-box model for this body
-            wet = [
-                f'{indent}  <geom name="{name}_dry" type="sphere" size="1e-4" fluidshape="ellipsoid" '
-                'fluidcoef="0 0 0 0 0" contype="0" conaffinity="0"/>'
-            ]
-        lines += wet
-        for child in children.get(joint_id, []):
-            lines += body(child, indent + "  ")
-        lines.append(f"{indent}</body>")
-        return lines
-
+    for joint_id in range(1, arm.model.njoints):
+        children.setdefault(int(arm.model.parents[joint_id]), []).append(joint_id)
+    coefficients = [blunt_coefficient(_cd(cylinder, water)) if on else 0.0 for cylinder, on in zip(cylinders, keep)]
     out = [
         f'<mujoco model="{arm.name}_fluid">',
         '  <compiler angle="radian" inertiafromgeom="false" balanceinertia="true" autolimits="true"/>',
@@ -187,11 +139,64 @@ def arm_to_mjcf(
         "  </option>",
         "  <worldbody>",
     ]
-    out += geoms(0, "    ")
+    out += _geoms(arm, coefficients, segments, 0, "    ")
     for child in children.get(0, []):
-        out += body(child, "    ")
+        out += _body(arm, revolute_axes(arm), children, coefficients, segments, child, "    ")
     out += ["  </worldbody>", "</mujoco>"]
     return "\n".join(out) + "\n"
+
+
+def _geoms(arm: Arm, coefficients: list[float], segments: int, joint_id: int, indent: str) -> list[str]:
+    """The MJCF geoms of the wetted cylinders that joint ``joint_id`` carries, ``segments`` each,
+    with the fluid coefficient ``coefficients[c]`` of cylinder c."""
+    lines = []
+    for cylinder, coefficient in zip(arm.cylinders, coefficients):
+        if cylinder.joint_id != joint_id:
+            continue
+        half = cylinder.length / (2.0 * segments)
+        quat = _quat(_z_to(cylinder.axis))
+        for k in range(segments):
+            centre = cylinder.start + (k + 0.5) / segments * (cylinder.end - cylinder.start)
+            lines.append(
+                f'{indent}<geom name="{cylinder.name}_{k}" type="cylinder" '
+                f'size="{_fmt([cylinder.diameter / 2.0, half])}" pos="{_fmt(centre)}" quat="{_fmt(quat)}" '
+                f'fluidshape="ellipsoid" fluidcoef="{coefficient:.17g} 0 0 0 0" contype="0" conaffinity="0"/>'
+            )
+    return lines
+
+
+def _body(
+    arm: Arm, axes: np.ndarray, children: dict[int, list[int]], coefficients: list[float], segments: int,
+    joint_id: int, indent: str,
+) -> list[str]:  # fmt: skip
+    """The MJCF body of joint ``joint_id`` (its hinge, inertia and geoms) and, inside it, its children's."""
+    model = arm.model
+    placement = model.jointPlacements[joint_id]
+    inertia = model.inertias[joint_id]
+    mass = float(inertia.mass)
+    tensor = np.asarray(inertia.inertia, dtype=float)
+    lever = np.asarray(inertia.lever, dtype=float)
+    if mass < TINY_MASS:
+        mass, tensor, lever = TINY_MASS, TINY_MASS * 1e-4 * np.eye(3), np.zeros(3)
+    full = [tensor[0, 0], tensor[1, 1], tensor[2, 2], tensor[0, 1], tensor[0, 2], tensor[1, 2]]
+    name = model.names[joint_id]
+    lines = [
+        f'{indent}<body name="{name}" pos="{_fmt(placement.translation)}" quat="{_fmt(_quat(placement.rotation))}">',
+        f'{indent}  <joint name="{name}" type="hinge" axis="{_fmt(axes[joint_id])}" limited="false" damping="0" '
+        f'armature="{float(model.armature[model.joints[joint_id].idx_v]):.17g}"/>',
+        f'{indent}  <inertial pos="{_fmt(lever)}" mass="{mass:.17g}" fullinertia="{_fmt(full)}"/>',
+    ]
+    wet = _geoms(arm, coefficients, segments, joint_id, indent + "  ")
+    if not wet:  # keep MuJoCo off its inertia-box model for this body
+        wet = [
+            f'{indent}  <geom name="{name}_dry" type="sphere" size="1e-4" fluidshape="ellipsoid" '
+            'fluidcoef="0 0 0 0 0" contype="0" conaffinity="0"/>'
+        ]
+    lines += wet
+    for child in children.get(joint_id, []):
+        lines += _body(arm, axes, children, coefficients, segments, child, indent + "  ")
+    lines.append(f"{indent}</body>")
+    return lines
 
 
 @dataclass(frozen=True)

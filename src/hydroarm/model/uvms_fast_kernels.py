@@ -178,13 +178,46 @@ def evaluate(q, v, tau, thrust, water_velocity, tree, vehicle, strips, work, out
     vehicle's, come in ``work``: :func:`workspace`)."""
     scratch, tree_arrays, vehicle_arrays, strip_arrays = work
     rot, pos, rot_world, vel, acc, force, composite, mass, rhs, tmp, tmp2, tmp6, xm, frame, unused, rj = scratch
-    parents, place_rotation, place_translation, axes, rigid, total = tree_arrays
+    parents, rigid = tree_arrays[0], tree_arrays[4]
     allocation, added_mass, linear_damping, quadratic_damping, cb = vehicle_arrays
     bodies, start, axis, table = strip_arrays
-    gravity = tree.gravity
+    _forward_pass(q, v, tree_arrays, scratch)
+    _rigid_forces(parents.shape[0], rigid, tree.gravity, rot_world, vel, acc, tmp, tmp2, force)
+    # the arm's water on its bodies
+    no_inertia = tmp6[:0, :0]  # the added inertia is in ``total``
+    arm_current = tree.arm_current
+    wet = strips.drag or strips.axial or strips.added_mass or strips.buoyancy
+    for k in range(bodies.shape[0] if wet else 0):
+        i = bodies[k]
+        for a in range(6):
+            tmp[a] = 0.0
+        body_frame(start, axis, table, k, vel[i], acc[i], rot_world[i], water_velocity, arm_current, frame)
+        cylinder_water(strips, frame, no_inertia, unused, tmp, tmp)
+        for a in range(6):
+            force[i, a] -= tmp[a]
+    # the vehicle's water and thrust on the base
+    body = vehicle_generalised_force(
+        v[:6], rot_world[1], water_velocity, added_mass, linear_damping, quadratic_damping,
+        vehicle.buoyancy, cb, vehicle.added_mass_on, vehicle.drag_on, vehicle.buoyancy_on,
+    )  # fmt: skip
+    for a in range(6):
+        s = body[a]
+        for b in range(thrust.shape[0]):
+            s += allocation[a, b] * thrust[b]
+        force[1, a] -= s
+    _backward_pass(tau, tree_arrays, scratch)
+    _cholesky_solve(mass, rhs, out)
+
+
+@numba.njit(cache=True, inline="always")
+def _forward_pass(q, v, tree_arrays, scratch):  # pragma: no cover - compiled
+    """The bodies' placements (``rot``, ``pos`` in the parent; ``rot_world``), twists ``vel`` and
+    velocity-product accelerations ``acc`` (body frames), into ``scratch`` (:func:`workspace`).
+    Root: world placement from q; body twist = v[:6]; no velocity-product acceleration."""
+    rot, pos, rot_world, vel, acc = scratch[0], scratch[1], scratch[2], scratch[3], scratch[4]
+    rj = scratch[15]
+    parents, place_rotation, place_translation, axes = tree_arrays[0], tree_arrays[1], tree_arrays[2], tree_arrays[3]
     nj = parents.shape[0]
-    nv = v.shape[0]
-    # root: world placement from q; body twist = v[:6]; no velocity-product acceleration
     rot_world[1] = quaternion_matrix(q[3], q[4], q[5], q[6])
     for i in range(6):
         vel[1, i] = v[i]
@@ -214,7 +247,11 @@ def evaluate(q, v, tau, thrust, water_velocity, tree, vehicle, strips, work, out
         acc[i, 3] += vel[i, 4] * s2 - vel[i, 5] * s1
         acc[i, 4] += vel[i, 5] * s0 - vel[i, 3] * s2
         acc[i, 5] += vel[i, 3] * s1 - vel[i, 4] * s0
-    # body forces: I (a + a_gravity) + v x* I v - f_ext
+
+
+@numba.njit(cache=True, inline="always")
+def _rigid_forces(nj, rigid, gravity, rot_world, vel, acc, tmp, tmp2, force):  # pragma: no cover - compiled
+    """The bodies' forces before the water: I (a + a_gravity) + v x* I v, into ``force``."""
     for i in range(1, nj):
         for a in range(6):
             tmp[a] = acc[i, a]
@@ -235,27 +272,16 @@ def evaluate(q, v, tau, thrust, water_velocity, tree, vehicle, strips, work, out
         force[i, 3] += w1 * tmp2[5] - w2 * tmp2[4] + vel[i, 1] * tmp2[2] - vel[i, 2] * tmp2[1]
         force[i, 4] += w2 * tmp2[3] - w0 * tmp2[5] + vel[i, 2] * tmp2[0] - vel[i, 0] * tmp2[2]
         force[i, 5] += w0 * tmp2[4] - w1 * tmp2[3] + vel[i, 0] * tmp2[1] - vel[i, 1] * tmp2[0]
-    no_inertia = tmp6[:0, :0]  # the added inertia is in ``total``
-    arm_current = tree.arm_current
-    wet = strips.drag or strips.axial or strips.added_mass or strips.buoyancy
-    for k in range(bodies.shape[0] if wet else 0):
-        i = bodies[k]
-        for a in range(6):
-            tmp[a] = 0.0
-        body_frame(start, axis, table, k, vel[i], acc[i], rot_world[i], water_velocity, arm_current, frame)
-        cylinder_water(strips, frame, no_inertia, unused, tmp, tmp)
-        for a in range(6):
-            force[i, a] -= tmp[a]
-    body = vehicle_generalised_force(
-        v[:6], rot_world[1], water_velocity, added_mass, linear_damping, quadratic_damping,
-        vehicle.buoyancy, cb, vehicle.added_mass_on, vehicle.drag_on, vehicle.buoyancy_on,
-    )  # fmt: skip
-    for a in range(6):
-        s = body[a]
-        for b in range(thrust.shape[0]):
-            s += allocation[a, b] * thrust[b]
-        force[1, a] -= s
-    # backward pass: RNEA torques and CRBA
+
+
+@numba.njit(cache=True, inline="always")
+def _backward_pass(tau, tree_arrays, scratch):  # pragma: no cover - compiled
+    """RNEA's backward pass (``rhs`` = tau - bias) and the CRBA (``mass``, from the composite
+    inertias started at ``total``): the linear system of v', into ``scratch`` (:func:`workspace`)."""
+    rot, pos, rot_world, vel, acc, force, composite, mass, rhs, tmp, tmp2, tmp6, xm, frame, unused, rj = scratch
+    parents, axes, total = tree_arrays[0], tree_arrays[3], tree_arrays[5]
+    nj = parents.shape[0]
+    nv = rhs.shape[0]
     for a in range(nv):
         for b in range(nv):
             mass[a, b] = 0.0
@@ -294,7 +320,6 @@ def evaluate(q, v, tau, thrust, water_velocity, tree, vehicle, strips, work, out
         rhs[a] = tau[a] - force[1, a]
         for b in range(6):
             mass[a, b] = composite[1, a, b]
-    _cholesky_solve(mass, rhs, out)
 
 
 @numba.njit(cache=True)

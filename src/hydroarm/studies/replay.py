@@ -25,7 +25,7 @@ import numpy as np
 import pinocchio as pin
 import pydantic
 
-from hydroarm.config import FrozenModel
+from hydroarm.config import ConfigError, FrozenModel
 from hydroarm.model.integrator import inner_steps
 from hydroarm.model.loading import load_arm
 from hydroarm.model.uvms import build_uvms
@@ -85,6 +85,31 @@ class ReplayConfig(FrozenModel):
     def imu_mounting(self) -> np.ndarray:
         """R (3, 3): the IMU's frame in the body frame (the IMU reads R_body R)."""
         return pin.rpy.rpyToMatrix(*np.radians(self.imu_mounting_rpy_deg))
+
+
+NOT_ON_REPLAY: dict[str, str] = {
+    "sensor": "the arm's joints follow the logged angles, which the real encoders already measured: "
+    "no controller reads a simulated sensor",
+    "actuator": "no torque is commanded: the log prescribes the joints' motion, so no drive sits "
+    "between a command and the arm",
+    "friction": "the log prescribes the joints' motion: joint friction, a torque between two links, changes "
+    "only the motor torque that motion takes, never the force on the vehicle",
+    "plant": "the replay's plant is the vehicle file's under the logged joint motion; its integration "
+    "step is the replay setting inner_step",
+}
+"""The experiment's real-loop sections that cannot apply to a replay, and why: given to
+``hydroarm replay`` they are refused (:func:`check_replay_key`), never ignored."""
+
+
+def check_replay_key(key: str, where: str = "--set") -> None:
+    """:class:`ConfigError` naming ``key`` (a dotted setting) if it belongs to a section of
+    :data:`NOT_ON_REPLAY`, with why it cannot apply and the settings a replay takes."""
+    section = key.strip().split(".", 1)[0]
+    if section in NOT_ON_REPLAY:
+        raise ConfigError(
+            f"{where} {key.strip()}: not used by a replay: {NOT_ON_REPLAY[section]}. A replay's settings: "
+            f"{', '.join(ReplayConfig.model_fields)} (hydroarm settings, section replay)"
+        )
 
 
 @dataclass

@@ -308,41 +308,22 @@ def render_report(metrics: dict, out: Path) -> str:
     numbers beside ours and report_notes.md; on any other arm: the same study on that arm,
     with no paper numbers and notes computed from its own (the module docstring)."""
     settings = metrics["settings"]
-    experiment = settings["experiment"]
     clean, noisy = metrics["clean"], metrics["noisy"]
-    water, mpc, machine = experiment["water"], experiment["mpc"], metrics["machine"]
-    gp_settings, gpmpc = experiment["gp"], experiment["gpmpc"]
     paper = settings.get("paper_arm", True)
-    n = len(clean["MPC"]["Ep"])
     title, (arm_line, task_line, smc_line) = _paper_header(metrics) if paper else _arm_header(metrics)
     lines = [
         *title,
         "",
         f"Wall time: {metrics['wall_time_s']['total']:.1f} s for all runs, tables and figures "
-        f"({settings['workers']} worker processes; {machine['cpus']} CPUs; Python {machine['python']}).",
+        f"({settings['workers']} worker processes; {metrics['machine']['cpus']} CPUs; "
+        f"Python {metrics['machine']['python']}).",
         "",
         "Results files: `summary.json` holds every number (the rows, the ablations, the settings, the",
         "arm, wall times): read this one. `metrics.json` holds only Tables 1-2's numbers (summary.json's",
         "`clean` and `noisy`). Both are strict JSON: a number that is not defined (e.g. E_p after 2 s of a",
         "shorter run) is `null`.",
         "",
-        "## Settings",
-        "",
-        arm_line + "Pinocchio rigid body + Morison water "
-        f"(rho = {water['rho']:g}, C_d = {water['cd']:g}, C_m = {water['cm']:g}, "
-        f"{water['quadrature_points']} Gauss points per cylinder) + buoyancy + the paper's current "
-        f"(model `{water['current']['model']}`), RK4 with {experiment['plant']['inner_step'] * 1e3:g} ms steps.",
-        task_line,
-        f"- MPC: N = {mpc['horizon']}, Q = diag({_value(mpc['q_position'])} x {n}, "
-        f"{_value(mpc['q_velocity'])} x {n}), R = {_value(mpc['r'])} I, terminal cost from the DARE, "
-        f"terminal set `{mpc['terminal_set']}`, solver {mpc['solver']}, "
-        f"prediction model `{mpc.get('discretisation', 'euler')}` (docs/deviations.md).",
-        f"- GP: window {gp_settings['window']}, {gp_settings['hyper_steps']} hyperparameter step(s) per control step, "
-        f"features `{gpmpc['features']}`, estimate fed forward as `{gpmpc['feedforward']}`.",
-        smc_line,
-        f"- Noise: variance {settings['noise_variance']} on measured q and q' (Table 2), "
-        f"{settings['noisy_seeds']} seeds; Table 2 shows the mean over seeds and its spread.",
-        "",
+        *_settings_section(metrics, arm_line, task_line, smc_line),
         "## Results",
         "",
         _ordering_sentence(clean, "no noise (Table 1)"),
@@ -360,6 +341,58 @@ def render_report(metrics: dict, out: Path) -> str:
         "",
         (out / "table1.md").read_text() if (out / "table1.md").exists() else "",
         (out / "table2.md").read_text() if (out / "table2.md").exists() else "",
+        *_disturbance_section(metrics, paper),
+        *_step_time_and_faults(metrics),
+    ]
+    if metrics.get("ablation") and (out / "ablation.md").exists():
+        lines += ["## Ablation", "", (out / "ablation.md").read_text()]
+    if metrics.get("ablation_idmpc") and (out / "ablation_idmpc.md").exists():
+        lines += [(out / "ablation_idmpc.md").read_text()]
+    lines += ["## Figures", ""]
+    lines += [f"![GP-MPC on the task: the arm (colour) and the reference (grey)]({ANIMATION})", ""]
+    for name, title in FIGURES.items():
+        lines.append(f"![{title}]({name})")
+        lines.append("")
+    if paper:
+        lines += [Path(__file__).with_name("report_notes.md").read_text()]
+    else:
+        lines += _arm_notes(metrics)
+    return "\n".join(lines) + "\n"
+
+
+def _settings_section(metrics: dict, arm_line: str, task_line: str, smc_line: str) -> list[str]:
+    """The report's Settings section: the plant, the task, the MPC, the GP, the SMC, the noise."""
+    settings = metrics["settings"]
+    experiment = settings["experiment"]
+    water, mpc = experiment["water"], experiment["mpc"]
+    gp_settings, gpmpc = experiment["gp"], experiment["gpmpc"]
+    n = len(metrics["clean"]["MPC"]["Ep"])
+    return [
+        "## Settings",
+        "",
+        arm_line + "Pinocchio rigid body + Morison water "
+        f"(rho = {water['rho']:g}, C_d = {water['cd']:g}, C_m = {water['cm']:g}, "
+        f"{water['quadrature_points']} Gauss points per cylinder) + buoyancy + the paper's current "
+        f"(model `{water['current']['model']}`), RK4 with {experiment['plant']['inner_step'] * 1e3:g} ms steps.",
+        task_line,
+        f"- MPC: N = {mpc['horizon']}, Q = diag({_value(mpc['q_position'])} x {n}, "
+        f"{_value(mpc['q_velocity'])} x {n}), R = {_value(mpc['r'])} I, terminal cost from the DARE, "
+        f"terminal set `{mpc['terminal_set']}`, solver {mpc['solver']}, "
+        f"prediction model `{mpc.get('discretisation', 'euler')}` (docs/deviations.md).",
+        f"- GP: window {gp_settings['window']}, {gp_settings['hyper_steps']} hyperparameter step(s) per control step, "
+        f"features `{gpmpc['features']}`, estimate fed forward as `{gpmpc['feedforward']}`.",
+        smc_line,
+        f"- Noise: variance {settings['noise_variance']} on measured q and q' (Table 2), "
+        f"{settings['noisy_seeds']} seeds; Table 2 shows the mean over seeds and its spread.",
+        "",
+    ]
+
+
+def _disturbance_section(metrics: dict, paper: bool) -> list[str]:
+    """The GP-MPC's disturbance estimate against the truth after 1 s, per joint, and the noise floor."""
+    clean, noisy = metrics["clean"], metrics["noisy"]
+    n = len(clean["MPC"]["Ep"])
+    lines = [
         "### Disturbance estimate (paper: converges within 1 s, then within 0.1 N m)"
         if paper
         else "### Disturbance estimate of the GP-MPC",
@@ -389,7 +422,13 @@ def render_report(metrics: dict, out: Path) -> str:
         if paper
         else _arm_noise_floor(metrics)
     )
-    lines += [
+    return lines
+
+
+def _step_time_and_faults(metrics: dict) -> list[str]:
+    """The step-time table (clean runs), the reproducible digits and the faults met."""
+    clean, noisy = metrics["clean"], metrics["noisy"]
+    lines = [
         "",
         "### Step time",
         "",
@@ -408,17 +447,4 @@ def render_report(metrics: dict, out: Path) -> str:
         if block[name].get("faults")
     ]
     lines += (faults or ["None: no measurement held, no GP or QP fallback, no clipped torque, no stopped run."]) + [""]
-    if metrics.get("ablation") and (out / "ablation.md").exists():
-        lines += ["## Ablation", "", (out / "ablation.md").read_text()]
-    if metrics.get("ablation_idmpc") and (out / "ablation_idmpc.md").exists():
-        lines += [(out / "ablation_idmpc.md").read_text()]
-    lines += ["## Figures", ""]
-    lines += [f"![GP-MPC on the task: the arm (colour) and the reference (grey)]({ANIMATION})", ""]
-    for name, title in FIGURES.items():
-        lines.append(f"![{title}]({name})")
-        lines.append("")
-    if paper:
-        lines += [Path(__file__).with_name("report_notes.md").read_text()]
-    else:
-        lines += _arm_notes(metrics)
-    return "\n".join(lines) + "\n"
+    return lines

@@ -344,4 +344,7 @@ def settings_markdown() -> str:
     for row in settings_table(ReplayConfig):
         allowed = f"{row.kind}; {row.allowed}" if row.allowed else row.kind
         lines.append(f"| `{row.key}` | `{_cell(_shown(row.default))}` | {_cell(allowed)} | {_cell(row.description)} |")
-    return "\n".join(lines) + "\n"
+    from hydroarm.studies.settings_resolved import precedence_markdown
+
+    lines += ["", *precedence_markdown()]
+    return "\n".join(lines).rstrip("\n") + "\n"

@@ -40,17 +40,8 @@ def _evaluate_kernel(X, Y_fit, log_theta, sn2, jitter, cached_linv, with_gradien
     """
     n_out = log_theta.shape[0]
     n, d = X.shape
-    # -1/2 (x_aj - x_bj)^2 for the pairs a > b (column p, lower triangle row-major)
-    n_pairs = n * (n - 1) // 2
-    pairs = np.empty((d, n_pairs))
-    p = 0
-    for a in range(n):
-        for b in range(a):
-            for j in range(d):
-                diff = X[a, j] - X[b, j]
-                pairs[j, p] = -0.5 * diff * diff
-            p += 1
-    exponent = np.empty(n_pairs)
+    pairs = _pair_terms(X)
+    exponent = np.empty(pairs.shape[1])
     use_cached = cached_linv.shape[0] == n_out
     lml = np.empty(n_out)
     alpha = np.empty((n_out, n))
@@ -71,20 +62,7 @@ def _evaluate_kernel(X, Y_fit, log_theta, sn2, jitter, cached_linv, with_gradien
     for r in range(n_out):
         for j in range(d):
             inv_l2[j] = math.exp(-2.0 * log_theta[r, 2 + j])
-        log_sf2 = log_theta[r, 0]
-        sf2 = math.exp(log_sf2)
-        exponent[:] = 0.0  # sum_j inv_l2_j D_j, summed in j order as the NumPy version's matmul
-        for j in range(d):
-            for p in range(n_pairs):
-                exponent[p] += inv_l2[j] * pairs[j, p]
-        p = 0
-        for a in range(n):
-            k_signal[a, a] = sf2
-            for b in range(a):
-                value = math.exp(exponent[p] + log_sf2)
-                k_signal[a, b] = value
-                k_signal[b, a] = value
-                p += 1
+        _signal_matrix(pairs, inv_l2, log_theta[r, 0], exponent, k_signal)
         lr = linv[r]
         if not use_cached:
             status = _factor_inverse(k_signal, sn2[r] + jitter, chol, lr)
@@ -93,56 +71,112 @@ def _evaluate_kernel(X, Y_fit, log_theta, sn2, jitter, cached_linv, with_gradien
             if status == 2:
                 linv_finite[r] = False
                 lr[:, :] = np.nan
-        # alpha = K^-1 y = L^-T (L^-1 y), two triangular products: more accurate than forming
-        # K^-1 first, as the NumPy version does, on ill-conditioned windows (docs/controllers.md).
-        for a in range(n):
-            s = 0.0
-            for b in range(a + 1):
-                s += lr[a, b] * Y_fit[r, b]
-            whitened[a] = s
-        for a in range(n):
-            s = 0.0
-            for k in range(a, n):
-                s += lr[k, a] * whitened[k]
-            alpha[r, a] = s
+        _solve_alpha(lr, Y_fit[r], whitened, alpha[r])
+        if with_gradient:  # K^-1 = L^-T L^-1, for W = alpha alpha^T - K^-1
+            _inverse_from_factor(lr, k_inv)
         fit = 0.0
         log_det = 0.0
-        if with_gradient:  # K^-1 = L^-T L^-1, for W = alpha alpha^T - K^-1
-            for a in range(n):
-                for b in range(a + 1):
-                    s = 0.0
-                    for k in range(a, n):
-                        s += lr[k, a] * lr[k, b]
-                    k_inv[a, b] = s
-                    k_inv[b, a] = s
         for a in range(n):
             fit += alpha[r, a] * Y_fit[r, a]
             log_det += math.log(lr[a, a])
         lml[r] = log_det - 0.5 * fit - half_log_2pi_n
-        if not with_gradient:
-            continue
-        # W = alpha alpha^T - K^-1, A = W * K_signal (symmetric)
-        g_sf2 = 0.0
-        trace = 0.0
-        for j in range(d):
-            grad[r, 2 + j] = 0.0
-        p = 0
-        for a in range(n):
-            w_aa = alpha[r, a] * alpha[r, a] - k_inv[a, a]
-            trace += w_aa
-            g_sf2 += w_aa * k_signal[a, a]
-            for b in range(a):
-                weight = 2.0 * (alpha[r, a] * alpha[r, b] - k_inv[a, b]) * k_signal[a, b]
-                g_sf2 += weight
-                for j in range(d):
-                    grad[r, 2 + j] += weight * pairs[j, p]
-                p += 1
-        half_trace_w[r] = 0.5 * trace
-        grad[r, 0] = 0.5 * g_sf2
-        grad[r, 1] = sn2[r] * half_trace_w[r]
-        for j in range(d):
-            grad[r, 2 + j] *= -inv_l2[j]
+        if with_gradient:
+            half_trace_w[r] = _gradient_row(alpha[r], k_inv, k_signal, pairs, inv_l2, sn2[r], grad[r])
     return lml, grad, half_trace_w, alpha, linv, linv_finite, True
+
+
+@numba.njit(cache=True)
+def _pair_terms(X):  # pragma: no cover - compiled
+    """(d, n(n-1)/2): -1/2 (x_aj - x_bj)^2 for the pairs a > b (column p, lower triangle row-major)."""
+    n, d = X.shape
+    pairs = np.empty((d, n * (n - 1) // 2))
+    p = 0
+    for a in range(n):
+        for b in range(a):
+            for j in range(d):
+                diff = X[a, j] - X[b, j]
+                pairs[j, p] = -0.5 * diff * diff
+            p += 1
+    return pairs
+
+
+@numba.njit(cache=True)
+def _signal_matrix(pairs, inv_l2, log_sf2, exponent, k_signal):  # pragma: no cover - compiled
+    """The noise-free SE kernel matrix (n, n) into ``k_signal`` (``exponent``: scratch of the pairs)."""
+    d, n_pairs = pairs.shape
+    n = k_signal.shape[0]
+    sf2 = math.exp(log_sf2)
+    exponent[:] = 0.0  # sum_j inv_l2_j D_j, summed in j order as the NumPy version's matmul
+    for j in range(d):
+        for p in range(n_pairs):
+            exponent[p] += inv_l2[j] * pairs[j, p]
+    p = 0
+    for a in range(n):
+        k_signal[a, a] = sf2
+        for b in range(a):
+            value = math.exp(exponent[p] + log_sf2)
+            k_signal[a, b] = value
+            k_signal[b, a] = value
+            p += 1
+
+
+@numba.njit(cache=True)
+def _solve_alpha(lr, y, whitened, alpha_row):  # pragma: no cover - compiled
+    """alpha = K^-1 y = L^-T (L^-1 y), two triangular products: more accurate than forming
+    K^-1 first, as the NumPy version does, on ill-conditioned windows (docs/controllers.md)."""
+    n = lr.shape[0]
+    for a in range(n):
+        s = 0.0
+        for b in range(a + 1):
+            s += lr[a, b] * y[b]
+        whitened[a] = s
+    for a in range(n):
+        s = 0.0
+        for k in range(a, n):
+            s += lr[k, a] * whitened[k]
+        alpha_row[a] = s
+
+
+@numba.njit(cache=True)
+def _inverse_from_factor(lr, k_inv):  # pragma: no cover - compiled
+    """K^-1 = L^-T L^-1 (n, n, symmetric) into ``k_inv`` from the inverse factor ``lr``."""
+    n = lr.shape[0]
+    for a in range(n):
+        for b in range(a + 1):
+            s = 0.0
+            for k in range(a, n):
+                s += lr[k, a] * lr[k, b]
+            k_inv[a, b] = s
+            k_inv[b, a] = s
+
+
+@numba.njit(cache=True)
+def _gradient_row(alpha, k_inv, k_signal, pairs, inv_l2, sn2, grad):  # pragma: no cover - compiled
+    """d lml / d log theta (d+2,) into ``grad``, from W = alpha alpha^T - K^-1 and
+    A = W * K_signal (symmetric); returns half the trace of W."""
+    n = alpha.shape[0]
+    d = inv_l2.shape[0]
+    g_sf2 = 0.0
+    trace = 0.0
+    for j in range(d):
+        grad[2 + j] = 0.0
+    p = 0
+    for a in range(n):
+        w_aa = alpha[a] * alpha[a] - k_inv[a, a]
+        trace += w_aa
+        g_sf2 += w_aa * k_signal[a, a]
+        for b in range(a):
+            weight = 2.0 * (alpha[a] * alpha[b] - k_inv[a, b]) * k_signal[a, b]
+            g_sf2 += weight
+            for j in range(d):
+                grad[2 + j] += weight * pairs[j, p]
+            p += 1
+    half_trace = 0.5 * trace
+    grad[0] = 0.5 * g_sf2
+    grad[1] = sn2 * half_trace
+    for j in range(d):
+        grad[2 + j] *= -inv_l2[j]
+    return half_trace
 
 
 @numba.njit(cache=True)

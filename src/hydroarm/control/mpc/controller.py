@@ -132,40 +132,16 @@ class LinearMPC:
         """
         start = time.perf_counter()
         cfg = self.config
-        n, horizon, period = self.n, self.horizon, self.control_period
+        n, horizon = self.n, self.horizon
         y = np.asarray(y, dtype=float)
         if y.shape != (2 * n,) or not np.all(np.isfinite(y)):
             raise ValueError(f"y must be finite with shape ({2 * n},), got shape {y.shape}: {y}")
-        k = int(round(t / period))
-
-        # Linearise: slide the window to k .. k + N, computing only the new indices.
-        self._slide(k, reference)
-        u_refs = self._u_ref[:horizon]
-        if feedforward_torque is not None:
-            w = np.asarray(feedforward_torque, dtype=float)
-            if w.shape != (n,) or not np.all(np.isfinite(w)):
-                raise ValueError(f"feedforward_torque must be finite with shape ({n},)")
-            u_refs = u_refs - w
-        offsets = self._x_next[:horizon] - self._x_ref[1:]
-        if feedforward_acceleration is not None:
-            d = np.asarray(feedforward_acceleration, dtype=float)
-            if d.shape != (n,) or not np.all(np.isfinite(d)):
-                raise ValueError(f"feedforward_acceleration must be finite with shape ({n},)")
-            offsets[:, n:] += period * d
-            if cfg.discretisation == "taylor2":  # the extra acceleration also moves the position
-                offsets[:, :n] += 0.5 * period**2 * d
+        k = int(round(t / self.control_period))
+        self._slide(k, reference)  # linearise: slide the window to k .. k + N, computing only the new indices
+        u_refs, offsets = self._affine_terms(feedforward_acceleration, feedforward_torque)
         e0 = y - self._x_ref[0]
         t_lin = time.perf_counter()
-
-        # Terminal weight: DARE at the horizon-end linearisation, once per index.
-        if self._riccati_index != k + horizon:
-            P, _, method = riccati_solution(
-                self._a[horizon], self._b[horizon], self.Q, self._r_diag,
-                cfg.riccati_tolerance, cfg.riccati_max_iterations,
-            )  # fmt: skip
-            self.riccati_scipy_count += method != "doubling"
-            self._P, self._riccati_index = P, k + horizon
-        P = self._P
+        P = self._terminal_weight(k)
         t_ric = time.perf_counter()
 
         # Condensed QP and its box.
@@ -177,34 +153,10 @@ class LinearMPC:
         if warm is not None:
             warm = warm.ravel() - u_ref_flat
         t_upd = time.perf_counter()
-
-        # Solve, with fallbacks; every fault is an event of this step.
-        status = "ok"
-        events: list[str] = []
-        result = self._solve(qp, lb, ub, P, warm, cfg.terminal_set)
-        if cfg.terminal_set == "hard" and not result.ok:
-            status = "terminal_soft_fallback"
-            events.append("terminal_soft_fallback")
-            result = self._solve(qp, lb, ub, P, warm, "soft")
-        self.last_message = result.message
-        if result.ok and _valid_moves(result.x, lb, ub):
-            du = result.x
-            self._plan = (u_ref_flat + du).reshape(horizon, n)
-            self._plan_index = k
-        else:
-            self.fallback_count += 1
-            events.append(qp_failure_event(result))
-            du, status = self._fallback(k, u_refs, P, e0)
-        tau = u_refs[0] + du[:n]
+        du, status, events = self._solve_step(k, qp, lb, ub, P, warm, u_refs, e0)
+        tau = self._last_guard(u_refs[0] + du[:n], events)
         t_sol = time.perf_counter()
-
-        # Last guard, and the terminal-set violation (the optimal slack) of the plan used.
-        if not np.all(np.abs(tau) <= self.torque_limit * (1.0 + CLIP_TOLERANCE)):  # NaN included
-            self.clip_count += 1
-            events.append("torque_clipped")
-            tau = np.where(np.isfinite(tau), tau, 0.0)
-        tau = np.clip(tau, -self.torque_limit, self.torque_limit)
-        violation = 0.0
+        violation = 0.0  # the terminal-set violation (the optimal slack) of the plan used
         if cfg.terminal_set != "off":
             e_n = qp.terminal_error(du)
             violation = max(float(e_n @ P @ e_n) - cfg.terminal_alpha, 0.0)
@@ -219,6 +171,74 @@ class LinearMPC:
         return ControlOutput(
             tau=tau, status=status, timings=timings, terminal_violation=violation, events=tuple(events)
         )
+
+    # --- the steps of compute ----------------------------------------------------------
+    def _affine_terms(
+        self, feedforward_acceleration: np.ndarray | None, feedforward_torque: np.ndarray | None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The horizon's input references (N, n) N m (shifted by ``-w``) and the prediction's
+        affine offsets (N, 2n) (with ``d`` added), as :meth:`compute` describes."""
+        n, horizon, period = self.n, self.horizon, self.control_period
+        u_refs = self._u_ref[:horizon]
+        if feedforward_torque is not None:
+            w = np.asarray(feedforward_torque, dtype=float)
+            if w.shape != (n,) or not np.all(np.isfinite(w)):
+                raise ValueError(f"feedforward_torque must be finite with shape ({n},)")
+            u_refs = u_refs - w
+        offsets = self._x_next[:horizon] - self._x_ref[1:]
+        if feedforward_acceleration is not None:
+            d = np.asarray(feedforward_acceleration, dtype=float)
+            if d.shape != (n,) or not np.all(np.isfinite(d)):
+                raise ValueError(f"feedforward_acceleration must be finite with shape ({n},)")
+            offsets[:, n:] += period * d
+            if self.config.discretisation == "taylor2":  # the extra acceleration also moves the position
+                offsets[:, :n] += 0.5 * period**2 * d
+        return u_refs, offsets
+
+    def _terminal_weight(self, k: int) -> np.ndarray:
+        """P (2n, 2n): the DARE at the horizon-end linearisation, solved once per index."""
+        cfg, horizon = self.config, self.horizon
+        if self._riccati_index != k + horizon:
+            P, _, method = riccati_solution(
+                self._a[horizon], self._b[horizon], self.Q, self._r_diag,
+                cfg.riccati_tolerance, cfg.riccati_max_iterations,
+            )  # fmt: skip
+            self.riccati_scipy_count += method != "doubling"
+            self._P, self._riccati_index = P, k + horizon
+        return self._P
+
+    def _solve_step(
+        self, k: int, qp: CondensedQP, lb: np.ndarray, ub: np.ndarray, P: np.ndarray,
+        warm: np.ndarray | None, u_refs: np.ndarray, e0: np.ndarray,
+    ) -> tuple[np.ndarray, str, list[str]]:  # fmt: skip
+        """The QP's moves (N n,), the step's status and its fault events: the solve, the soft
+        terminal set if the hard one is infeasible, then the fallbacks."""
+        cfg, n, horizon = self.config, self.n, self.horizon
+        status = "ok"
+        events: list[str] = []
+        result = self._solve(qp, lb, ub, P, warm, cfg.terminal_set)
+        if cfg.terminal_set == "hard" and not result.ok:
+            status = "terminal_soft_fallback"
+            events.append("terminal_soft_fallback")
+            result = self._solve(qp, lb, ub, P, warm, "soft")
+        self.last_message = result.message
+        if result.ok and _valid_moves(result.x, lb, ub):
+            du = result.x
+            self._plan = (u_refs.ravel() + du).reshape(horizon, n)
+            self._plan_index = k
+        else:
+            self.fallback_count += 1
+            events.append(qp_failure_event(result))
+            du, status = self._fallback(k, u_refs, P, e0)
+        return du, status, events
+
+    def _last_guard(self, tau: np.ndarray, events: list[str]) -> np.ndarray:
+        """``tau`` clipped to the torque box; a clip beyond rounding (NaN included: then 0) is counted."""
+        if not np.all(np.abs(tau) <= self.torque_limit * (1.0 + CLIP_TOLERANCE)):  # NaN included
+            self.clip_count += 1
+            events.append("torque_clipped")
+            tau = np.where(np.isfinite(tau), tau, 0.0)
+        return np.clip(tau, -self.torque_limit, self.torque_limit)
 
     # --- internals -------------------------------------------------------------------
     def _slide(self, k: int, reference: Reference) -> None:

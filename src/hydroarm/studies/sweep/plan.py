@@ -184,38 +184,7 @@ def plan_sweep(config: SweepConfig, folder: Path | None = None, source: str = "s
     rows: list[PlanRow] = []
     tasks: dict[str, RunTask] = {}
     for number, point in enumerate(points):
-        overrides = {k: v for k, v in point.items() if not k.startswith(MISMATCH_PREFIX)}
-        mismatch_values = {
-            k.removeprefix(MISMATCH_PREFIX): v for k, v in point.items() if k.startswith(MISMATCH_PREFIX)
-        }
-        where = ", ".join(f"{k} = {value_label(v)}" for k, v in point.items()) or "base"
-        try:
-            experiment = with_overrides(config.base, overrides) if overrides else config.base
-        except ConfigError as error:
-            message = str(error).removeprefix("settings: ")
-            if message.startswith("unknown setting"):
-                bad = message.split("'")[1] if "'" in message else message
-                mismatch_keys = [MISMATCH_PREFIX + f for f in Mismatch.model_fields]
-                known = dotted_keys(ExperimentConfig) + mismatch_keys
-                text = unknown_key_message(bad, known, None, moved=ExperimentConfig.moved_settings)
-                raise ConfigError(
-                    f"{source}: parameters.{bad}: {text.replace('unknown key', 'unknown setting', 1)} "
-                    f"(a dotted key of the experiment settings, which `hydroarm settings` lists, "
-                    f"or {' / '.join(mismatch_keys)})"
-                ) from None
-            lines = [line.removeprefix("settings: ") for line in message.splitlines()]
-            raise ConfigError("\n".join(f"{source}: parameters ({where}): {line}" for line in lines)) from None
-        unknown = set(mismatch_values) - set(Mismatch.model_fields)
-        if unknown:
-            bad = sorted(unknown)[0]
-            text = unknown_key_message(bad, list(Mismatch.model_fields), None, MISMATCH_PREFIX)
-            raise ConfigError(
-                f"{source}: parameters.{MISMATCH_PREFIX}{bad}: {text.replace('unknown key', 'unknown setting', 1)} "
-                f"(mismatch keys: {', '.join(MISMATCH_PREFIX + f for f in Mismatch.model_fields)})"
-            )
-        mismatch = validate(
-            Mismatch, {**config.mismatch.model_dump(), **mismatch_values}, f"{source}: parameters ({where}): mismatch"
-        )
+        experiment, mismatch = _point_settings(config, point, source)
         resolved = _resolve_arm(experiment.arm, folder)
         if resolved not in arm_keys:
             try:
@@ -240,6 +209,49 @@ def plan_sweep(config: SweepConfig, folder: Path | None = None, source: str = "s
                         identifier, controller, seed, settings, mismatch.model_dump(), key, config.save_trajectories,
                         _task_label(controller, seed, point),
                     )  # fmt: skip
+    _check_for_arms(rows, tasks, arms, source)
+    return Plan(config, rows, tasks, arms, keys, source)
+
+
+def _point_settings(config: SweepConfig, point: dict[str, Any], source: str) -> tuple[ExperimentConfig, Mismatch]:
+    """A parameter point's experiment settings (the base with the point's overrides) and plant
+    mismatch (the sweep's with the point's ``mismatch.*``); :class:`ConfigError` naming the key."""
+    overrides = {k: v for k, v in point.items() if not k.startswith(MISMATCH_PREFIX)}
+    mismatch_values = {k.removeprefix(MISMATCH_PREFIX): v for k, v in point.items() if k.startswith(MISMATCH_PREFIX)}
+    where = ", ".join(f"{k} = {value_label(v)}" for k, v in point.items()) or "base"
+    try:
+        experiment = with_overrides(config.base, overrides) if overrides else config.base
+    except ConfigError as error:
+        message = str(error).removeprefix("settings: ")
+        if message.startswith("unknown setting"):
+            bad = message.split("'")[1] if "'" in message else message
+            mismatch_keys = [MISMATCH_PREFIX + f for f in Mismatch.model_fields]
+            known = dotted_keys(ExperimentConfig) + mismatch_keys
+            text = unknown_key_message(bad, known, None, moved=ExperimentConfig.moved_settings)
+            raise ConfigError(
+                f"{source}: parameters.{bad}: {text.replace('unknown key', 'unknown setting', 1)} "
+                f"(a dotted key of the experiment settings, which `hydroarm settings` lists, "
+                f"or {' / '.join(mismatch_keys)})"
+            ) from None
+        lines = [line.removeprefix("settings: ") for line in message.splitlines()]
+        raise ConfigError("\n".join(f"{source}: parameters ({where}): {line}" for line in lines)) from None
+    unknown = set(mismatch_values) - set(Mismatch.model_fields)
+    if unknown:
+        bad = sorted(unknown)[0]
+        text = unknown_key_message(bad, list(Mismatch.model_fields), None, MISMATCH_PREFIX)
+        raise ConfigError(
+            f"{source}: parameters.{MISMATCH_PREFIX}{bad}: {text.replace('unknown key', 'unknown setting', 1)} "
+            f"(mismatch keys: {', '.join(MISMATCH_PREFIX + f for f in Mismatch.model_fields)})"
+        )
+    mismatch = validate(
+        Mismatch, {**config.mismatch.model_dump(), **mismatch_values}, f"{source}: parameters ({where}): mismatch"
+    )
+    return experiment, mismatch
+
+
+def _check_for_arms(rows: list[PlanRow], tasks: dict[str, RunTask], arms: dict[str, Arm], source: str) -> None:
+    """What only the arm can tell (:func:`~hydroarm.sim.experiment.check_settings_for_arm`), once
+    per distinct settings, arm and controller of the plan's rows."""
     checked: set[tuple[int, str, str]] = set()
     for row in rows:
         arm_key = tasks[row.id].arm_key
@@ -249,7 +261,6 @@ def plan_sweep(config: SweepConfig, folder: Path | None = None, source: str = "s
         where = ", ".join(f"{key} = {value!r}" for key, value in row.params.items())
         what = f"{source}: the runs with {where}" if where else f"{source}: base"
         check_settings_for_arm(row.config, arms[arm_key], what, controllers=(row.controller,))
-    return Plan(config, rows, tasks, arms, keys, source)
 
 
 def perturbed_arm(arm: Arm, mismatch: Mismatch) -> Arm:

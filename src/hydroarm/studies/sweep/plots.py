@@ -39,20 +39,11 @@ def plot_metric(
     out: Path, controllers: list[str], finished: list[dict], varying: list[str], continuous: set[str], metric: str
 ) -> dict[str, str]:
     """ep_boxplot.png, ep_distribution.png and ep_by_<key>.png; returns name -> file."""
-    plt = _pyplot()
-
     label = f"{METRICS[metric][0]} ({METRICS[metric][1]})"
 
     def values(rows: list[dict]) -> list[float]:
         got = (r["record"]["summary"].get(metric) for r in rows)
         return [v for v in got if v is not None and math.isfinite(v)]
-
-    def wide(data: list[float]) -> bool:
-        return bool(data) and min(data) > 0.0 and max(data) / min(data) > 20.0
-
-    def scale(ax, data: list[float]) -> None:
-        if wide(data):
-            ax.set_yscale("log")
 
     plots: dict[str, str] = {}
     per = {name: values([r for r in finished if r["controller"] == name]) for name in controllers}
@@ -61,29 +52,61 @@ def plot_metric(
         return plots
     names = [n for n in controllers if per[n]]
     single = varying[0] if len(varying) == 1 and varying[0] not in continuous else None
+    _box_figure(out / "ep_boxplot.png", controllers, finished, names, per, single, values, label)
+    plots["ep_boxplot"] = "ep_boxplot.png"
+    _distribution_figure(out / "ep_distribution.png", names, per, label)
+    plots["ep_distribution"] = "ep_distribution.png"
+    for key in varying:
+        name = f"ep_by_{safe_name(key)}"
+        _by_key_figure(out / f"{name}.png", key, key in continuous, controllers, finished, names, values, metric, label)
+        plots[name] = f"{name}.png"
+    return plots
+
+
+def _wide(data: list[float]) -> bool:
+    """Whether ``data`` spans more than a factor 20 (all positive): then on a log axis."""
+    return bool(data) and min(data) > 0.0 and max(data) / min(data) > 20.0
+
+
+def _scale(ax, data: list[float]) -> None:
+    if _wide(data):
+        ax.set_yscale("log")
+
+
+def _box_figure(
+    path: Path, controllers: list[str], finished: list[dict], names: list[str], per: dict[str, list[float]],
+    single: str | None, values, label: str,
+) -> None:  # fmt: skip
+    """Box plots of the metric per controller, and by ``single`` (a discrete parameter) beside them."""
+    plt = _pyplot()
+    everything = [v for vs in per.values() for v in vs]
     fig, axes = plt.subplots(1, 2 if single else 1, figsize=(11 if single else 6, 4.2), squeeze=False)
     ax = axes[0, 0]
     box = ax.boxplot([per[n] for n in names], tick_labels=names, patch_artist=True, medianprops={"color": "black"})
     for patch, name in zip(box["boxes"], names):
         patch.set_facecolor(_colour(name, "lightgrey"))
         patch.set_alpha(0.5)
-    scale(ax, everything)
+    _scale(ax, everything)
     ax.set_ylabel(label)
     ax.set_title("per controller")
     ax.grid(True, axis="y", alpha=0.3)
     if single:
         _grouped_boxes(axes[0, 1], single, controllers, finished, values, label)
-        scale(axes[0, 1], everything)
+        _scale(axes[0, 1], everything)
     fig.tight_layout()
-    fig.savefig(out / "ep_boxplot.png", dpi=110)
-    plots["ep_boxplot"] = "ep_boxplot.png"
+    fig.savefig(path, dpi=110)
 
+
+def _distribution_figure(path: Path, names: list[str], per: dict[str, list[float]], label: str) -> None:
+    """The metric's empirical distribution function per controller."""
+    plt = _pyplot()
+    everything = [v for vs in per.values() for v in vs]
     fig, ax = plt.subplots(figsize=(6, 4.2))
     for name in names:
         data = np.sort(per[name])
         fraction = np.arange(0, data.size + 1) / data.size
         ax.step(np.r_[data[0], data], fraction, where="post", label=name, color=_colour(name))
-    if wide(everything):
+    if _wide(everything):
         ax.set_xscale("log")
     ax.set_xlabel(label)
     ax.set_ylabel("fraction of runs <= x")
@@ -91,34 +114,37 @@ def plot_metric(
     ax.grid(True, alpha=0.3)
     ax.legend()
     fig.tight_layout()
-    fig.savefig(out / "ep_distribution.png", dpi=110)
-    plots["ep_distribution"] = "ep_distribution.png"
+    fig.savefig(path, dpi=110)
 
-    for key in varying:
-        fig, ax = plt.subplots(figsize=(8, 4.2))
-        if key in continuous:
-            for name in names:
-                mine = [r for r in finished if r["controller"] == name]
-                xs = [r["params"][key] for r in mine]
-                ys = [r["record"]["summary"].get(metric) for r in mine]
-                ys = [math.nan if y is None else y for y in ys]
-                ax.scatter(xs, ys, s=14, alpha=0.7, label=name, color=_colour(name))
-            numeric = [r["params"][key] for r in finished if isinstance(r["params"][key], (int, float))]
-            if numeric and min(numeric) > 0 and max(numeric) / min(numeric) > 50:
-                ax.set_xscale("log")
-            ax.set_xlabel(key)
-            ax.set_ylabel(label)
-            ax.legend()
-            ax.grid(True, alpha=0.3)
-        else:
-            _grouped_boxes(ax, key, controllers, finished, values, label)
-        scale(ax, everything)
-        ax.set_title(f"by {key}")
-        fig.tight_layout()
-        name = f"ep_by_{safe_name(key)}"
-        fig.savefig(out / f"{name}.png", dpi=110)
-        plots[name] = f"{name}.png"
-    return plots
+
+def _by_key_figure(
+    path: Path, key: str, continuous: bool, controllers: list[str], finished: list[dict], names: list[str],
+    values, metric: str, label: str,
+) -> None:  # fmt: skip
+    """The metric against parameter ``key``: a scatter if it is continuous, else box plots per value."""
+    plt = _pyplot()
+    everything = [v for name in names for v in values([r for r in finished if r["controller"] == name])]
+    fig, ax = plt.subplots(figsize=(8, 4.2))
+    if continuous:
+        for name in names:
+            mine = [r for r in finished if r["controller"] == name]
+            xs = [r["params"][key] for r in mine]
+            ys = [r["record"]["summary"].get(metric) for r in mine]
+            ys = [math.nan if y is None else y for y in ys]
+            ax.scatter(xs, ys, s=14, alpha=0.7, label=name, color=_colour(name))
+        numeric = [r["params"][key] for r in finished if isinstance(r["params"][key], (int, float))]
+        if numeric and min(numeric) > 0 and max(numeric) / min(numeric) > 50:
+            ax.set_xscale("log")
+        ax.set_xlabel(key)
+        ax.set_ylabel(label)
+        ax.legend()
+        ax.grid(True, alpha=0.3)
+    else:
+        _grouped_boxes(ax, key, controllers, finished, values, label)
+    _scale(ax, everything)
+    ax.set_title(f"by {key}")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
 
 
 def plot_robustness(out: Path, controllers: list[str], finished: list[dict], robustness: Robustness) -> str | None:

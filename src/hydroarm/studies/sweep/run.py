@@ -48,6 +48,21 @@ def claim_sweep_folder(
     claim_output(Path(out), "sweep", settings, runs, made_by, overwrite, dry_run)
 
 
+def _as_plan(sweep: str | Path | SweepConfig | Plan, save_trajectories: bool | None) -> Plan:
+    """:func:`run_sweep`'s ``sweep`` planned (:func:`plan_sweep`), a :class:`Plan` as it is."""
+    if isinstance(sweep, Plan):
+        if save_trajectories is not None and save_trajectories != sweep.config.save_trajectories:
+            raise ValueError("save_trajectories: give it to plan_sweep (the plan's SweepConfig), not with a Plan")
+        return sweep
+    if isinstance(sweep, SweepConfig):
+        config, folder, source = sweep, None, "sweep"
+    else:
+        config, folder, source = load_sweep(sweep), Path(sweep).parent, str(sweep)
+    if save_trajectories is not None:
+        config = config.model_copy(update={"save_trajectories": save_trajectories})
+    return plan_sweep(config, folder, source)
+
+
 def run_sweep(
     sweep: str | Path | SweepConfig | Plan,
     out_dir: str | Path,
@@ -78,18 +93,7 @@ def run_sweep(
     refused unless ``overwrite`` (:func:`claim_sweep_folder`).
     """
     start = time.perf_counter()
-    if isinstance(sweep, Plan):
-        plan = sweep
-        if save_trajectories is not None and save_trajectories != plan.config.save_trajectories:
-            raise ValueError("save_trajectories: give it to plan_sweep (the plan's SweepConfig), not with a Plan")
-    else:
-        if isinstance(sweep, SweepConfig):
-            config, folder, source = sweep, None, "sweep"
-        else:
-            config, folder, source = load_sweep(sweep), Path(sweep).parent, str(sweep)
-        if save_trajectories is not None:
-            config = config.model_copy(update={"save_trajectories": save_trajectories})
-        plan = plan_sweep(config, folder, source)
+    plan = _as_plan(sweep, save_trajectories)
     source = plan.source
     out = Path(out_dir)
     claim_sweep_folder(out, plan, source, overwrite)
