@@ -232,6 +232,16 @@ def estimator_kind(
     return config.resolved_kind(controller_spec(name).default_estimator, sensor, loop_delay)
 
 
+def told_loop_delay(sections: Mapping[str, Any], delay: int) -> Mapping[str, Any]:
+    """``sections`` with ``idmpc.loop_delay = "plant"`` resolved to ``delay`` (periods): the delay
+    the state estimator predicts across (0 without one: nothing tells the controller of a delay),
+    which the ID-MPCs' bandwidth is designed for (:mod:`hydroarm.control.delay_design`)."""
+    idmpc = sections.get("idmpc")
+    if idmpc is None or idmpc.loop_delay != "plant":
+        return sections
+    return {**sections, "idmpc": idmpc.model_copy(update={"loop_delay": int(delay)})}
+
+
 def build_controller(
     name: str,
     arm: Arm,
@@ -256,7 +266,11 @@ def build_controller(
     actuator.delay``): what ``estimator.measures`` and ``estimator.delay = "plant"`` stand for;
     ``actuator``: the drives (their clip, lag and rate limit go into the filter's prediction)."""
     spec = controller_spec(name)
-    controller = spec.build(arm, sections, control_period)
+    estimator = sections.get("estimator")
+    filtered = estimator_kind(spec.name, estimator, sensor, loop_delay) == "kalman"
+    config = estimator if estimator is not None else EstimatorConfig()
+    design = config.design(sensor_variance, sensor, loop_delay) if filtered else None  # "plant": noise, quantum
+    controller = spec.build(arm, told_loop_delay(sections, design.delay if filtered else 0), control_period)
     observer = sections.get("observer")
     if observer is not None and observer.kind != "none":
         if not spec.observer:
@@ -266,10 +280,7 @@ def build_controller(
                 f"an observer runs under {takes} (or set observer.kind = 'none')"
             )
         controller = ObservedController(controller, DisturbanceObserver(arm, control_period, observer))
-    estimator = sections.get("estimator")
-    if estimator_kind(spec.name, estimator, sensor, loop_delay) == "kalman":
-        config = estimator if estimator is not None else EstimatorConfig()
-        design = config.design(sensor_variance, sensor, loop_delay)  # "plant": the noise and the quantum
+    if filtered:
         if sensor_variance is not None:
             config = config.for_sensor(sensor_variance)
         kalman = JointKalmanFilter(arm.n_joints, control_period, config, design)
