@@ -7,7 +7,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hydroarm.control.delay_design import ROBUST_RADIUS, told_delay_radius, worst_told_delay_radius
+from hydroarm.control.delay_design import (
+    ROBUST_RADIUS,
+    delayed_observer_gain,
+    told_delay_radius,
+    worst_told_delay_radius,
+)
 from hydroarm.control.idmpc import IDMPCConfig, InverseDynamicsMPC, joint_lqr, told_delay_weight
 from hydroarm.model.loading import load_arm
 from hydroarm.sim.experiment import ExperimentConfig, build_experiment, with_overrides
@@ -81,3 +86,25 @@ def test_two_periods_of_delay_diverge_with_the_ideal_loop_s_bandwidth_and_not_wi
     overrides = {"sensor.delay": 2, "idmpc.loop_delay": told}
     traj = build_experiment(with_overrides(ExperimentConfig(duration=1.5), overrides), "IDMPC").run(0)
     assert traj.diverged == diverges
+
+
+@pytest.mark.parametrize("delay", [0, 1, 2, 3])
+def test_the_observer_gain_settles_fastest_behind_the_delay(delay):
+    """L*(d) against a search: the spectral radius of z^{d+1} - z^d + L over L in (0, 1]."""
+
+    def radius(gain: float) -> float:
+        return float(np.max(np.abs(np.roots([1.0, -1.0] + [0.0] * (delay - 1) + [gain])))) if delay else abs(1 - gain)
+
+    grid = np.linspace(1e-4, 1.0, 20001)
+    best = grid[np.argmin([radius(g) for g in grid])]
+    assert delayed_observer_gain(delay) == pytest.approx(best, abs=2e-3)
+    assert radius(delayed_observer_gain(delay)) == pytest.approx(delay / (delay + 1), abs=1e-4)
+
+
+def test_pi_idmpc_s_remainder_follows_the_told_delay():
+    for delay, kind, gain in [(0, "tde", None), (1, "ndob", 0.25), (2, "ndob", 4 / 27)]:
+        config = with_overrides(ExperimentConfig(), {"sensor.delay": delay})
+        remainder = build_experiment(config, "PI-IDMPC").controller.controller.remainder.config
+        assert remainder.kind == kind
+        if gain is not None:
+            assert remainder.gain == pytest.approx(gain, rel=1e-12)

@@ -77,3 +77,20 @@ def wet_inertia_ratio(arm: Arm) -> np.ndarray:
     dry = np.diag(arm.mass_matrix(q))
     wet = dry + np.diag(added_mass_matrix(arm, Water(), q))
     return dry / wet
+
+
+def delayed_observer_gain(delay: int) -> float:
+    """The disturbance observer's gain L (-) for a loop told ``delay`` = d periods: behind the
+    delay the observer takes the transition of d periods ago
+    (:class:`~hydroarm.control.estimator.FilteredController`), so its estimate of a step
+    disturbance settles as ``e_k = e_{k-1} - L e_{k-1-d}``, characteristic polynomial
+    ``z^{d+1} - z^d + L``. Its spectral radius is smallest, ``d / (d + 1)`` (a double real root
+    there), for::
+
+        L* = d^d / (d + 1)^(d + 1)        (d = 0: 1, the TDE; 1: 1/4; 2: 4/27; 3: 27/256)
+
+    a larger L rings (d = 1: the roots leave the real axis at radius sqrt(L); L >= 1 is
+    unstable) and a smaller one is slower. Measured (paper arm, PI-IDMPC, 16-bit encoder,
+    published friction, one period of sensor delay, 10 s, seed 0, 2026-12-04): its TDE remainder
+    (L = 1) gave E_p 0.111 rad^2, L = 0.5 0.049, L* = 0.25 0.0345, 0.2 0.0330, 0.05 0.0364."""
+    return float(delay**delay / (delay + 1) ** (delay + 1))

@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from hydroarm.config import ConfigError
+from hydroarm.control.delay_design import delayed_observer_gain
 from hydroarm.control.estimator import EstimatorConfig, FilteredController, JointKalmanFilter
 from hydroarm.control.gpmpc import GPMPC, feature_size
 from hydroarm.control.idmpc import InverseDynamicsMPC, gp_input_size
@@ -233,13 +234,23 @@ def estimator_kind(
 
 
 def told_loop_delay(sections: Mapping[str, Any], delay: int) -> Mapping[str, Any]:
-    """``sections`` with ``idmpc.loop_delay = "plant"`` resolved to ``delay`` (periods): the delay
-    the state estimator predicts across (0 without one: nothing tells the controller of a delay),
-    which the ID-MPCs' bandwidth is designed for (:mod:`hydroarm.control.delay_design`)."""
+    """``sections`` told the loop delay ``delay`` (periods): the one the state estimator predicts
+    across (0 without one: nothing tells the controller of a delay). ``idmpc.loop_delay =
+    "plant"`` is resolved to it (the ID-MPCs' bandwidth is designed for it), and with d > 0
+    PI-IDMPC's remainder observer (``water_model.remainder``) runs as an NDOB of gain at most
+    :func:`~hydroarm.control.delay_design.delayed_observer_gain` (d) (its TDE is the NDOB of
+    gain 1: the fastest-settling gain without delay)."""
+    told = dict(sections)
     idmpc = sections.get("idmpc")
-    if idmpc is None or idmpc.loop_delay != "plant":
-        return sections
-    return {**sections, "idmpc": idmpc.model_copy(update={"loop_delay": int(delay)})}
+    if idmpc is not None and idmpc.loop_delay == "plant":
+        told["idmpc"] = idmpc.model_copy(update={"loop_delay": int(delay)})
+    water_model = sections.get("water_model")
+    if water_model is not None and delay > 0 and water_model.remainder.kind != "none":
+        remainder = water_model.remainder  # PI-IDMPC's observer on what its model leaves: L capped at L*(d)
+        gain = min(1.0 if remainder.kind == "tde" else remainder.gain, delayed_observer_gain(delay))
+        remainder = remainder.model_copy(update={"kind": "ndob", "gain": gain})  # NDOB with L = 1 is the TDE
+        told["water_model"] = water_model.model_copy(update={"remainder": remainder})
+    return told
 
 
 def build_controller(
