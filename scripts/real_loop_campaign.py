@@ -183,10 +183,13 @@ def main() -> None:
         "--groups", nargs="*", default=None, help="run only these groups and merge them into --out (grid, alone, ...)"
     )
     parser.add_argument("--worlds", nargs="*", default=None, help="with --groups: only these worlds of them")
+    parser.add_argument("--controllers", nargs="*", default=None, help="with --groups: only these controllers")
     args = parser.parse_args()
     todo = tasks() if args.groups is None else [t for t in tasks() if t[0] in args.groups]
     if args.worlds is not None:
         todo = [t for t in todo if t[1] in args.worlds]
+    if args.controllers is not None:
+        todo = [t for t in todo if t[2] in args.controllers]
     start = time.perf_counter()
     results = []
     with ProcessPoolExecutor(args.workers) as pool:
@@ -200,7 +203,8 @@ def main() -> None:
         done = {(t[0], t[1], t[2]) for t in todo}
         kept = [r for r in previous["runs"] if (r["group"], r["world"], r["controller"]) not in done]
         previous["runs"] = kept + results
-        previous.setdefault("extra_wall_time_s", {})[",".join(args.groups + (args.worlds or []))] = wall
+        label = ",".join(args.groups + (args.worlds or []) + (args.controllers or []))
+        previous.setdefault("extra_wall_time_s", {})[label] = wall
         args.out.write_text(json.dumps(previous, indent=1) + "\n")
         print(table(previous["runs"]))
         return

@@ -30,6 +30,12 @@ radius of at most :data:`MARGIN_RADIUS` (0.9) when its moves act m periods later
 was told (the filter predicts across the told delay only): a closed-loop bandwidth chosen for a
 stated margin (docs/robustness.md, section 6: what it buys and what it costs).
 
+The told loop delay (``loop_delay`` = d, on by default; ``"plant"``: the filter's, resolved by
+the registry): with d > 0 every ``R_a,j`` is floored at :func:`told_delay_weight`, the smallest
+weight whose loop, predicted across d periods on the dry model, keeps a spectral radius of at most
+0.95 on a plant up to ``inertia_margin`` times heavier than the dry arm plus its own added mass
+(:mod:`hydroarm.control.delay_design`). At d = 0 nothing changes.
+
 In the error e = x - x_r and move u = a - a_r the model is ``e_{k+1} = A e_k + B u_k + c_k``
 with the reference's one-step defect ``c_k = x_r,k+1 - A x_r,k - B a_r,k`` (zero for a
 reference of constant acceleration). With the DARE terminal weight, the unconstrained optimum
@@ -74,6 +80,7 @@ import pydantic
 import scipy.linalg
 
 from hydroarm.config import FrozenModel, per_joint
+from hydroarm.control.delay_design import INERTIA_MARGIN, ROBUST_RADIUS, wet_inertia_ratio, worst_told_delay_radius
 from hydroarm.control.gp import GPConfig, SlidingWindowGP
 from hydroarm.control.idmpc_limits import HorizonQP, allocate  # noqa: F401 (allocate: public here too)
 from hydroarm.control.interface import DEFAULT_CONTROL_PERIOD, ControlOutput, Reference, require_period, sample_times
@@ -109,6 +116,18 @@ class IDMPCConfig(FrozenModel):
         description="periods of loop delay beyond the told one each joint's loop must stay stable with "
         "(delay_margin_weight); 0 = off, the ideal loop's weights (0-5)",
     )
+    loop_delay: int | Literal["plant"] = pydantic.Field(
+        "plant",
+        description="loop delay (periods, 0-1000) the bandwidth is designed for (told_delay_weight); plant = the one "
+        "the state estimator predicts across (sensor.delay + actuator.delay behind the filter, else 0)",
+    )
+    inertia_margin: float = pydantic.Field(
+        INERTIA_MARGIN,
+        ge=1.0,
+        le=10.0,
+        description="at the told loop delay each joint stays stable on a plant up to this many times heavier than "
+        "the dry arm plus its own Morison added mass (1-10; docs/robustness.md)",
+    )
     r_floor: PositiveFloat = pydantic.Field(
         1e-6, description="lower bound of the authority-scaled R_a (s^4/rad^2), in (0, 1e8]"
     )
@@ -125,6 +144,15 @@ class IDMPCConfig(FrozenModel):
     acceleration_scale: PositiveFloat = pydantic.Field(
         100.0, description="divisor of a_0 in the GP's inputs (rad/s^2 per input unit)"
     )
+
+    @pydantic.field_validator("loop_delay", mode="before")
+    @classmethod
+    def _loop_delay_in_range(cls, value):
+        if value == "plant":
+            return value
+        if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= 1000:
+            raise ValueError(f"must be 'plant' or a whole number of periods 0 <= x <= 1000, got {value!r}")
+        return value
 
 
 def gp_input_size(features: str, n_joints: int) -> int:
@@ -180,20 +208,42 @@ def delay_margin_weight(period: float, q_position: float, q_velocity: float, mar
     def radius(weight: float) -> float:
         return delayed_radius(period, joint_lqr(period, q_position, q_velocity, weight)[1], margin)
 
-    low = 1e-9
-    if radius(low) <= MARGIN_RADIUS:
+    return _smallest_weight(radius, MARGIN_RADIUS, 1e-9, f"idmpc.delay_margin = {margin}")
+
+
+def _smallest_weight(radius, limit: float, low: float, what: str) -> float:
+    """The smallest weight >= ``low`` whose ``radius(weight)`` is at most ``limit``: a grid of 20
+    per decade, then 60 bisections (the radius first falls as the weight grows, then rises)."""
+    if radius(low) <= limit:
         return low
     for _ in range(400):
         high = low * 10.0**0.05
-        if radius(high) <= MARGIN_RADIUS:
+        if radius(high) <= limit:
             break
         low = high
     else:
-        raise ValueError(f"idmpc.delay_margin = {margin}: no acceleration weight up to {high:.3g} meets it")
+        raise ValueError(f"{what}: no acceleration weight up to {high:.3g} meets it")
     for _ in range(60):
         middle = float(np.sqrt(low * high))
-        low, high = (middle, high) if radius(middle) > MARGIN_RADIUS else (low, middle)
+        low, high = (middle, high) if radius(middle) > limit else (low, middle)
     return high
+
+
+def told_delay_weight(
+    period: float, q_position: float, q_velocity: float, weight: float, delay: int, gain_low: float
+) -> float:
+    """The smallest acceleration weight R_a >= ``weight`` (s^4/rad^2) whose LQR keeps the joint's
+    loop, told ``delay`` periods and predicted across them on the model, at a spectral radius of
+    at most :data:`~hydroarm.control.delay_design.ROBUST_RADIUS` on every plant gain in
+    ``[gain_low, 1]`` (:func:`~hydroarm.control.delay_design.worst_told_delay_radius`); ``weight``
+    itself when ``delay`` is 0 or it meets it already."""
+    if delay == 0:
+        return weight
+
+    def radius(r: float) -> float:
+        return worst_told_delay_radius(period, joint_lqr(period, q_position, q_velocity, r)[1], delay, gain_low)
+
+    return _smallest_weight(radius, ROBUST_RADIUS, weight, f"idmpc.loop_delay = {delay}")
 
 
 def authority_weights(inertia: np.ndarray, torque_limit: np.ndarray, r_acceleration: np.ndarray, r_floor: float):
@@ -264,6 +314,12 @@ class InverseDynamicsMPC:
         if cfg.delay_margin > 0:  # each joint's bandwidth capped for the stated margin
             floor = [delay_margin_weight(self.control_period, q_pos[j], q_vel[j], cfg.delay_margin) for j in range(n)]
             r_acc = np.maximum(r_acc, floor)
+        delay = 0 if cfg.loop_delay == "plant" else int(cfg.loop_delay)
+        if delay > 0:  # each joint's bandwidth for the told delay on the heavier wet arm (delay_design)
+            low = wet_inertia_ratio(arm) / cfg.inertia_margin
+            r_acc = np.array(
+                [told_delay_weight(self.control_period, q_pos[j], q_vel[j], r_acc[j], delay, low[j]) for j in range(n)]
+            )
         self.r_acceleration = r_acc
         self.P = np.empty((n, 2, 2))
         self.K = np.empty((n, 2))

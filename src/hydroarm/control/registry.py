@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from hydroarm.config import ConfigError
+from hydroarm.control.delay_design import delayed_observer_gain
 from hydroarm.control.estimator import EstimatorConfig, FilteredController, JointKalmanFilter
 from hydroarm.control.gpmpc import GPMPC, feature_size
 from hydroarm.control.idmpc import InverseDynamicsMPC, gp_input_size
@@ -232,6 +233,26 @@ def estimator_kind(
     return config.resolved_kind(controller_spec(name).default_estimator, sensor, loop_delay)
 
 
+def told_loop_delay(sections: Mapping[str, Any], delay: int) -> Mapping[str, Any]:
+    """``sections`` told the loop delay ``delay`` (periods): the one the state estimator predicts
+    across (0 without one: nothing tells the controller of a delay). ``idmpc.loop_delay =
+    "plant"`` is resolved to it (the ID-MPCs' bandwidth is designed for it), and with d > 0
+    PI-IDMPC's remainder observer (``water_model.remainder``) runs as an NDOB of gain at most
+    :func:`~hydroarm.control.delay_design.delayed_observer_gain` (d) (its TDE is the NDOB of
+    gain 1: the fastest-settling gain without delay)."""
+    told = dict(sections)
+    idmpc = sections.get("idmpc")
+    if idmpc is not None and idmpc.loop_delay == "plant":
+        told["idmpc"] = idmpc.model_copy(update={"loop_delay": int(delay)})
+    water_model = sections.get("water_model")
+    if water_model is not None and delay > 0 and water_model.remainder.kind != "none":
+        remainder = water_model.remainder  # PI-IDMPC's observer on what its model leaves: L capped at L*(d)
+        gain = min(1.0 if remainder.kind == "tde" else remainder.gain, delayed_observer_gain(delay))
+        remainder = remainder.model_copy(update={"kind": "ndob", "gain": gain})  # NDOB with L = 1 is the TDE
+        told["water_model"] = water_model.model_copy(update={"remainder": remainder})
+    return told
+
+
 def build_controller(
     name: str,
     arm: Arm,
@@ -256,7 +277,11 @@ def build_controller(
     actuator.delay``): what ``estimator.measures`` and ``estimator.delay = "plant"`` stand for;
     ``actuator``: the drives (their clip, lag and rate limit go into the filter's prediction)."""
     spec = controller_spec(name)
-    controller = spec.build(arm, sections, control_period)
+    estimator = sections.get("estimator")
+    filtered = estimator_kind(spec.name, estimator, sensor, loop_delay) == "kalman"
+    config = estimator if estimator is not None else EstimatorConfig()
+    design = config.design(sensor_variance, sensor, loop_delay) if filtered else None  # "plant": noise, quantum
+    controller = spec.build(arm, told_loop_delay(sections, design.delay if filtered else 0), control_period)
     observer = sections.get("observer")
     if observer is not None and observer.kind != "none":
         if not spec.observer:
@@ -266,10 +291,7 @@ def build_controller(
                 f"an observer runs under {takes} (or set observer.kind = 'none')"
             )
         controller = ObservedController(controller, DisturbanceObserver(arm, control_period, observer))
-    estimator = sections.get("estimator")
-    if estimator_kind(spec.name, estimator, sensor, loop_delay) == "kalman":
-        config = estimator if estimator is not None else EstimatorConfig()
-        design = config.design(sensor_variance, sensor, loop_delay)  # "plant": the noise and the quantum
+    if filtered:
         if sensor_variance is not None:
             config = config.for_sensor(sensor_variance)
         kalman = JointKalmanFilter(arm.n_joints, control_period, config, design)

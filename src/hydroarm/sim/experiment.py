@@ -245,8 +245,10 @@ class ExperimentConfig(FrozenModel):
         for key in LATER_WATER_KEYS:
             if getattr(self.water, key) == getattr(water_defaults, key):
                 data["water"].pop(key)
-        if self.idmpc.delay_margin == 0:  # added after run ids were first made (issue 32)
-            data["idmpc"].pop("delay_margin")
+        idmpc_defaults = IDMPCConfig()
+        for key in ("delay_margin", "loop_delay", "inertia_margin"):  # added after run ids were first made (issue 32)
+            if getattr(self.idmpc, key) == getattr(idmpc_defaults, key):
+                data["idmpc"].pop(key)
         return data
 
     def digest(self) -> str:

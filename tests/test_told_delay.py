@@ -1,0 +1,119 @@
+"""The ID-MPCs' bandwidth follows the loop delay they are told (issue 32,
+:mod:`hydroarm.control.delay_design`): stable at the told delay on a plant heavier than the dry
+model, where the ideal loop's weights diverged with two periods of delay."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from hydroarm.control.delay_design import (
+    ROBUST_RADIUS,
+    delayed_observer_gain,
+    told_delay_radius,
+    worst_told_delay_radius,
+)
+from hydroarm.control.idmpc import IDMPCConfig, InverseDynamicsMPC, joint_lqr, told_delay_weight
+from hydroarm.model.loading import load_arm
+from hydroarm.sim.experiment import ExperimentConfig, build_experiment, with_overrides
+
+T = 0.01
+
+
+def simulated_growth(gain: np.ndarray, delay: int, plant_gain: float, steps: int = 4000) -> float:
+    """The loop's growth rate per step, simulated in the time domain (independent of the
+    matrix): the plant stepped with the move of ``delay`` steps ago times ``plant_gain``, the
+    controller acting on the state stepped ``delay`` times on the model under the moves in flight."""
+    a_mat, b_vec = np.array([[1.0, T], [0.0, 1.0]]), np.array([0.5 * T * T, T])
+    x, moves = np.array([1e-3, 0.0]), [0.0] * delay
+    logs = []
+    for _ in range(steps):
+        predicted = x.copy()
+        for u in moves:  # oldest first
+            predicted = a_mat @ predicted + b_vec * u
+        moves.append(-float(gain @ predicted))
+        x = a_mat @ x + plant_gain * b_vec * moves.pop(0)
+        norm = np.linalg.norm(np.concatenate([x, moves]))
+        x, moves = x / norm, [u / norm for u in moves]  # renormalised: the growth is kept in the logs
+        logs.append(np.log(norm))
+    return float(np.exp(np.mean(logs[steps // 2 :])))
+
+
+@pytest.mark.parametrize(("weight", "delay", "plant_gain"), [(1e-6, 2, 0.6), (1e-6, 1, 0.5), (1e-5, 2, 0.6)])
+def test_the_radius_is_the_simulated_loop_s_growth(weight, delay, plant_gain):
+    gain = joint_lqr(T, 300.0, 0.01, weight)[1]
+    assert told_delay_radius(T, gain, delay, plant_gain) == pytest.approx(
+        simulated_growth(gain, delay, plant_gain), rel=2e-3
+    )
+
+
+def test_on_the_model_the_prediction_removes_the_delay():
+    """g = 1: the loop is the undelayed one (its poles those of A - B K, the rest at 0)."""
+    gain = joint_lqr(T, 300.0, 0.01, 1e-6)[1]
+    undelayed = told_delay_radius(T, gain, 0, 1.0)
+    for delay in (1, 2, 3):
+        assert told_delay_radius(T, gain, delay, 1.0) == pytest.approx(undelayed, rel=1e-9)
+    # the ideal loop's wrist weight on the paper's wet joints (g = 0.61) two periods late: unstable
+    assert told_delay_radius(T, gain, 2, 0.61) > 1.0
+
+
+def test_the_weight_is_the_smallest_that_meets_the_radius():
+    low = 0.61 / 1.5
+    weight = told_delay_weight(T, 300.0, 0.01, 1e-6, 2, low)
+    assert worst_told_delay_radius(T, joint_lqr(T, 300.0, 0.01, weight)[1], 2, low) <= ROBUST_RADIUS
+    lighter = joint_lqr(T, 300.0, 0.01, 0.99 * weight)[1]
+    assert worst_told_delay_radius(T, lighter, 2, low) > ROBUST_RADIUS
+    assert told_delay_weight(T, 300.0, 0.01, 1e-6, 0, low) == 1e-6  # no delay: nothing changes
+
+
+def test_no_told_delay_leaves_the_weights_alone():
+    arm = load_arm("paper")
+    plain = InverseDynamicsMPC(arm, IDMPCConfig(), T)
+    told = InverseDynamicsMPC(arm, IDMPCConfig(loop_delay=2), T)
+    np.testing.assert_array_equal(
+        plain.r_acceleration, InverseDynamicsMPC(arm, IDMPCConfig(loop_delay=0), T).r_acceleration
+    )
+    assert np.all(told.r_acceleration >= plain.r_acceleration)
+    assert np.any(told.r_acceleration > plain.r_acceleration)
+    assert not {"loop_delay", "inertia_margin"} & set(ExperimentConfig().canonical()["idmpc"])
+
+
+@pytest.mark.parametrize(("told", "diverges"), [(0, True), ("plant", False)])
+def test_two_periods_of_delay_diverge_with_the_ideal_loop_s_bandwidth_and_not_with_the_told_one(told, diverges):
+    """IDMPC on the paper task, the sensor two periods late (the filter predicting across them),
+    1.5 s: with the bandwidth designed for no delay (``idmpc.loop_delay = 0``, the weights before
+    issue 32's fix) it diverged at 0.13 s."""
+    overrides = {"sensor.delay": 2, "idmpc.loop_delay": told}
+    traj = build_experiment(with_overrides(ExperimentConfig(duration=1.5), overrides), "IDMPC").run(0)
+    assert traj.diverged == diverges
+
+
+@pytest.mark.parametrize("delay", [0, 1, 2, 3])
+def test_the_observer_gain_settles_fastest_behind_the_delay(delay):
+    """L*(d) against a search: the spectral radius of z^{d+1} - z^d + L over L in (0, 1]."""
+
+    def radius(gain: float) -> float:
+        return float(np.max(np.abs(np.roots([1.0, -1.0] + [0.0] * (delay - 1) + [gain])))) if delay else abs(1 - gain)
+
+    grid = np.linspace(1e-4, 1.0, 20001)
+    best = grid[np.argmin([radius(g) for g in grid])]
+    assert delayed_observer_gain(delay) == pytest.approx(best, abs=2e-3)
+    assert radius(delayed_observer_gain(delay)) == pytest.approx(delay / (delay + 1), abs=1e-4)
+
+
+def test_pi_idmpc_s_remainder_follows_the_told_delay():
+    for delay, kind, gain in [(0, "tde", None), (1, "ndob", 0.25), (2, "ndob", 4 / 27)]:
+        config = with_overrides(ExperimentConfig(), {"sensor.delay": delay})
+        remainder = build_experiment(config, "PI-IDMPC").controller.controller.remainder.config
+        assert remainder.kind == kind
+        if gain is not None:
+            assert remainder.gain == pytest.approx(gain, rel=1e-12)
+
+
+@pytest.mark.parametrize(("told", "diverges"), [(0, True), ("plant", False)])
+def test_pi_idmpc_one_period_late_diverges_with_the_ideal_loop_s_bandwidth_and_not_with_the_told_one(told, diverges):
+    """PI-IDMPC on the paper task, the ideal sensor one period late, 1.5 s: with the bandwidth
+    designed for no delay it diverged at 0.24 s (with its remainder a TDE or at L*: the
+    bandwidth decides here; docs/robustness.md, section 6)."""
+    config = with_overrides(ExperimentConfig(duration=1.5), {"sensor.delay": 1, "idmpc.loop_delay": told})
+    assert build_experiment(config, "PI-IDMPC").run(0).diverged == diverges
