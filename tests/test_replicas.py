@@ -141,10 +141,10 @@ def test_the_ablations_repeat_every_gp_run_from_perturbed_starts():
     moved); their MPC / IDMPC runs do not, and replica 0 keeps the unreplicated plan's key."""
     base = ExperimentConfig(duration=1.0)
     plain = [s for s in plan_runs(base, 1, ablation=True) if s.case.startswith("ablation")]
-    replicated = [s for s in plan_runs(base, 1, ablation=True, replicas=3) if s.case.startswith("ablation")]
+    replicated = [s for s in plan_runs(base, 1, ablation=True, replicas=8) if s.case.startswith("ablation")]
     gp_plain = [s for s in plain if s.controller.startswith("GP-")]
     extra = [s for s in replicated if "-replica" in s.case.split("/")[0]]
-    assert len(extra) == 2 * len(gp_plain) and {s.key for s in plain} <= {s.key for s in replicated}
+    assert len(extra) == 3 * len(gp_plain) and {s.key for s in plain} <= {s.key for s in replicated}
     assert all(s.controller.startswith("GP-") for s in extra)
     assert all(s.config.initial_state.position_spread == REPLICA_OFFSET for s in extra)
 

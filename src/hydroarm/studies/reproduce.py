@@ -125,6 +125,10 @@ REPLICA_OFFSET = 1e-12
 DEFAULT_REPLICAS = {"full": 8, "quick": 4}
 """K, the runs per replicated row (the unperturbed one included), by mode."""
 
+ABLATION_REPLICAS = 4
+"""The most runs per GP cell of the ablations (:func:`ablation_runs`): each compares settings by
+the first digits of a mean, and its 36 GP cells would make 8 runs each the study's longest part."""
+
 MAX_REPLICAS = 64
 """The most runs per replicated row ``--replicas`` takes."""
 
@@ -249,7 +253,7 @@ def plan_runs(base: ExperimentConfig, noisy_seeds: int, ablation: bool, replicas
             spec = clean_runs[row]
             runs.append(RunSpec(f"replica{replica}-clean", row, 0, replica_config(spec.config, replica), spec.build))
     if ablation:
-        runs += ablation_runs(base, replicas)
+        runs += ablation_runs(base, min(replicas, ABLATION_REPLICAS))
     keys = [spec.key for spec in runs]
     if len(set(keys)) != len(keys):  # two runs would share a file
         raise ValueError(f"two runs of the study have one file name: {sorted(k for k in keys if keys.count(k) > 1)}")
