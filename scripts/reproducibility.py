@@ -72,8 +72,13 @@ def compare(reference: dict, other: dict) -> dict[str, dict]:
         if name in DERIVED or (case in ABLATIONS and key.endswith("/" + GAIN)):
             row["holds"], row["derived"] = True, True
         elif case in ABLATIONS and key.rpartition("/")[2].startswith("GP-"):
-            row["holds"] = row["max_relative"] <= RELATIVE
-            row["chaotic"] = not row["holds"]
+            judged = _ablation_distribution(reference, other, key)
+            if judged is not None:
+                row.update(judged)
+                row["holds"] = row["max_relative"] <= RELATIVE or judged["max_ranges"] <= 1.0
+            else:
+                row["holds"] = row["max_relative"] <= RELATIVE
+                row["chaotic"] = not row["holds"]
         elif judged is not None:
             row.update(judged)
             row["holds"] = judged["max_ranges"] <= 1.0
@@ -132,6 +137,27 @@ def _distribution(a: dict, b: dict) -> dict | None:
         ranges = max(x) - min(x) + max(y) - min(y)
         worst_range = max(worst_range, difference / ranges if ranges > 0 else math.inf)
     return {"distribution": True, "max_standard_errors": worst_se, "max_ranges": worst_range}
+
+
+def _ablation_distribution(reference: dict, other: dict, key: str) -> dict | None:
+    """An ablation table's GP row (``table/group/controller``) judged cell by cell (each setting's
+    replicas, :func:`_distribution`), the worst cell's numbers; None if a cell has no replicas."""
+    table, group, controller = key.split("/")
+    worst = None
+    for label, a in reference[table][group].items():
+        b = other.get(table, {}).get(group, {}).get(label)
+        if "controller" not in a:  # ablation: the settings' MPC and GP-MPC side by side
+            a, b = a.get(controller), (b or {}).get(controller)
+        elif a["controller"] != controller:
+            continue
+        if not isinstance(a, dict) or not isinstance(b, dict):
+            continue
+        judged = _distribution(a, b)
+        if judged is None:
+            return None
+        if worst is None or judged["max_ranges"] > worst["max_ranges"]:
+            worst = judged
+    return worst
 
 
 def _std(values: list[float]) -> float:

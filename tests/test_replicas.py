@@ -128,3 +128,53 @@ def test_reproducibility_splits_the_ablations_by_controller_and_marks_their_gp_r
     rows = script.compare(reference, summary(1.0 + 1e-8, 0.5, 2.0 + 1e-8))  # a plain run moved: fails
     assert not rows["ablation/R/MPC"]["holds"] and not rows["ablation/R/MPC"].get("chaotic")
     assert not rows["ablation_idmpc/GP/IDMPC+KF"]["holds"] and rows["ablation/R/GP-MPC"]["holds"]
+
+
+def test_the_ablations_repeat_every_gp_run_from_perturbed_starts():
+    """Every GP run of the two ablations gets replicas 1..K-1 (its own settings, only the start
+    moved); their MPC / IDMPC runs do not, and replica 0 keeps the unreplicated plan's key."""
+    base = ExperimentConfig(duration=1.0)
+    plain = [s for s in plan_runs(base, 1, ablation=True) if s.case.startswith("ablation")]
+    replicated = [s for s in plan_runs(base, 1, ablation=True, replicas=8) if s.case.startswith("ablation")]
+    gp_plain = [s for s in plain if s.controller.startswith("GP-")]
+    extra = [s for s in replicated if "-replica" in s.case.split("/")[0]]
+    assert len(extra) == 3 * len(gp_plain) and {s.key for s in plain} <= {s.key for s in replicated}
+    assert all(s.controller.startswith("GP-") for s in extra)
+    assert all(s.config.initial_state.position_spread == REPLICA_OFFSET for s in extra)
+
+
+def test_an_ablation_cell_with_replicas_prints_their_mean_and_spread(tmp_path):
+    """summarise / write_tables on real (short) runs: the GP cell's E_p is its replicas' mean with
+    the digits their spread leaves, its gain taken from that mean."""
+    from hydroarm.sim.experiment import run_experiment
+    from hydroarm.studies.reproduce_numbers import ablation_held, ablation_metrics
+
+    base = ExperimentConfig(duration=0.3, gp={"window": 5})
+    specs = [s for s in plan_runs(base, 1, ablation=True, replicas=3) if s.case.startswith(("ablation/R=",
+             "ablation-replica1/R=", "ablation-replica2/R="))]  # fmt: skip
+    results = {s.key: run_experiment(s.config, s.build or s.controller, s.seed) for s in specs}
+    ablation, _ = ablation_metrics(specs, results)
+    for row in ablation["R"].values():
+        cell = row["GP-MPC"]
+        assert cell["replicas"]["count"] == 3 and "replicas" not in row["MPC"]
+        per_joint, mean, spread, _, _ = ablation_held(cell)
+        runs = np.array(cell["replicas"]["Ep_per_replica"])
+        np.testing.assert_allclose(per_joint, runs.mean(axis=0), rtol=1e-15)
+        assert mean == pytest.approx(runs.mean()) and spread == pytest.approx(runs.mean(axis=1).std(ddof=1))
+        gains = 100.0 * (1.0 - runs.mean(axis=0) / np.array(row["MPC"]["Ep"]))
+        assert row["gain_mean_of_joints"] == pytest.approx(gains.mean())
+
+
+def test_reproducibility_judges_a_replicated_ablation_cell_within_its_runs():
+    script = _script()
+
+    def summary(gp_runs: list[list[float]]) -> dict:
+        mean = np.mean(gp_runs, axis=0).tolist()
+        cell = {"Ep": gp_runs[0], "replicas": {"Ep_per_replica": gp_runs, "Ep_mean": mean}}
+        return {"ablation": {"R": {"0.1": {"MPC": {"Ep": [1.0, 1.0]}, "GP-MPC": cell}}}}
+
+    reference = summary([[1.0, 2.0], [1.2, 2.1], [0.9, 1.8]])
+    rows = script.compare(reference, summary([[1.1, 2.0], [1.0, 1.9], [1.05, 2.05]]))
+    assert rows["ablation/R/GP-MPC"]["holds"] and not rows["ablation/R/GP-MPC"].get("chaotic")
+    rows = script.compare(reference, summary([[2.0, 2.0], [2.1, 2.0], [2.2, 2.0]]))
+    assert not rows["ablation/R/GP-MPC"]["holds"]

@@ -105,13 +105,13 @@ MOVED_SETTINGS: dict[str, str] = {f"water_model.{key}": f"pi_idmpc.{key}" for ke
 one (:attr:`ExperimentConfig.moved_settings`): the planner's settings are PI-IDMPC's, not its water
 model's."""
 
-REAL_LOOP_ESTIMATOR_KEYS: tuple[str, ...] = ("measures", "delay", "repeated")
-"""The estimator's real-loop settings, left out of :meth:`ExperimentConfig.canonical` at their defaults."""
-
-LATER_WATER_KEYS: tuple[str, ...] = ("added_mass_model", "axial_drag")
-"""The water's settings added after run ids were first made (the energy-consistent added mass,
-the links' axial drag), left out of :meth:`ExperimentConfig.canonical` at their defaults, so
-sweeps made before them still resume."""
+LATER_KEYS: dict[str, tuple[str, ...]] = {
+    "estimator": ("measures", "delay", "repeated"),  # the real loop's
+    "water": ("added_mass_model", "axial_drag"),  # the energy-consistent added mass, axial drag
+    "idmpc": ("delay_margin", "loop_delay", "inertia_margin"),  # the told delay (issue 32)
+}
+"""Settings added after run ids were first made, per section: left out of
+:meth:`ExperimentConfig.canonical` at their defaults, so runs and sweeps made before them resume."""
 
 
 class InitialState(FrozenModel):
@@ -228,27 +228,19 @@ class ExperimentConfig(FrozenModel):
 
     def canonical(self) -> dict[str, Any]:
         """The settings as JSON data, the optional sections (:data:`OPTIONAL_SECTIONS`: the real
-        loop's and the vehicle's), the estimator's real-loop keys (:data:`REAL_LOOP_ESTIMATOR_KEYS`)
-        and the water's later keys (:data:`LATER_WATER_KEYS`) left out where they are at their defaults
+        loop's and the vehicle's), and the later keys (:data:`LATER_KEYS`) left out where they are at their defaults
         (what digests, run ids and summaries hold)."""
         data = self.model_dump(mode="json")
         for section in OPTIONAL_SECTIONS:
             if getattr(self, section) == type(getattr(self, section))():
                 data.pop(section)
-        defaults = EstimatorConfig()
         if self.estimator.acceleration_variance is None and self.estimator.measures_velocity(self.sensor):
             data["estimator"]["acceleration_variance"] = MEASURED_VELOCITY_ACCELERATION_VARIANCE  # null = 100 here
-        for key in REAL_LOOP_ESTIMATOR_KEYS:
-            if getattr(self.estimator, key) == getattr(defaults, key):
-                data["estimator"].pop(key)
-        water_defaults = Water()
-        for key in LATER_WATER_KEYS:
-            if getattr(self.water, key) == getattr(water_defaults, key):
-                data["water"].pop(key)
-        idmpc_defaults = IDMPCConfig()
-        for key in ("delay_margin", "loop_delay", "inertia_margin"):  # added after run ids were first made (issue 32)
-            if getattr(self.idmpc, key) == getattr(idmpc_defaults, key):
-                data["idmpc"].pop(key)
+        for section, keys in LATER_KEYS.items():  # at their defaults: as before they existed
+            defaults = type(getattr(self, section))()
+            for key in keys:
+                if getattr(getattr(self, section), key) == getattr(defaults, key):
+                    data[section].pop(key)
         return data
 
     def digest(self) -> str:

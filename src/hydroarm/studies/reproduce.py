@@ -62,6 +62,7 @@ from hydroarm.studies.outputs import claim_output, dumps, slug, strict
 from hydroarm.studies.report import render_report
 from hydroarm.studies.reproduce_numbers import summarise, write_tables
 from hydroarm.studies.reproduce_rows import (
+    ABLATION_REPLICAS,
     BEST,
     DEFAULT_REPLICAS,
     EXTRA_ROWS,
@@ -192,17 +193,32 @@ def plan_runs(base: ExperimentConfig, noisy_seeds: int, ablation: bool, replicas
             spec = clean_runs[row]
             runs.append(RunSpec(f"replica{replica}-clean", row, 0, replica_config(spec.config, replica), spec.build))
     if ablation:
-        for group, label, overrides in ablation_cases(base):
-            config = with_overrides(base, overrides)
-            for name in ("MPC", "GP-MPC"):
-                runs.append(RunSpec(f"ablation/{group}={label}", name, 0, config))
-        for group, label, name, overrides in idmpc_ablation_cases():
-            config = with_overrides(base, overrides)
-            row = f"{name}+KF" if config.estimator.kind != "none" else name
-            runs.append(RunSpec(f"ablation-idmpc/{group}={label}", row, 0, config, name))
+        runs += ablation_runs(base, min(replicas, ABLATION_REPLICAS))
     keys = [spec.key for spec in runs]
     if len(set(keys)) != len(keys):  # two runs would share a file
         raise ValueError(f"two runs of the study have one file name: {sorted(k for k in keys if keys.count(k) > 1)}")
+    return runs
+
+
+def ablation_runs(base: ExperimentConfig, replicas: int = 1) -> list[RunSpec]:
+    """The ablations' runs (clean, seed 0): MPC and GP-MPC per :func:`ablation_cases`, one row per
+    :func:`idmpc_ablation_cases`; and replicas 1..replicas-1 of every GP run among them (cases
+    ``ablation-replica<r>/...`` and ``ablation-idmpc-replica<r>/...``, :func:`replica_config`):
+    a GP loop turns a last-bit difference into another run, so its cell is a mean and a spread
+    like the main tables' GP rows."""
+    runs: list[RunSpec] = []
+    for group, label, overrides in ablation_cases(base):
+        config = with_overrides(base, overrides)
+        runs.append(RunSpec(f"ablation/{group}={label}", "MPC", 0, config))
+        for replica in range(replicas):
+            prefix = "ablation" if replica == 0 else f"ablation-replica{replica}"
+            runs.append(RunSpec(f"{prefix}/{group}={label}", "GP-MPC", 0, replica_config(config, replica)))
+    for group, label, name, overrides in idmpc_ablation_cases():
+        config = with_overrides(base, overrides)
+        row = f"{name}+KF" if config.estimator.kind != "none" else name
+        for replica in range(replicas if name.startswith("GP-") else 1):
+            prefix = "ablation-idmpc" if replica == 0 else f"ablation-idmpc-replica{replica}"
+            runs.append(RunSpec(f"{prefix}/{group}={label}", row, 0, replica_config(config, replica), name))
     return runs
 
 

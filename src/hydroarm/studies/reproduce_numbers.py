@@ -85,7 +85,7 @@ def summarise(runs: list, results: dict[str, Trajectory], paper_arm: bool = True
         _add_gains(metrics[case], runs, results, case, paper_arm)
     for case in ("clean", "noisy"):
         metrics[case]["best"] = _best_entry(metrics[case])
-    metrics["ablation"], metrics["ablation_idmpc"] = _ablations(runs, results)
+    metrics["ablation"], metrics["ablation_idmpc"] = ablation_metrics(runs, results)
     return metrics
 
 
@@ -170,46 +170,78 @@ def _best_entry(block: dict) -> dict:
     }
 
 
-def _ablations(runs: list, results: dict[str, Trajectory]) -> tuple[dict, dict]:
-    """The GP-MPC ablation (group -> value -> controller -> numbers, with the gain) and
-    hydroarm's best's (group -> value -> numbers), from the ``ablation/`` and ``ablation-idmpc/`` runs."""
+def _ablation_cell(traj: Trajectory, replicas: list[Trajectory]) -> dict:
+    """One ablation run's numbers; with its replicas (a GP run's), their :func:`replica_summary`
+    under ``replicas`` (``Ep`` and ``Ep_mean`` stay the unperturbed run's, as in the main tables)."""
+    m = tracking_metrics(traj)
+    cell = {
+        "Ep_mean": float(np.mean(m["Ep"])),
+        "Ep": m["Ep"],
+        "Ep_steady_mean": float(np.mean(m["Ep_steady"])),
+        "step_ms_median": float(np.median(traj.timings["total"]) * 1e3),
+        "step_ms_p99": float(np.percentile(traj.timings["total"], 99) * 1e3),
+        "diverged": m["diverged"],
+        "faults": fault_totals([traj]),
+    }
+    if replicas:
+        summary = replica_summary([traj, *replicas])
+        steady = np.array(summary["Ep_steady_mean"])
+        summary["Ep_steady_mean_of_joints"] = float(steady.mean())
+        summary["Ep_steady_mean_of_joints_spread"] = float(
+            _spread(
+                np.array([tracking_metrics(t)["Ep_steady"] for t in (traj, *replicas)]).mean(axis=1, keepdims=True)
+            )[0]
+        )
+        cell["replicas"] = summary
+    return cell
+
+
+def ablation_metrics(runs: list, results: dict[str, Trajectory]) -> tuple[dict, dict]:
+    """The two ablations' numbers: ``ablation[group][label][controller]`` (MPC and GP-MPC side by
+    side, and GP-MPC's gain) and ``ablation_idmpc[group][label]`` (one row each); a GP cell with
+    replicas (:func:`ablation_runs`) carries their spread (:func:`_ablation_cell`)."""
+    replicas: dict[tuple[str, str], list[Trajectory]] = {}
+    for spec in runs:
+        head, _, rest = spec.case.partition("/")
+        if "-replica" in head:
+            base = head.split("-replica")[0]
+            replicas.setdefault((f"{base}/{rest}", spec.controller), []).append(results[spec.key])
     ablation: dict = {}
     ablation_idmpc: dict = {}
     for spec in runs:
+        cell = None
+        if spec.case.startswith(("ablation/", "ablation-idmpc/")):
+            cell = _ablation_cell(results[spec.key], replicas.get((spec.case, spec.controller), []))
         if spec.case.startswith("ablation-idmpc/"):
             group, label = spec.case.removeprefix("ablation-idmpc/").split("=", 1)
-            traj = results[spec.key]
-            m = tracking_metrics(traj)
-            ablation_idmpc.setdefault(group, {})[label] = {
-                "controller": spec.controller,
-                "Ep_mean": float(np.mean(m["Ep"])),
-                "Ep": m["Ep"],
-                "Ep_steady_mean": float(np.mean(m["Ep_steady"])),
-                "step_ms_median": float(np.median(traj.timings["total"]) * 1e3),
-                "step_ms_p99": float(np.percentile(traj.timings["total"], 99) * 1e3),
-                "diverged": m["diverged"],
-            }
-            continue
-        if not spec.case.startswith("ablation/"):
-            continue
-        group, label = spec.case.removeprefix("ablation/").split("=", 1)
-        traj = results[spec.key]
-        m = tracking_metrics(traj)
-        row = ablation.setdefault(group, {}).setdefault(label, {})
-        row[spec.controller] = {
-            "Ep_mean": float(np.mean(m["Ep"])),
-            "Ep": m["Ep"],
-            "Ep_steady_mean": float(np.mean(m["Ep_steady"])),
-            "step_ms_median": float(np.median(traj.timings["total"]) * 1e3),
-            "diverged": m["diverged"],
-            "faults": fault_totals([traj]),
-        }
+            cell.pop("faults")
+            ablation_idmpc.setdefault(group, {})[label] = {"controller": spec.controller, **cell}
+        elif spec.case.startswith("ablation/"):
+            group, label = spec.case.removeprefix("ablation/").split("=", 1)
+            cell.pop("step_ms_p99")
+            ablation.setdefault(group, {}).setdefault(label, {})[spec.controller] = cell
     for rows in ablation.values():
         for row in rows.values():
             if "MPC" in row and "GP-MPC" in row:
-                gains = gain_percent(row["MPC"]["Ep"], row["GP-MPC"]["Ep"])
+                gains = gain_percent(row["MPC"]["Ep"], ablation_held(row["GP-MPC"])[0])
                 row["gain_mean_of_joints"] = float(np.mean(gains))
     return ablation, ablation_idmpc
+
+
+def ablation_held(cell: dict) -> tuple[list[float], float, float | None, float, float | None]:
+    """An ablation cell's held numbers: ``(E_p per joint, E_p mean of joints, its spread,
+    E_p after 2 s mean of joints, its spread)``: its replicas' means and spreads where it has
+    replicas (a GP run), else its own run's numbers (spreads None)."""
+    replicas = cell.get("replicas")
+    if replicas is None:
+        return cell["Ep"], cell["Ep_mean"], None, cell["Ep_steady_mean"], None
+    return (
+        replicas["Ep_mean"],
+        replicas["Ep_mean_of_joints"],
+        replicas["Ep_mean_of_joints_spread"],
+        replicas["Ep_steady_mean_of_joints"],
+        replicas["Ep_steady_mean_of_joints_spread"],
+    )
 
 
 # The tables: table1/2 and the ablations (.md and .csv)
@@ -338,7 +370,8 @@ def _main_table_title(block: dict, case: str, settings: dict) -> str:
 
 
 def _write_ablation_tables(metrics: dict, out: Path) -> None:
-    """ablation (.md and .csv) of the GP-MPC and ablation_idmpc of hydroarm's best, if they ran."""
+    """ablation (.md and .csv) of the GP-MPC and ablation_idmpc of hydroarm's best, if they ran;
+    a GP cell with replicas as its mean with the digits its spread leaves (:func:`ablation_held`)."""
     header = [
         "setting",
         "value",
@@ -352,30 +385,57 @@ def _write_ablation_tables(metrics: dict, out: Path) -> None:
     rows = []
     for group, values in metrics["ablation"].items():
         for label, row in values.items():
-            mpc, gp = row.get("MPC", {}), row.get("GP-MPC", {})
+            mpc, gp = row.get("MPC", {}), row.get("GP-MPC")
+            _, gp_mean, gp_spread, gp_steady, gp_steady_spread = (
+                ablation_held(gp) if gp else (0, math.nan, None, math.nan, None)
+            )
             rows.append([
-                group, label, _fmt(mpc.get("Ep_mean", math.nan)), _fmt(gp.get("Ep_mean", math.nan)),
-                f"{row.get('gain_mean_of_joints', math.nan):.1f}", _fmt(gp.get("Ep_steady_mean", math.nan)),
-                f"{mpc.get('step_ms_median', math.nan):.3f}", f"{gp.get('step_ms_median', math.nan):.3f}",
+                group, label, _fmt(mpc.get("Ep_mean", math.nan)), held_digits(gp_mean, gp_spread),
+                f"{row.get('gain_mean_of_joints', math.nan):.1f}", held_digits(gp_steady, gp_steady_spread),
+                f"{mpc.get('step_ms_median', math.nan):.3f}", f"{(gp or {}).get('step_ms_median', math.nan):.3f}",
             ])  # fmt: skip
     if rows:
         _write_table(
-            out / "ablation", "Ablation of the GP-MPC (clean, seed 0; one setting changed at a time)", header, rows
-        )
-    header = ["choice", "value", "row", "E_p mean", "t>2 s E_p mean", "step median (ms)", "step p99 (ms)", "diverged"]
-    rows = [
-        [group, label, row["controller"], _fmt(row["Ep_mean"]), _fmt(row["Ep_steady_mean"]),
-         f"{row['step_ms_median']:.3f}", f"{row['step_ms_p99']:.3f}", str(row["diverged"])]
-        for group, values in metrics.get("ablation_idmpc", {}).items()
-        for label, row in values.items()
-    ]  # fmt: skip
-    if rows:
-        _write_table(
-            out / "ablation_idmpc",
-            f"Ablation of hydroarm's best ({BEST}; clean, seed 0; one choice changed at a time)",
+            out / "ablation",
+            "Ablation of the GP-MPC (clean, seed 0; one setting changed at a time)"
+            + _ablation_spread_note(metrics["ablation"]),
             header,
             rows,
         )
+    header = ["choice", "value", "row", "E_p mean", "t>2 s E_p mean", "step median (ms)", "step p99 (ms)", "diverged"]
+    rows = []
+    for group, values in metrics.get("ablation_idmpc", {}).items():
+        for label, row in values.items():
+            _, mean, spread, steady, steady_spread = ablation_held(row)
+            rows.append([
+                group, label, row["controller"], held_digits(mean, spread), held_digits(steady, steady_spread),
+                f"{row['step_ms_median']:.3f}", f"{row['step_ms_p99']:.3f}", str(row["diverged"])
+            ])  # fmt: skip
+    if rows:
+        _write_table(
+            out / "ablation_idmpc",
+            f"Ablation of hydroarm's best ({BEST}; clean, seed 0; one choice changed at a time)"
+            + _ablation_spread_note(metrics["ablation_idmpc"]),
+            header,
+            rows,
+        )
+
+
+def _ablation_spread_note(table: dict) -> str:
+    """What the ``±`` of an ablation table's GP cells is; ``""`` if none has replicas."""
+    counts = {
+        cell["replicas"]["count"]
+        for rows in table.values()
+        for row in rows.values()
+        for cell in ([row] if "controller" in row else [v for v in row.values() if isinstance(v, dict)])
+        if "replicas" in cell
+    }
+    if not counts:
+        return ""
+    return (
+        f"; GP cells: mean ± std of {max(counts)} runs from starts {REPLICA_OFFSET:g} rad apart (their closed "
+        "loop turns a last-bit difference into another run), digits beyond the spread dropped"
+    )
 
 
 def _gain_cells(block: dict, key: str = "Ep") -> list[str]:

@@ -69,5 +69,9 @@ REPLICA_OFFSET = 1e-12
 DEFAULT_REPLICAS = {"full": 8, "quick": 4}
 """K, the runs per replicated row (the unperturbed one included), by mode."""
 
+ABLATION_REPLICAS = 4
+"""The most runs per GP cell of the ablations (``reproduce.ablation_runs``): each compares settings
+by the first digits of a mean, and its 36 GP cells would make 8 runs each the study's longest part."""
+
 MAX_REPLICAS = 64
 """The most runs per replicated row ``--replicas`` takes."""
