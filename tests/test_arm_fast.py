@@ -146,3 +146,13 @@ def test_batched_steps_equal_single_steps_bit_for_bit():
         assert np.array_equal(dist[c], single[1])
         assert np.array_equal(start[c], single[2])
     assert not np.array_equal(x_next[0], x_next[1])
+
+
+def test_plant_keys_left_out_of_run_ids_at_their_defaults():
+    """plant.compiled / plant.drag_points at their defaults leave the digest (run ids) of runs made
+    before them unchanged; set, they are part of it."""
+    default = ExperimentConfig()
+    assert {"compiled", "drag_points"}.isdisjoint(default.canonical()["plant"])
+    compiled = with_overrides(default, {"plant.compiled": True, "plant.drag_points": 3})
+    assert compiled.canonical()["plant"]["drag_points"] == 3
+    assert compiled.digest() != default.digest()

@@ -113,6 +113,10 @@ LATER_WATER_KEYS: tuple[str, ...] = ("added_mass_model", "axial_drag")
 the links' axial drag), left out of :meth:`ExperimentConfig.canonical` at their defaults, so
 sweeps made before them still resume."""
 
+LATER_PLANT_KEYS: tuple[str, ...] = ("compiled", "drag_points")
+"""The plant's settings added after run ids were first made (the compiled plant, issue 30), left
+out of :meth:`ExperimentConfig.canonical` at their defaults, so sweeps made before them still resume."""
+
 
 class InitialState(FrozenModel):
     """Where a run starts: the task's start x0 (:func:`task_for_arm`) plus a seeded uniform draw.
@@ -245,6 +249,10 @@ class ExperimentConfig(FrozenModel):
         for key in LATER_WATER_KEYS:
             if getattr(self.water, key) == getattr(water_defaults, key):
                 data["water"].pop(key)
+        plant_defaults = PlantConfig()
+        for key in LATER_PLANT_KEYS:
+            if getattr(self.plant, key) == getattr(plant_defaults, key):
+                data["plant"].pop(key)
         if self.idmpc.delay_margin == 0:  # added after run ids were first made (issue 32)
             data["idmpc"].pop("delay_margin")
         return data
