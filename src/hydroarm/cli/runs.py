@@ -342,6 +342,10 @@ def bench(
         "bench-results"
     ),
     quick: Annotated[bool, typer.Option("--quick", help="A few hundred samples (CI).")] = False,
+    only: Annotated[
+        str | None,
+        typer.Option("--only", help="Run one section alone (arm_fast, uvms): writes bench_<section>.json only."),
+    ] = None,
 ) -> None:
     """Benchmark the control steps, the plant, peers (do-mpc, cvxpy, scikit-learn, GPyTorch) and scaling.
 
@@ -365,10 +369,14 @@ def bench(
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join(p for p in (str(folder), env.get("PYTHONPATH", "")) if p)
     command = [sys.executable, "-m", "hydroarm_bench", "--out", str(out)] + (["--quick"] if quick else [])
+    command += ["--only", only] if only else []
     try:
         code = subprocess.call(command, env=env)
     except KeyboardInterrupt:
         raise typer.Exit(130) from None
     if code != 0:
         _fail(f"the benchmark suite exited with code {code}", code=code if code > 0 else 128 - code)  # -N: signal N
-    console.print(f"wrote {out / 'bench.json'} and {out / 'bench.md'}")
+    if only:
+        console.print(f"wrote {out / f'bench_{only}.json'}")
+    else:
+        console.print(f"wrote {out / 'bench.json'} and {out / 'bench.md'}")
