@@ -8,6 +8,7 @@ import time
 from pathlib import Path
 
 from hydroarm_bench.arm_fast import bench_arm_fast, render_arm_fast
+from hydroarm_bench.batched_env import bench_batched_env, render_batched_env
 from hydroarm_bench.control_steps import bench_control_steps
 from hydroarm_bench.envs import bench_envs, render_envs
 from hydroarm_bench.gp_peers import bench_gp_peers, record_gp_stream
@@ -22,7 +23,7 @@ from hydroarm_bench.stats import limit_threads
 from hydroarm_bench.uvms import bench_uvms, render_uvms
 from hydroarm_bench.viewer import bench_viewer, render_viewer
 
-SECTIONS = {"arm_fast": bench_arm_fast, "uvms": bench_uvms}
+SECTIONS = {"arm_fast": bench_arm_fast, "batched_env": bench_batched_env, "uvms": bench_uvms}
 """The sections that run alone (``python -m hydroarm_bench --only NAME``): each takes ``quick``."""
 
 
@@ -59,6 +60,7 @@ def run_benchmarks(out_dir: Path, quick: bool = False) -> dict:
         gp_peers = bench_gp_peers(events, quick)
         plant = bench_plant(recorded, quick)
         arm_fast = bench_arm_fast(quick)
+        batched_env = bench_batched_env(quick)
         scaling = bench_scaling(events, recorded, quick)
         profile = profile_closed_loop(1.0 if quick else 3.0)
         uvms = bench_uvms(quick)
@@ -71,6 +73,7 @@ def run_benchmarks(out_dir: Path, quick: bool = False) -> dict:
     report = assemble(quick, blas_threads, how, load_start, breakdown, throughput, mpc_peers, gp_peers, plant, scaling)
     report["profile"] = profile
     report["arm_fast"] = arm_fast
+    report["batched_env"] = batched_env
     report["uvms"] = uvms
     report["viewer"] = viewer
     report["envs"] = envs
@@ -82,6 +85,7 @@ def run_benchmarks(out_dir: Path, quick: bool = False) -> dict:
     (out_dir / "bench.md").write_text(
         render_markdown(report)
         + render_arm_fast(report["arm_fast"])
+        + render_batched_env(report["batched_env"])
         + render_uvms(report["uvms"])
         + render_viewer(report["viewer"])
         + render_envs(envs)

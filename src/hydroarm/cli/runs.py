@@ -344,7 +344,7 @@ def bench(
     quick: Annotated[bool, typer.Option("--quick", help="A few hundred samples (CI).")] = False,
     only: Annotated[
         str | None,
-        typer.Option("--only", help="Run one section alone (arm_fast, uvms): writes bench_<section>.json only."),
+        typer.Option("--only", help="One section alone (arm_fast, batched_env, uvms): writes bench_<section>.json."),
     ] = None,
 ) -> None:
     """Benchmark the control steps, the plant, peers (do-mpc, cvxpy, scikit-learn, GPyTorch) and scaling.
