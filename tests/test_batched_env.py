@@ -113,3 +113,20 @@ def test_bad_actions_are_refused():
         envs.step(np.zeros((3, envs.n)))
     with pytest.raises(ValueError, match="actions must be"):
         envs.step(np.full((2, envs.n), np.nan))
+
+
+def test_the_batched_plant_script_runs_small(tmp_path):
+    """scripts/batched_plant.py (the GPU design's CPU baseline, docs/model.md) runs in CI, small."""
+    import json
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    script = Path(__file__).resolve().parents[1] / "scripts" / "batched_plant.py"
+    done = subprocess.run(
+        [sys.executable, str(script), "--arm", "alpha5", "--copies", "1", "3", "--steps", "2"],
+        capture_output=True, text=True, check=True, cwd=tmp_path,
+    )  # fmt: skip
+    result = json.loads(done.stdout)
+    assert [row["copies"] for row in result["rows"]] == [1, 3]
+    assert all(row["finite"] and row["copy_steps_per_s"] > 0 for row in result["rows"])
