@@ -240,7 +240,7 @@ def _add_to_world(inertia, rot, p, out, scratch):  # pragma: no cover - compiled
         out[5, b] += t2 + (p[0] * s1 - p[1] * s0)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline="always")
 def crba(arm, work, mass):  # pragma: no cover - compiled
     """``mass`` (n, n) = M + M_A at the configuration of the last forward pass: the CRBA on the
     bodies' total inertias (rigid + added, constant in their frames), the composites carried to
@@ -274,7 +274,7 @@ def crba(arm, work, mass):  # pragma: no cover - compiled
             _add_to_world(composite[i], rot[i], pos[i], composite[par], tmp6)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline="always")
 def mass_times(arm, work, qdd, out):  # pragma: no cover - compiled
     """``out`` (n,) = M(q) qdd, the rigid body's (no water), at the last forward pass's q: the
     RNEA with no velocity and no gravity (work's acc/force rows are overwritten)."""
@@ -297,7 +297,7 @@ def mass_times(arm, work, qdd, out):  # pragma: no cover - compiled
             _force_to_parent(rot[i], pos[i], force[i], force[par])
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline="always")
 def rigid_terms(q, v, arm, work, nle, water_force, drag_force, mass, water_velocity):  # pragma: no cover
     """Everything at (q, v) but the solve: ``nle`` = C v + G (n,), the water's generalised forces
     (``water_force``: buoyancy, axial drag, -h_A, constant-C_d drag; ``drag_force``: the Reynolds
@@ -309,7 +309,7 @@ def rigid_terms(q, v, arm, work, nle, water_force, drag_force, mass, water_veloc
     crba(arm, work, mass)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline="always")
 def evaluate(t, q, v, tau, arm, work, out_acc, out_dist, out_drag):  # pragma: no cover - compiled
     """q'' (``out_acc``) and the disturbance ``M q'' + nle - tau`` (``out_dist``) at (t, q, v)
     under tau, the plant's equation (module docstring); ``out_drag`` the Reynolds drag's
