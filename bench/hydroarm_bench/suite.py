@@ -7,6 +7,8 @@ import os
 import time
 from pathlib import Path
 
+from hydroarm_bench.arm_fast import bench_arm_fast, render_arm_fast
+from hydroarm_bench.batched_env import bench_batched_env, render_batched_env
 from hydroarm_bench.control_steps import bench_control_steps
 from hydroarm_bench.envs import bench_envs, render_envs
 from hydroarm_bench.gp_peers import bench_gp_peers, record_gp_stream
@@ -20,6 +22,28 @@ from hydroarm_bench.scaling import bench_scaling
 from hydroarm_bench.stats import limit_threads
 from hydroarm_bench.uvms import bench_uvms, render_uvms
 from hydroarm_bench.viewer import bench_viewer, render_viewer
+
+SECTIONS = {"arm_fast": bench_arm_fast, "batched_env": bench_batched_env, "uvms": bench_uvms}
+"""The sections that run alone (``python -m hydroarm_bench --only NAME``): each takes ``quick``."""
+
+
+def run_section(name: str, out_dir: Path, quick: bool = False) -> dict:
+    """Run the section ``name`` of :data:`SECTIONS` alone, one core for BLAS as the suite; write
+    ``out_dir/bench_<name>.json`` and return the section."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    limiter, blas_threads, how = limit_threads()
+    load_start = os.getloadavg()
+    try:
+        section = SECTIONS[name](quick)
+    finally:
+        if limiter is not None:
+            limiter.unregister()
+    document = {"section": name, "quick": quick, "blas_threads": blas_threads, "blas_threads_set_by": how,
+                "load_average_start": load_start, "load_average_end": os.getloadavg(), name: section}  # fmt: skip
+    document = json.loads(json.dumps(document, default=json_default))
+    (out_dir / f"bench_{name}.json").write_text(json.dumps(document, indent=2) + "\n")
+    return document[name]
 
 
 def run_benchmarks(out_dir: Path, quick: bool = False) -> dict:
@@ -35,6 +59,8 @@ def run_benchmarks(out_dir: Path, quick: bool = False) -> dict:
         mpc_peers = bench_mpc_peers(recorded, breakdown["MPC"]["total"], quick)
         gp_peers = bench_gp_peers(events, quick)
         plant = bench_plant(recorded, quick)
+        arm_fast = bench_arm_fast(quick)
+        batched_env = bench_batched_env(quick)
         scaling = bench_scaling(events, recorded, quick)
         profile = profile_closed_loop(1.0 if quick else 3.0)
         uvms = bench_uvms(quick)
@@ -46,6 +72,8 @@ def run_benchmarks(out_dir: Path, quick: bool = False) -> dict:
             limiter.unregister()
     report = assemble(quick, blas_threads, how, load_start, breakdown, throughput, mpc_peers, gp_peers, plant, scaling)
     report["profile"] = profile
+    report["arm_fast"] = arm_fast
+    report["batched_env"] = batched_env
     report["uvms"] = uvms
     report["viewer"] = viewer
     report["envs"] = envs
@@ -56,6 +84,8 @@ def run_benchmarks(out_dir: Path, quick: bool = False) -> dict:
     (out_dir / "bench.json").write_text(json.dumps(report, indent=2) + "\n")
     (out_dir / "bench.md").write_text(
         render_markdown(report)
+        + render_arm_fast(report["arm_fast"])
+        + render_batched_env(report["batched_env"])
         + render_uvms(report["uvms"])
         + render_viewer(report["viewer"])
         + render_envs(envs)

@@ -263,6 +263,10 @@ def bench(
         "bench-results"
     ),
     quick: Annotated[bool, typer.Option("--quick", help="A few hundred samples (CI).")] = False,
+    only: Annotated[
+        str | None,
+        typer.Option("--only", help="One section alone (arm_fast, batched_env, uvms): writes bench_<section>.json."),
+    ] = None,
 ) -> None:
     """Benchmark the control steps, the plant, peers (do-mpc, cvxpy, scikit-learn, GPyTorch) and scaling.
 
@@ -286,10 +290,14 @@ def bench(
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join(p for p in (str(folder), env.get("PYTHONPATH", "")) if p)
     command = [sys.executable, "-m", "hydroarm_bench", "--out", str(out)] + (["--quick"] if quick else [])
+    command += ["--only", only] if only else []
     try:
         code = subprocess.call(command, env=env)
     except KeyboardInterrupt:
         raise typer.Exit(130) from None
     if code != 0:
         _fail(f"the benchmark suite exited with code {code}", code=code if code > 0 else 128 - code)  # -N: signal N
-    console.print(f"wrote {out / 'bench.json'} and {out / 'bench.md'}")
+    if only:
+        console.print(f"wrote {out / f'bench_{only}.json'}")
+    else:
+        console.print(f"wrote {out / 'bench.json'} and {out / 'bench.md'}")

@@ -21,7 +21,10 @@ and :class:`~hydroarm.envs.underwater_arm.ControllerPolicy` are documented in
 :mod:`hydroarm.envs.underwater_arm`. Both ids name :mod:`hydroarm.envs.vector`'s
 :class:`~hydroarm.envs.vector.WorkerVectorEnv` as their ``vector_entry_point``:
 ``gymnasium.make_vec("hydroarm/UnderwaterArm-v0", num_envs=8)`` runs the 8 copies on as many
-worker processes as there are cores.
+worker processes as there are cores. ``hydroarm/UnderwaterArmBatched-v0`` is the arm env on the
+compiled plant: ``gymnasium.make_vec("hydroarm/UnderwaterArmBatched-v0", num_envs=64,
+vectorization_mode="vector_entry_point")`` gives :class:`~hydroarm.envs.batched.BatchedArmVectorEnv`
+(every copy's control period in one compiled call), ``gymnasium.make`` of it one such copy.
 """
 
 from __future__ import annotations
@@ -35,8 +38,11 @@ UVMS_ENV_ID = "hydroarm/UVMS-v0"
 UVMS_ENTRY_POINT = "hydroarm.envs.vehicle:UVMSEnv"
 VECTOR_ENTRY_POINT = "hydroarm.envs.vector:make_arm_vector_env"
 UVMS_VECTOR_ENTRY_POINT = "hydroarm.envs.vector:make_uvms_vector_env"
+BATCHED_ENV_ID = "hydroarm/UnderwaterArmBatched-v0"
+BATCHED_ENTRY_POINT = "hydroarm.envs.batched:make_compiled_arm_env"
+BATCHED_VECTOR_ENTRY_POINT = "hydroarm.envs.batched:make_batched_arm_vector_env"
 
-__all__ = ["ENV_ID", "UVMS_ENV_ID", "ControllerPolicy", "UnderwaterArmEnv", "register"]
+__all__ = ["BATCHED_ENV_ID", "ENV_ID", "UVMS_ENV_ID", "ControllerPolicy", "UnderwaterArmEnv", "register"]
 
 
 def register() -> None:
@@ -50,6 +56,9 @@ def register() -> None:
         gymnasium.register(id=ENV_ID, entry_point=ENTRY_POINT, vector_entry_point=VECTOR_ENTRY_POINT)
     if UVMS_ENV_ID not in gymnasium.registry:
         gymnasium.register(id=UVMS_ENV_ID, entry_point=UVMS_ENTRY_POINT, vector_entry_point=UVMS_VECTOR_ENTRY_POINT)
+    if BATCHED_ENV_ID not in gymnasium.registry:
+        gymnasium.register(id=BATCHED_ENV_ID, entry_point=BATCHED_ENTRY_POINT,
+                           vector_entry_point=BATCHED_VECTOR_ENTRY_POINT)  # fmt: skip
 
 
 def __getattr__(name: str) -> Any:

@@ -65,6 +65,18 @@ class PlantConfig(FrozenModel):
     noise_variance: float = pydantic.Field(
         0.0, ge=0.0, le=10.0, description="variance of the Gaussian measurement noise on q and v (rad^2, (rad/s)^2)"
     )
+    compiled: bool = pydantic.Field(
+        False, description="step with the compiled plant (hydroarm.model.arm_fast: one call per control period)"
+    )
+    drag_points: int | None = pydantic.Field(
+        None, ge=1, le=16, description="Gauss points per drag piece of the compiled plant; unset = water's (-)"
+    )
+
+    @pydantic.model_validator(mode="after")
+    def _drag_points_need_compiled(self) -> PlantConfig:
+        if self.drag_points is not None and not self.compiled:
+            raise ValueError("plant.drag_points applies to the compiled plant only: set plant.compiled = true")
+        return self
 
 
 def _live_views(model: pin.Model, data: pin.Data):
@@ -126,6 +138,12 @@ class UnderwaterPlant:
             if values is not None:
                 per_joint(values, self.n, name)
         self._check_friction()
+        self.fast = None
+        if self.config.compiled:
+            from hydroarm.model.arm_fast import FastArmDynamics
+
+            self.fast = FastArmDynamics(arm, self.water, float(self.config.friction), self.friction,
+                                        self.config.drag_points)  # fmt: skip
 
     def _inertia(self) -> np.ndarray:
         q = pin.neutral(self.arm.model)
@@ -194,8 +212,12 @@ class UnderwaterPlant:
         variation) in one compiled call (:func:`rk4_stage_kernel`). A state that
         stops being finite (a diverging run) gives an all-NaN ``x_next`` and
         disturbance instead of an exception from the solve; the runner reports it
-        as ``diverged``.
+        as ``diverged``. With ``plant.compiled`` the whole period is one call of
+        :class:`~hydroarm.model.arm_fast.FastArmDynamics` instead.
         """
+        if self.fast is not None:
+            x_next, average, start = self.fast.step(t, x, tau, dt, self.inner_step)
+            return x_next, StepInfo(disturbance=average, disturbance_start=start)
         n = self.n
         steps, h = inner_steps(dt, self.inner_step)
         state, stage_state, _, disturbances, average = self._work_arrays

@@ -109,6 +109,7 @@ LATER_KEYS: dict[str, tuple[str, ...]] = {
     "estimator": ("measures", "delay", "repeated"),  # the real loop's
     "water": ("added_mass_model", "axial_drag"),  # the energy-consistent added mass, axial drag
     "idmpc": ("delay_margin", "loop_delay", "inertia_margin"),  # the told delay (issue 32)
+    "plant": ("compiled", "drag_points"),  # the compiled plant (issue 30)
 }
 """Settings added after run ids were first made, per section: left out of
 :meth:`ExperimentConfig.canonical` at their defaults, so runs and sweeps made before them resume."""
