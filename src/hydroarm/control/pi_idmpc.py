@@ -78,6 +78,11 @@ class PIIDMPCConfig(FrozenModel):
     planner_iterations: int = pydantic.Field(
         3, ge=0, le=10, description="the planner's SQP steps along the plan per replan, 0 <= x <= 10"
     )
+    planner_solver: Literal["structured", "daqp"] = pydantic.Field(
+        "structured",
+        description="the planner's QP solver: structured (compiled, per-joint factors, hydroarm.control.plan_qp) "
+        "or daqp (dense); the same plan to rounding",
+    )
     planner_deviation: float = pydantic.Field(
         500.0,
         ge=0.0,
@@ -139,6 +144,7 @@ class PhysicsInformedIDMPC:
                 self.mpc.P,
                 self.torque_limit,
                 pcfg.planner_iterations,
+                solver=pcfg.planner_solver,
             )
             self.planner.disturbance_model = self._along_plan
             self._plan_offsets = np.arange(pcfg.planner_horizon + 1) * self.control_period
@@ -236,9 +242,12 @@ class PhysicsInformedIDMPC:
         model, data = self.arm.model, self.planner.data
         q, v = y[:n].copy(), y[n:].copy()
         moves = np.empty((horizon, n))
+        # the IDMPC's reference at (t + k T) + i T for every rollout step k, in one call (the same times)
+        times = (t + np.arange(horizon) * period)[:, None] + self.mpc._offsets[None, :]
+        q_s, v_s, a_s = (x.reshape(times.shape + (n,)) for x in sample_times(reference, times.ravel()))
         for k in range(horizon):
             x = np.concatenate([q, v])
-            a = self.mpc.planned_acceleration(t + k * period, x, reference, remember=False)  # the step's QP kept
+            a = self.mpc.acceleration_from_samples(x, q_s[k], v_s[k], a_s[k], remember=False)  # the step's QP kept
             added, rest = self.model.terms(q, v)
             mass = pin.crba(model, data, q)
             mass = np.triu(mass) + np.triu(mass, 1).T + added
