@@ -171,3 +171,22 @@ def test_unknown_solver_is_refused():
     p_mats = np.array([joint_lqr(0.01, 300.0, 0.01, 1e-5)[0] for _ in range(n)])
     with pytest.raises(ValueError, match="solver = 'osqp'"):
         HorizonQP(arm, 0.01, 5, np.ones(n), np.ones(n), np.ones(n), p_mats, np.ones(n), 1, solver="osqp")
+
+
+@pytest.mark.parametrize("arm_name", ["paper", "alpha5"])
+def test_water_terms_along_a_plan_are_the_per_state_terms(arm_name):
+    """The planner's water at N states in one compiled pass: bit for bit the N single calls."""
+    from hydroarm.control.water_model import PhysicsInformedModel
+
+    arm = load_arm(arm_name)
+    model = PhysicsInformedModel(arm)
+    rng = np.random.default_rng(5)
+    model.theta = model.theta * rng.uniform(0.5, 2.0, model.theta.shape)
+    q = rng.normal(0.0, 1.0, (9, arm.n_joints))
+    v = rng.normal(0.0, 3.0, (9, arm.n_joints))
+    added, rest = model.terms_along(q, v)
+    for k in range(9):
+        single_added, single_rest = model.terms(q[k], v[k])
+        np.testing.assert_array_equal(added[k], single_added)
+        np.testing.assert_array_equal(rest[k], single_rest)
+    assert np.abs(added).max() > 0.0 and np.abs(rest).max() > 0.0

@@ -187,10 +187,9 @@ class PhysicsInformedIDMPC:
         added-mass inertia."""
         horizon, n = q.shape
         w = np.empty((horizon, n))
-        added = np.empty((horizon, n, n))
+        added, rest = self.model.terms_along(q, v)  # one compiled pass over the plan
         for k in range(horizon):
-            added[k], rest = self.model.terms(q[k], v[k])
-            w[k] = rest - added[k] @ a[k] + self._rest
+            w[k] = rest[k] - added[k] @ a[k] + self._rest
         # a plan far from feasible (light joints, long horizons) reaches speeds where |v| v drag
         # explodes; a force beyond the torque limit cannot be compensated anyway: hold it there
         return np.clip(w, -self.torque_limit, self.torque_limit), added
