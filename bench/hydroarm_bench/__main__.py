@@ -1,4 +1,6 @@
-"""``python -m hydroarm_bench --out DIR [--quick]`` (with ``bench/`` on ``PYTHONPATH``).
+"""``python -m hydroarm_bench --out DIR [--quick] [--only SECTION]`` (with ``bench/`` on ``PYTHONPATH``).
+
+``--only planner``: that section alone, into ``DIR/bench-planner.json`` (bench.json untouched).
 
 BLAS is limited to one thread before NumPy is imported (environment variables) and again
 with threadpoolctl inside the suite. Prints the targets met and any problem of the
@@ -24,7 +26,14 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="hydroarm_bench", description="Run the hydroarm benchmark suite.")
     parser.add_argument("--out", type=Path, required=True, help="directory for bench.json and bench.md")
     parser.add_argument("--quick", action="store_true", help="fewer samples and peer problems (CI)")
+    parser.add_argument("--only", choices=["planner"], help="run one section alone (DIR/bench-SECTION.json)")
     args = parser.parse_args(argv)
+    if args.only:
+        from hydroarm_bench.suite import run_section
+
+        section = run_section(args.out, args.only, quick=args.quick)
+        print(json.dumps({"out": str(args.out), args.only: section[args.only]}, indent=2))
+        return 0
     report = run_benchmarks(args.out, quick=args.quick)
     problems = validate_report(report)
     status = {key: row["met"] for key, row in report["target_status"].items()}

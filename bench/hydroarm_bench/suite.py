@@ -12,6 +12,7 @@ from hydroarm_bench.envs import bench_envs, render_envs
 from hydroarm_bench.gp_peers import bench_gp_peers, record_gp_stream
 from hydroarm_bench.markdown import render_markdown
 from hydroarm_bench.mpc_peers import bench_mpc_peers
+from hydroarm_bench.planner import bench_planner, render_planner
 from hydroarm_bench.plant import bench_plant
 from hydroarm_bench.profiling import profile_closed_loop
 from hydroarm_bench.replay import bench_replay, render_replay
@@ -41,6 +42,7 @@ def run_benchmarks(out_dir: Path, quick: bool = False) -> dict:
         viewer = bench_viewer(quick)
         envs = bench_envs(quick)
         replay = bench_replay(quick)
+        planner = bench_planner(quick)
     finally:
         if limiter is not None:
             limiter.unregister()
@@ -50,6 +52,7 @@ def run_benchmarks(out_dir: Path, quick: bool = False) -> dict:
     report["viewer"] = viewer
     report["envs"] = envs
     report["replay"] = replay
+    report["planner"] = planner
     report["target_status"] = target_status(report)  # again, with the vehicle and viewer sections
     report["suite_wall_s"] = time.perf_counter() - started
     report = json.loads(json.dumps(report, default=json_default))  # plain JSON types only
@@ -60,5 +63,35 @@ def run_benchmarks(out_dir: Path, quick: bool = False) -> dict:
         + render_viewer(report["viewer"])
         + render_envs(envs)
         + render_replay(report["replay"])
+        + render_planner(report["planner"])
     )
+    return report
+
+
+SECTIONS = {"planner": (bench_planner, render_planner)}
+"""The sections ``--only`` runs alone (their own files, bench.json untouched)."""
+
+
+def run_section(out_dir: Path, name: str, quick: bool = False) -> dict:
+    """Run one section of :data:`SECTIONS`; write ``out_dir/bench-NAME.json`` and ``.md``."""
+    bench, render = SECTIONS[name]
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    limiter, blas_threads, how = limit_threads()
+    load_start = os.getloadavg()
+    try:
+        section = bench(quick)
+    finally:
+        if limiter is not None:
+            limiter.unregister()
+    report = {
+        "quick": quick,
+        "blas_threads": blas_threads,
+        "blas_threads_set_by": how,
+        "load_average": [load_start, os.getloadavg()],
+        name: section,
+    }
+    report = json.loads(json.dumps(report, default=json_default))
+    (out_dir / f"bench-{name}.json").write_text(json.dumps(report, indent=2) + "\n")
+    (out_dir / f"bench-{name}.md").write_text(render(report[name]))
     return report
