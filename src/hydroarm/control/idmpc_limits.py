@@ -250,14 +250,17 @@ class HorizonQP:
         shift = self._rows @ moves.ravel() - base
         return self._rows, self.limit + shift, -self.limit + shift
 
-    def solve(self, e0, c, q_r, v_r, a_r, mass, bias, w_hat, initial_moves=None) -> np.ndarray | None:
+    def solve(self, e0, c, q_r, v_r, a_r, mass, bias, w_hat, initial_moves=None, initial_lam=None) -> np.ndarray | None:
         """The first acceleration (n,) rad/s^2 of the constrained horizon problem, or None.
 
         ``e0`` (n, 2), ``c`` (N, n, 2), ``q_r, v_r`` (>= N, n), ``a_r`` (N, n): the outer
         problem; ``mass`` (n, n), ``bias`` = h - w_hat (n,) at the current state; ``w_hat`` (n,).
         ``initial_moves`` (N, n): a plan to linearise about first (a warm start: the frozen
-        solve is skipped), or None. The whole plan's moves (N, n) are left in ``last_moves``,
-        whether a torque row is active in ``last_active``."""
+        solve is skipped), or None. ``initial_lam`` (N n,): the working set to start the first
+        solve from (the signs of a last plan's multipliers, shifted; the structured solver only:
+        DAQP's path starts cold as it always did). The whole plan's moves (N n) are left in
+        ``last_moves``, its multipliers in ``last_lam``, whether a torque row is active in
+        ``last_active``."""
         gradient = self.gradient(e0, c)
         self.last_iterations = 0
         if initial_moves is None:
@@ -266,7 +269,9 @@ class HorizonQP:
             rows, upper, lower = self.linearised_rows(
                 np.asarray(initial_moves, dtype=float), e0, c, q_r, v_r, a_r, w_hat
             )
-        moves, lam, ok = self._solve_qp(gradient, rows, upper, lower)
+        moves, lam, ok = self._solve_qp(
+            gradient, rows, upper, lower, initial_lam if self._factors is not None else None
+        )
         if not ok:
             return None
         for _ in range(self.sqp_iterations):
@@ -278,5 +283,6 @@ class HorizonQP:
             moves, lam = new, new_lam
             self.last_iterations += 1
         self.last_moves = np.asarray(moves).reshape(self.horizon, self.n)
+        self.last_lam = lam
         self.last_active = bool(np.any(lam != 0.0))
         return a_r[0] + np.asarray(moves[: self.n])

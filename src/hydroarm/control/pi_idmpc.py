@@ -208,12 +208,14 @@ class PhysicsInformedIDMPC:
         # point, and the scale of the plausibility check on every plan (PLAN_TRUST)
         rollout = self._rollout(t, y, reference, a_r)
         bound = PLAN_TRUST[0] * np.abs(rollout + a_r[:-1]).max(axis=0) + PLAN_TRUST[1]
-        initial = rollout
-        if self._plan is not None:  # warm start: the last plan's moves, shifted by the steps followed
-            moves = self._plan[3]
+        initial, initial_lam = rollout, None
+        if self._plan is not None:  # warm start: the last plan's moves and working set, shifted by the steps followed
+            moves, lam = self._plan[3], self._plan_lam
             initial = np.zeros_like(moves)
             initial[: moves.shape[0] - self._plan_step] = moves[self._plan_step :]
-        if self.planner.solve(e0, c, q_r, v_r, a_r[:-1], mass, bias, w_free, initial) is None:
+            initial_lam = np.zeros_like(lam)
+            initial_lam[: lam.shape[0] - self._plan_step * n] = lam[self._plan_step * n :]
+        if self.planner.solve(e0, c, q_r, v_r, a_r[:-1], mass, bias, w_free, initial, initial_lam) is None:
             self._plan = None
             return False
         moves = self.planner.last_moves
@@ -230,6 +232,7 @@ class PhysicsInformedIDMPC:
             self.rejected += 1
             return False
         self._plan = (q_p, v_p, a_p, moves.copy())
+        self._plan_lam = np.asarray(self.planner.last_lam, dtype=float).copy()
         self._plan_step = 0
         self.plans += 1
         return True
