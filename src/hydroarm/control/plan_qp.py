@@ -17,7 +17,7 @@ With ``x = L' U`` (per joint) the problem is the least-distance problem
 ``min 1/2 ||x + d||^2, lower <= M x <= upper`` with ``d = L^-1 g``, ``M = R L^-T``, solved by the
 dual active set of DAQP (Arnstrom, Bemporad, Axehill 2022): ``x = -d - M_A' lambda_A`` for the
 working set A; ``lambda_A`` from the Cholesky factor of ``M_A M_A'``, appended one row per added
-constraint and rebuilt when one is removed; the most violated constraint joins while the
+constraint, and downdated by Givens rotations when one is removed; the most violated constraint joins while the
 multipliers have their signs (``lambda >= 0`` at an upper bound, ``<= 0`` at a lower), else a
 step to the first sign change removes that one. A row of M is formed only when its constraint
 joins. The tolerances are DAQP's defaults (a constraint violated by at most ``primal_tol`` N m
@@ -118,6 +118,25 @@ def _refactor(gram, size, chol):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True)
+def _drop_row(chol, size, p):  # pragma: no cover - compiled
+    """The Cholesky factor of ``M_A M_A'`` without row p of M_A, in place (``size`` - 1 rows):
+    row p removed, the superdiagonal it leaves zeroed by Givens rotations of adjacent columns
+    (O(size^2), not a new factorisation)."""
+    for i in range(p, size - 1):
+        for c in range(i + 2):
+            chol[i, c] = chol[i + 1, c]
+    for j in range(p, size - 1):
+        a, b = chol[j, j], chol[j, j + 1]
+        radius = math.sqrt(a * a + b * b)
+        cos, sin = a / radius, b / radius
+        for i in range(j, size - 1):
+            x, y = chol[i, j], chol[i, j + 1]
+            chol[i, j] = cos * x + sin * y
+            chol[i, j + 1] = -sin * x + cos * y
+        chol[j, j + 1] = 0.0
+
+
+@numba.njit(cache=True)
 def solve_plan_qp(
     factors, gradient, rows, upper, lower, warm, primal_tol, dual_tol, max_iterations
 ):  # pragma: no cover - compiled
@@ -204,13 +223,8 @@ def solve_plan_qp(
                 active[p] = active[p + 1]
                 lam[p] = lam[p + 1]
                 m_rows[p] = m_rows[p + 1]
-                for i in range(count):
-                    gram[p, i] = gram[p + 1, i]
-            for p in range(count - 1):
-                for i in range(blocking, count - 1):
-                    gram[p, i] = gram[p, i + 1]
+            _drop_row(chol, count, blocking)
             count -= 1
-            _refactor(gram, count, chol)
             continue
         for p in range(count):
             lam[p] = star[p]
