@@ -190,3 +190,29 @@ def test_water_terms_along_a_plan_are_the_per_state_terms(arm_name):
         np.testing.assert_array_equal(added[k], single_added)
         np.testing.assert_array_equal(rest[k], single_rest)
     assert np.abs(added).max() > 0.0 and np.abs(rest).max() > 0.0
+
+
+def test_a_solve_that_does_not_settle_goes_to_daqp(monkeypatch):
+    """The structured solver's iteration limit hands the problem to DAQP (counted), whose answer stands."""
+    import hydroarm.control.idmpc_limits as limits
+
+    rng = np.random.default_rng(11)
+    arm = load_arm("paper")
+    n, horizon = arm.n_joints, 6
+    p_mats = np.array([joint_lqr(0.01, 300.0, 0.01, 1e-5)[0] for _ in range(n)])
+    qp = HorizonQP(arm, 0.01, horizon, np.full(n, 300.0), np.full(n, 0.01), np.full(n, 1e-5), p_mats,
+                   np.full(n, 40.0), 0, solver="structured")  # fmt: skip
+    hessian, gradient = qp.hessian, rng.normal(0.0, 1e4, horizon * n)
+    rows = np.kron(np.eye(horizon), arm.mass_matrix(np.zeros(n)))
+    upper, lower = np.full(horizon * n, 40.0), np.full(horizon * n, -40.0)
+    limited = limits.solve_plan_qp
+
+    def one_iteration(*args):
+        return limited(*args[:-1], 1)
+
+    monkeypatch.setattr(limits, "solve_plan_qp", one_iteration)
+    moves, lam, ok = qp._solve_qp(gradient, rows, upper, lower)
+    assert ok and qp.fallbacks == 1
+    expected, expected_lam = reference(hessian, gradient, rows, upper, lower)
+    np.testing.assert_array_equal(moves, expected)
+    assert np.count_nonzero(expected_lam) > 0

@@ -307,7 +307,7 @@ def controllers(as_json: Annotated[bool, typer.Option("--json", help="Machine-re
                       row["description"])  # fmt: skip
     Console().print(table)
     for alias, target in ALIASES.items():
-        console.print(f"alias [bold]{alias}[/] = {target} (hydroarm's best controller)")
+        console.print(f"alias [bold]{alias}[/] = {target} (hydroarm's flagship: docs/controllers.md)")
 
 
 @app.command("export-urdf")

@@ -18,7 +18,7 @@ settings, and writes into ``out_dir``:
   the paper's: the controllers compared on that arm alone; :mod:`hydroarm.studies.report`).
 
 Beside the paper's rows (SMC, MPC, GP-MPC on the raw measurement, exactly as the paper's
-study), the tables carry hydroarm's own best controller (:data:`BEST`, behind its Kalman
+study), the tables carry hydroarm's flagship (:data:`BEST`, behind its Kalman
 filter) and the paper's controllers behind the same filter (``SMC+KF``, ...), so that every
 comparison with it uses the same estimator; ``ablation_idmpc.md`` varies its choices.
 
@@ -83,7 +83,7 @@ PAPER_GAIN = {"clean": 34.05, "noisy": 52.27}
 """The paper's "average control accuracy" gain of GP-MPC over MPC: the mean of the per-joint gains (%)."""
 
 BEST = "GP-IDMPC+KF"
-"""hydroarm's best controller row: GP-IDMPC behind its (default) Kalman filter."""
+"""hydroarm's flagship row (the alias ``flagship``): GP-IDMPC behind its (default) Kalman filter."""
 
 EXTRA_ROWS: dict[str, tuple[str, dict]] = {
     BEST: ("GP-IDMPC", {"estimator.kind": "auto"}),
@@ -176,7 +176,7 @@ DRY = {"water.drag": False, "water.added_mass": False, "water.buoyancy": False, 
 
 
 def idmpc_ablation_cases() -> list[tuple[str, str, str, dict]]:
-    """(group, label, controller, overrides) of the ablation of hydroarm's best controller."""
+    """(group, label, controller, overrides) of the ablation of hydroarm's flagship."""
     cases: list[tuple[str, str, str, dict]] = [
         ("GP", "off (IDMPC)", "IDMPC", {}),
         ("GP", "on (GP-IDMPC)", "GP-IDMPC", {}),
