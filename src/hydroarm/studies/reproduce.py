@@ -451,7 +451,7 @@ def write_tables(metrics: dict, out: Path) -> None:
         rows.append(["MPC on the arm without water (bound)"] + [_fmt(x) for x in bound] + [_fmt(np.mean(bound))])
         for name in EXTRA_ROWS:
             ep = block[name]["Ep"]
-            label = "hydroarm's best: GP-IDMPC, Kalman filter" if name == BEST else f"{name[:-3]} + Kalman filter"
+            label = "hydroarm's flagship: GP-IDMPC, Kalman filter" if name == BEST else f"{name[:-3]} + Kalman filter"
             rows.append([label] + [_fmt(x) for x in ep] + [_fmt(np.mean(ep))])
         for name in ROWS:
             steady = block[name]["Ep_steady"]
@@ -523,7 +523,7 @@ def write_tables(metrics: dict, out: Path) -> None:
     if rows:
         _write_table(
             out / "ablation_idmpc",
-            f"Ablation of hydroarm's best ({BEST}; clean, seed 0; one choice changed at a time)",
+            f"Ablation of hydroarm's flagship ({BEST}; clean, seed 0; one choice changed at a time)",
             header,
             rows,
         )
