@@ -244,6 +244,7 @@ class PhysicsInformedIDMPC:
         model, data = self.arm.model, self.planner.data
         q, v = y[:n].copy(), y[n:].copy()
         moves = np.empty((horizon, n))
+        lower = np.tri(n, k=-1, dtype=bool)
         # the IDMPC's reference at (t + k T) + i T for every rollout step k, in one call (the same times)
         times = (t + np.arange(horizon) * period)[:, None] + self.mpc._offsets[None, :]
         q_s, v_s, a_s = (x.reshape(times.shape + (n,)) for x in sample_times(reference, times.ravel()))
@@ -252,7 +253,7 @@ class PhysicsInformedIDMPC:
             a = self.mpc.acceleration_from_samples(x, q_s[k], v_s[k], a_s[k], remember=False)  # the step's QP kept
             added, rest = self.model.terms(q, v)
             mass = pin.crba(model, data, q)
-            mass = np.triu(mass) + np.triu(mass, 1).T + added
+            mass = np.where(lower, mass.T, mass) + added  # CRBA's upper triangle, mirrored
             bias = pin.nonLinearEffects(model, data, q, v) - rest - self._rest  # the drag unclipped: it damps
             bound = np.maximum(np.abs(a), 100.0)
             # explicit steps of a light joint in strong drag overshoot: bound what the dynamics give
