@@ -211,9 +211,9 @@ class HorizonQP:
             moves, new_lam, flag, _ = solve_plan_qp(
                 self._factors, gradient, rows, upper, lower, warm_set(lam, size), PRIMAL_TOL, DUAL_TOL, size
             )
-            if int(flag) == 1:
+            if int(flag) == 1 and np.all(np.isfinite(moves)) and np.all(np.isfinite(new_lam)):
                 return moves, new_lam, True
-            self.fallbacks += 1
+            self.fallbacks += 1  # not settled, or a working set too close to dependent rows
         if lam is None:
             moves, _, flag, info = daqp.solve(self.hessian, gradient, rows, upper, lower, self._sense)
         else:

@@ -286,4 +286,4 @@ def warm_set(lam: np.ndarray | None, size: int) -> np.ndarray:
     (their signs), or empty (None)."""
     if lam is None:
         return np.zeros(size, dtype=np.int64)
-    return np.sign(np.asarray(lam, dtype=float)).astype(np.int64)
+    return np.sign(np.nan_to_num(np.asarray(lam, dtype=float))).astype(np.int64)
