@@ -118,7 +118,7 @@ def main() -> None:
                 fit = calibrate([by_name[n] for n in train], spec, "mount", names, config, workers=args.workers)
                 slug = split.split(":")[0]
                 calibrated_path = args.out / f"{arm}_{name}_{slug}.toml"
-                write_calibrated_vehicle(calibrated_path, spec, fit, train, build_system(spec).arm)
+                write_calibrated_vehicle(calibrated_path, spec, fit, train, build_system(spec).arm, config)
                 calibrated = load_vehicle_quietly(calibrated_path)
                 fitted = replay_config(config, fit.values)  # the fitted replay settings (joint_time_offset, ...)
                 replays = replay_many([by_name[n] for n in train + held], calibrated, "mount", fitted, args.workers)

@@ -254,3 +254,76 @@ def test_urdf_loads_in_mujoco_with_same_mass_matrix(arm):
         np.testing.assert_allclose(full, arm.mass_matrix(q), rtol=1e-8, atol=1e-10)
         # MuJoCo's qfrc_bias at v = 0 is the gravity torque.
         np.testing.assert_allclose(data.qfrc_bias, arm.gravity(q), rtol=1e-8, atol=1e-9)
+
+
+# --- reflected rotor inertia (armature) ------------------------------------------------------
+
+
+def _paper_with_armature(armature):
+    from hydroarm.model.arm import build_arm
+    from hydroarm.model.loading import load_arm_spec
+
+    data = load_arm_spec("paper").model_dump()
+    data["armature"] = armature
+    return build_arm(validate(ArmSpec, data, "paper.toml"))
+
+
+def test_armature_adds_exactly_itself_to_the_mass_matrix_diagonal_in_the_plant_and_the_model():
+    import pinocchio as pin
+
+    from hydroarm.model.loading import load_arm
+    from hydroarm.model.nominal import NominalModel
+    from hydroarm.model.plant import PlantConfig, UnderwaterPlant
+    from hydroarm.model.water import Water
+
+    plain = load_arm("paper")
+    armature = np.array([0.4, 0.3, 0.2, 0.05, 0.02, 0.01])  # kg m^2
+    geared = _paper_with_armature(armature.tolist())
+    assert np.all(plain.model.armature == 0.0)  # the paper arm in paper mode: none
+    rng = np.random.default_rng(3)
+    q, v, tau = rng.uniform(-2, 2, 6), rng.uniform(-1, 1, 6), rng.uniform(-5, 5, 6)
+    with_armature = pin.crba(geared.model, geared.model.createData(), q)
+    without = pin.crba(plain.model, plain.model.createData(), q)
+    np.testing.assert_allclose(np.triu(with_armature - without), np.diag(armature), rtol=0, atol=1e-14)
+    # the controllers' model solves (M(q) + diag(armature)) a = tau - h(q, v), and the plant the same
+    # with the water's generalised force w (no added mass here: w does not depend on a)
+    mass = np.triu(without) + np.triu(without, 1).T + np.diag(armature)
+    bias = pin.nonLinearEffects(plain.model, plain.model.createData(), q, v)
+    expected = np.linalg.solve(mass, tau - bias)
+    np.testing.assert_allclose(NominalModel(geared).forward_dynamics(q, v, tau), expected, rtol=1e-10, atol=1e-12)
+    assert not np.allclose(NominalModel(plain).forward_dynamics(q, v, tau), expected, rtol=1e-3)
+    plant = UnderwaterPlant(geared, Water(added_mass=False), PlantConfig())
+    acceleration, water = plant.dynamics(0.0, q, v, tau)
+    np.testing.assert_allclose(mass @ acceleration, tau - bias + water, rtol=1e-10, atol=1e-10)
+
+
+def test_armature_is_one_value_or_one_per_joint_in_arm_and_hydrodynamics_files():
+    from hydroarm.config import ConfigError
+    from hydroarm.model.urdf_export import arm_to_urdf
+    from hydroarm.model.urdf_import import arm_from_urdf, hydro_spec_of
+
+    assert np.all(_paper_with_armature(0.1).model.armature == 0.1)
+    with pytest.raises(ConfigError, match="armature"):
+        _paper_with_armature([0.1, 0.2])
+    with pytest.raises(ConfigError, match="armature"):
+        _paper_with_armature(-0.1)
+    geared = _paper_with_armature([0.4, 0.3, 0.2, 0.05, 0.02, 0.01])
+    urdf = arm_to_urdf(geared)
+    assert "armature" in urdf  # said where URDF drops it
+    again = arm_from_urdf(urdf, hydro_spec_of(geared, use_collision=False))
+    np.testing.assert_array_equal(again.model.armature, geared.model.armature)
+    spec = hydro_spec_of(geared, use_collision=False)
+    spec["armature"] = [0.1, 0.2]
+    with pytest.raises(ConfigError, match="armature has 2 values for 6 joints"):
+        arm_from_urdf(urdf, spec)
+
+
+def test_built_in_arms_carry_no_armature_and_a_vehicle_refuses_one():
+    from hydroarm.config import ConfigError
+    from hydroarm.model.loading import load_arm
+    from hydroarm.model.uvms import build_uvms
+
+    for name in ("paper", "ur5", "alpha5", "examples/urdf/iiwa14.urdf"):
+        assert np.all(load_arm(name).model.armature == 0.0), name  # no published figure: see the arm files
+    with pytest.raises(ConfigError, match="armature"):
+        build_uvms(arm=_paper_with_armature(0.1))

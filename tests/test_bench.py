@@ -152,7 +152,7 @@ def test_gp_evaluate_kernel_equals_numpy_twin(seed, with_gradient):
     np.testing.assert_allclose(cached.lml, reference.lml, rtol=1e-12)
 
 
-def test_gp_evaluate_falls_back_to_the_numpy_twin_when_a_cholesky_fails():
+def test_gp_evaluate_runs_the_jitter_ladder_when_a_cholesky_fails():
     X = np.zeros((4, 2))  # identical inputs: K = sf2 * ones, singular without noise
     Y = np.ones((2, 4))
     window = gp_module._Window(X, Y, np.zeros(2), np.ones(2))
@@ -162,7 +162,14 @@ def test_gp_evaluate_falls_back_to_the_numpy_twin_when_a_cholesky_fails():
     reference = gp_module._evaluate_numpy(window, Y, log_theta, sn2, 0.0, 4, True)
     np.testing.assert_array_equal(fast.extra_diag, reference.extra_diag)
     assert (fast.extra_diag > 0).all()
-    np.testing.assert_array_equal(fast.lml, reference.lml)
+    # K = 1 1^T + e I (e the ladder's first step, 1e-10): |K| = e^(n-1) (n + e), 1^T K^-1 1 = n / (n + e)
+    n, e = 4, float(fast.extra_diag[0])
+    closed = -0.5 * n / (n + e) - 0.5 * ((n - 1) * np.log(e) + np.log(n + e)) - 0.5 * n * np.log(2 * np.pi)
+    # the pivots after the first are e = 1e-10 left from 1 + e - 1: each carries eps / e ~ 2e-6
+    # relative error in any Cholesky (LAPACK's too), about 1e-7 absolute in the LML
+    np.testing.assert_allclose(fast.lml, closed, rtol=2e-8)
+    # the NumPy twin forms K^-1 (condition number 4e10): it agrees to what that leaves
+    np.testing.assert_allclose(fast.lml, reference.lml, rtol=1e-7)
 
 
 @pytest.mark.parametrize("seed", range(3))

@@ -81,6 +81,8 @@ def not_run(command: str) -> str | None:
         return "the benchmark suite: tests/test_bench.py runs hydroarm bench --quick"
     if words[1] == "view" and "--out" not in words:
         return "starts the viewer's server (tests/test_viewer.py serves a run)"
+    if words[1] == "ros2":
+        return "a node waiting for its peer on the ROS 2 graph: tests/test_ros2.py runs ros2 sim and control together"
     return None
 
 

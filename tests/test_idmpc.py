@@ -11,7 +11,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import hydroarm
-from hydroarm.control.estimator import EstimatorConfig, JointKalmanFilter, steady_state_covariance
+from hydroarm.control.estimator import EstimatorConfig, JointKalmanFilter
+from hydroarm.control.filter_design import steady_state_covariance
 from hydroarm.control.idmpc import IDMPCConfig, InverseDynamicsMPC, allocate, authority_weights, unconstrained_move
 from hydroarm.control.idmpc_limits import predicted_plan
 from hydroarm.model.task import SinusoidReference, paper_reference

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import shlex
 import shutil
 from pathlib import Path
 
@@ -12,7 +13,7 @@ from typer.testing import CliRunner
 
 from hydroarm.cli import app
 from hydroarm.sim.logs import CleaningConfig, TrialLog, drop_repeats, glitches, joint_motion, load_csv_trial
-from hydroarm.studies.calibrate import apply_parameters, calibrate, replay_config
+from hydroarm.studies.calibrate import apply_parameters, calibrate, replay_config, replay_settings_hint
 from hydroarm.studies.replay import ReplayConfig, build_system, load_vehicle_quietly, replay_log
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -251,13 +252,16 @@ def test_calibrate_command_reports_replay_settings_and_correlation(tmp_path):
     assert len(report["correlation"]) == 3 and report["correlation"][0][0] == pytest.approx(1.0)
     offset = report["parameters"]["joint_time_offset"]["value"]
     yaw = report["parameters"]["imu_yaw_deg"]["value"]
-    assert (
-        report["replay_settings"] == f"--set joint_time_offset={offset:.6g} --set imu_mounting_rpy_deg=[0,0,{yaw:.6g}]"
-    )
-    assert "--set joint_time_offset=" in out.read_text()  # the header says how to replay it
+    assert report["replay_settings"] == {"joint_time_offset": offset, "imu_mounting_rpy_deg": [0.0, 0.0, yaw]}
+    # the printed equivalent is shell-safe: a POSIX shell (and zsh, which globs an unquoted [..]) reads it back
+    hint = replay_settings_hint(report["replay_settings"])
+    assert hint in " ".join(result.output.split())
+    expected = ["--set", f"joint_time_offset={offset:.6g}", "--set", f"imu_mounting_rpy_deg=[0,0,{yaw:.6g}]"]
+    assert shlex.split(hint) == expected and "'imu_mounting_rpy_deg=[0,0," in hint
+    # the calibrated file carries them: replaying it alone applies them
     replayed = tmp_path / "out"
     args = ["replay", str(log), "--vehicle", str(out), "--out", str(replayed), "--workers", "0", "--no-figures"]
-    result = RUNNER.invoke(app, [*args, *report["replay_settings"].split()])
+    result = RUNNER.invoke(app, args)
     assert result.exit_code == 0, result.output
     summary = json.loads((replayed / "summary.json").read_text())
     assert summary["settings"]["joint_time_offset"] == pytest.approx(offset, rel=1e-5)
@@ -293,14 +297,13 @@ def test_bench_full_dataset_section_is_skipped_without_the_dataset(monkeypatch, 
 
 def test_extended_calibration_replays_held_out_trials_within_the_targets(tmp_path):
     """The shipped extended calibration (split A's training trials; its replay settings in its
-    header) on the three shipped trials, held out of its fit: each within the issue's targets."""
+    [replay] table) replayed alone, no --set, on the three shipped trials, held out of its fit: each
+    within the issue's targets (before the file carried them, the same command missed both)."""
     extended = ROOT / "examples" / "hinsdale" / "bluerov2_hinsdale_calibrated_extended.toml"
-    hint = next(line for line in extended.read_text().splitlines() if "replay with --set" in line)
-    settings = hint.split("replay with ")[1].split()
     out = tmp_path / "out"
     logs = [str(p) for p in sorted(DATA.glob("*_joint_states.csv"))]
     args = ["replay", *logs, "--vehicle", str(extended), "--out", str(out), "--workers", "0", "--no-figures"]
-    result = RUNNER.invoke(app, [*args, *settings])
+    result = RUNNER.invoke(app, args)
     assert result.exit_code == 0, result.output
     summary = json.loads((out / "summary.json").read_text())
     assert summary["settings"]["trim"] > 0.5 and summary["settings"]["joint_time_offset"] < 0.0

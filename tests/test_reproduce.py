@@ -49,8 +49,9 @@ def test_quick_reproduction_writes_everything(quick_run):
     runs = sorted((quick_run / "runs").glob("*.npz"))
     # the paper's 3 controllers and the 10 extra rows (hydroarm's flagship, the paper's 3 behind the
     # Kalman filter, IDMPC alone and with the 4 observers, PI-IDMPC), clean and noisy x 2 seeds,
-    # and the dry-arm bound (clean + 2 noisy)
-    assert len(runs) == (3 + 10) * (1 + 2) + 1 + 2
+    # and the dry-arm bound (clean + 2 noisy), and 3 more clean runs (4 replicas in --quick) of
+    # GP-MPC, GP-MPC+KF and GP-IDMPC+KF from perturbed starts
+    assert len(runs) == (3 + 10) * (1 + 2) + 1 + 2 + 3 * 3
 
 
 def test_tables_carry_hydroarms_best_beside_the_paper_rows(quick_run):
@@ -91,7 +92,7 @@ def test_the_report_on_another_arm_compares_the_controllers_on_that_arm_only(tmp
     computed from the arm's own numbers (issue 16)."""
     out = tmp_path / "alpha5"
     hydroarm_cli("reproduce", "--arm", "alpha5", "--set", "duration=1.5", "--seeds", "1", "--no-ablation",
-                 "--out", str(out))  # fmt: skip
+                 "--replicas", "1", "--out", str(out))  # fmt: skip
     report = (out / "report.md").read_text()
     for number in (1, 2):
         table = (out / f"table{number}.md").read_text()

@@ -124,3 +124,11 @@ def test_an_unknown_setting_in_a_config_file_or_a_sweep_file(tmp_path):
         plan_sweep(validate_sweep({"controllers": ["MPC"], "parameters": {"mpc.rr": [0.1]}}, "s.toml"), source="s.toml")
     assert "parameters.mpc.rr: unknown setting 'mpc.rr'; did you mean 'mpc.r'?" in str(error.value)
     assert HINT in str(error.value)
+
+
+def test_plain_settings_lists_every_section_markdown_does():
+    """`hydroarm settings` with no option lists the replay's and the mismatch's sections too, as
+    --markdown and docs/settings.md do (it listed the run's alone, while the docs pointed to it)."""
+    text = CliRunner().invoke(app, ["settings"]).output
+    for key in ("joint_time_offset = 0.0", "imu_mounting_rpy_deg", "cleaning.smoothing", "mismatch.mass_scale"):
+        assert key in text, key

@@ -8,7 +8,7 @@ resumes from them).
 
 from __future__ import annotations
 
-from hydroarm.cli import compare, replay, runs, settings, studies, vehicles, view  # noqa: F401  (they register their commands)
+from hydroarm.cli import compare, replay, ros2, runs, settings, studies, vehicles, view  # noqa: F401  (they register)
 from hydroarm.cli._common import _experiment_config, app
 
 __all__ = ["_experiment_config", "app", "main"]

@@ -27,11 +27,15 @@ ArmOption = Annotated[
 WorkersOption = Annotated[int, typer.Option("--workers", min=0, max=64, help="Parallel processes (0, 1: this one).")]
 
 
-def _config(overrides: list[str]):
+def _config(overrides: list[str], base: dict | None = None):
+    """The replay settings: ``base`` (the vehicle file's ``[replay]`` table, what a calibration
+    fitted), then each ``--set`` key=value over it."""
+    import copy
+
     from hydroarm.config import validate
     from hydroarm.studies.replay import ReplayConfig
 
-    data: dict = {}
+    data: dict = copy.deepcopy(base or {})
     for item in overrides:
         if "=" not in item:
             raise ConfigError(f"--set '{item}': expected key=value, e.g. inner_step=0.02 or cleaning.smoothing=1e-3")
@@ -71,8 +75,8 @@ def replay(
 
     _check_out(out)
     try:
-        config = _config(settings or [])
         spec = load_vehicle_quietly(vehicle)
+        config = _config(settings or [], spec.replay)
         paths = find_trials(logs)
 
         def progress(done: int, total: int, name: str) -> None:
@@ -134,7 +138,12 @@ def calibrate(
     <out>.json (each parameter with its uncertainty, the residual)."""
     from hydroarm.sim.trials import find_trials, load_trial
     from hydroarm.studies.calibrate import calibrate as fit
-    from hydroarm.studies.calibrate import check_parameters, replay_settings_hint, write_calibrated_vehicle
+    from hydroarm.studies.calibrate import (
+        check_parameters,
+        fitted_replay_settings,
+        replay_settings_hint,
+        write_calibrated_vehicle,
+    )
     from hydroarm.studies.outputs import dumps
     from hydroarm.studies.replay import build_system, load_vehicle_quietly
 
@@ -142,9 +151,9 @@ def calibrate(
     if out.suffix != ".toml":
         _fail(f"--out {out}: the calibrated vehicle file must end in .toml")
     try:
-        config = _config(settings or [])
         names = check_parameters(params.split(","))
         spec = load_vehicle_quietly(vehicle)
+        config = _config(settings or [], spec.replay)
         paths = find_trials(logs)
         joint_names = tuple(build_system(spec, arm).arm.model.names[1:])
         for path in paths:
@@ -156,14 +165,15 @@ def calibrate(
         console.print("[yellow]interrupted[/]")
         raise typer.Exit(130) from None
     sources = [p.name for p in paths]
-    write_calibrated_vehicle(out, spec, result, sources, build_system(spec, arm).arm)
+    write_calibrated_vehicle(out, spec, result, sources, build_system(spec, arm).arm, config)
+    fitted = fitted_replay_settings(config, result.values)
     report = {
         "vehicle": vehicle,
         "arm": arm,
         "logs": sources,
         "parameters": {n: {"value": result.values[n], "sigma": result.uncertainty[n]} for n in result.names},
         "correlation": result.correlation,
-        "replay_settings": replay_settings_hint(result.values),
+        "replay_settings": fitted,
         "cost_deg2": result.cost,
         "initial_cost_deg2": result.initial_cost,
         "evaluations": result.evaluations,
@@ -176,5 +186,8 @@ def calibrate(
         f"wrote {out}: {shown}; cost {result.initial_cost:.3g} -> {result.cost:.3g} deg^2 "
         f"({result.evaluations} replays of {len(paths)} logs, {result.seconds:.0f} s)"
     )
-    if report["replay_settings"]:
-        console.print(f"the fitted replay settings: replay with {report['replay_settings']}")
+    if fitted:
+        console.print(
+            f"the fitted replay settings are in {out}'s [replay] table: `hydroarm replay LOGS --vehicle {out}` "
+            f"applies them (the same as {replay_settings_hint(fitted)})"
+        )

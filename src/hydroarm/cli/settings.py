@@ -27,7 +27,13 @@ def settings(
     Examples: hydroarm settings --controller gp-mpc;  hydroarm settings --markdown > docs/settings.md
     """
     from hydroarm.control.registry import canonical_name
-    from hydroarm.studies.settings_table import experiment_settings, settings_json, settings_markdown, settings_text
+    from hydroarm.studies.settings_table import (
+        experiment_settings,
+        other_settings_text,
+        settings_json,
+        settings_markdown,
+        settings_text,
+    )
 
     if markdown:
         if controller is not None or as_json:
@@ -48,4 +54,7 @@ def settings(
     import sys
 
     columns = shutil.get_terminal_size().columns if "COLUMNS" in os.environ or sys.stdout.isatty() else None
-    print(settings_text(rows, columns=max(columns, 40) if columns else None), end="")
+    columns = max(columns, 40) if columns else None
+    print(settings_text(rows, columns=columns), end="")
+    if controller is None:  # every section, as --markdown lists them
+        print("\n" + other_settings_text(columns), end="")

@@ -49,6 +49,16 @@ def reproduce(
     overrides: SetOption = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print metrics.json's tables to stdout.")] = False,
     overwrite: OverwriteOption = False,
+    replicas: Annotated[
+        int | None,
+        typer.Option(
+            "--replicas",
+            min=1,
+            max=64,
+            help="Runs of each clean GP row from starts 1e-12 rad apart, reported as mean and spread "
+            "(default 8; quick 4; 1: none).",
+        ),
+    ] = None,
 ) -> None:
     """Reproduce the paper's Tables 1-2 and Figures 4-15 into OUT.
 
@@ -70,7 +80,7 @@ def reproduce(
         if arm is not None:
             config = with_overrides(config, {"arm": arm})
         check_settings_for_arm(config, load_arm(config.arm))
-        claim_folder(out, plan_study(quick, seeds, ablation, config), overwrite, dry_run=True)
+        claim_folder(out, plan_study(quick, seeds, ablation, config, replicas), overwrite, dry_run=True)
     except ConfigError as error:
         _fail(str(error))
     with Progress(
@@ -100,6 +110,7 @@ def reproduce(
                     on_progress=on_run,
                     on_step=on_step,
                     overwrite=overwrite,
+                    replicas=replicas,
                 )
         except KeyboardInterrupt as error:
             _interrupted(error, out)

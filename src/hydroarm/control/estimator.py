@@ -47,23 +47,31 @@ The real loop (issue 23, :mod:`hydroarm.model.sensing`):
   (the pass-through filter of a noise-free sensor too), and the transitions into and out of the
   bridged sample are not passed to a learning controller (as the runner does for a held one).
 
-With the defaults on the idealised loop (state measured, no delay) every number is as before.
+Defaults that follow the sensor (``kind = "auto"``, a derived ``acceleration_variance``):
+:mod:`hydroarm.control.filter_design`; on the idealised loop every number is as before.
 """
 
 from __future__ import annotations
 
 import time
 from collections import deque
-from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
 import pydantic
 
 from hydroarm.config import ConfigError, FrozenModel
+from hydroarm.control.filter_design import (
+    VARIANCE_FLOOR,
+    FilterDesign,
+    derived_acceleration_variance,
+    double_integrator,
+    riccati_covariance,
+    steady_state_covariance,
+)
 from hydroarm.control.interface import Controller, ControlOutput, Reference
 from hydroarm.model.nominal import NominalModel
-from hydroarm.model.sensing import SensorConfig
+from hydroarm.model.sensing import Actuator, ActuatorConfig, SensorConfig
 
 EstimatorKind = Literal["auto", "none", "kalman"]
 
@@ -72,12 +80,17 @@ class EstimatorConfig(FrozenModel):
     """The state estimator in front of the controller.
 
     ``kind``: ``"none"`` (the controller sees the raw measurement), ``"kalman"`` (a
-    steady-state Kalman filter per joint) or ``"auto"``: the controller's own default (the
-    registry's: ``kalman`` for hydroarm's ID-MPCs, ``none`` for the paper's controllers, so
-    the reproduction is unchanged).
+    steady-state Kalman filter per joint) or ``"auto"``: the Kalman filter behind any sensor
+    other than the ideal q-and-v one or with a loop delay (:meth:`resolved_kind`: a controller
+    is never handed an encoder's differenced velocity or a late state by default), else the
+    controller's own default (the registry's: ``kalman`` for hydroarm's ID-MPCs, ``none`` for
+    the paper's controllers, so the reproduction is unchanged).
     """
 
-    kind: EstimatorKind = pydantic.Field("auto", description="none, kalman, or auto (the controller's default)")
+    kind: EstimatorKind = pydantic.Field(
+        "auto",
+        description="none, kalman, or auto (kalman behind a non-ideal sensor or a loop delay, else the controller's)",
+    )
     measurement_variance: float | Literal["plant"] = pydantic.Field(
         "plant",
         description=(
@@ -85,8 +98,15 @@ class EstimatorConfig(FrozenModel):
             "'plant' = the plant's own (plant.noise_variance): a noise-free sensor gets a pass-through filter"
         ),
     )
-    acceleration_variance: float = pydantic.Field(
-        1e2, gt=0.0, le=1e8, description="sigma_a^2: variance of the acceleration the command misses ((rad/s^2)^2)"
+    acceleration_variance: float | None = pydantic.Field(
+        None,
+        gt=0.0,
+        le=1e8,
+        description=(
+            "sigma_a^2: variance of the acceleration the command misses ((rad/s^2)^2); null = derived from the "
+            "sensor: 100 with q and v measured; position only min(100, 30^2 sigma_m^2 / T^4), sigma_m^2 = noise "
+            "+ resolution^2 / 12: a tracking index of at most 30 (docs/robustness.md)"
+        ),
     )
     measures: Literal["plant", "state", "position"] = pydantic.Field(
         "plant",
@@ -133,10 +153,12 @@ class EstimatorConfig(FrozenModel):
     ) -> FilterDesign:
         """The :class:`FilterDesign` for a plant with ``noise_variance`` (``plant.noise_variance``,
         rad^2), ``sensor`` (None: the paper's, q and v measured) and a loop delay of
-        ``loop_delay`` periods (``sensor.delay + actuator.delay``; None: the sensor's delay)."""
+        ``loop_delay`` periods (``sensor.delay + actuator.delay``; None: the sensor's delay).
+        ``acceleration_variance = null`` stays None: the filter derives it for its period
+        (:func:`derived_acceleration_variance`)."""
         sensor = sensor if sensor is not None else SensorConfig()
         loop_delay = sensor.delay if loop_delay is None else loop_delay
-        position_only = self.measures == "position" or (self.measures == "plant" and sensor.velocity == "differenced")
+        position_only = not self.measures_velocity(sensor)
         if self.measurement_variance == "plant":
             if noise_variance is None:
                 raise ConfigError(
@@ -148,7 +170,26 @@ class EstimatorConfig(FrozenModel):
         else:
             position = velocity = float(self.measurement_variance)
         delay = loop_delay if self.delay == "plant" else int(self.delay)
-        return FilterDesign(position_only, position, velocity, delay, min(sensor.delay, delay))
+        return FilterDesign(
+            position_only, position, velocity, delay, min(sensor.delay, delay), self.acceleration_variance
+        )
+
+    def measures_velocity(self, sensor: SensorConfig | None = None) -> bool:
+        """Whether the filter corrects with a measured velocity behind ``sensor`` (None: the
+        paper's): ``measures = "state"``, or ``"plant"`` with ``sensor.velocity = "measured"``."""
+        velocity = "measured" if sensor is None else sensor.velocity
+        return self.measures == "state" or (self.measures == "plant" and velocity == "measured")
+
+    def resolved_kind(self, default: str, sensor: SensorConfig | None = None, loop_delay: int = 0) -> str:
+        """``"none"`` or ``"kalman"``: ``kind``, with ``"auto"`` resolved to ``"kalman"`` when the
+        ``sensor`` is not the ideal one (:attr:`SensorConfig.ideal`: encoder-only, quantised,
+        its own noise, delayed or dropping samples) or the loop has a delay (``loop_delay``
+        periods), else to the controller's ``default``."""
+        if self.kind != "auto":
+            return self.kind
+        if (sensor is not None and not sensor.ideal) or loop_delay > 0:
+            return "kalman"
+        return default
 
     def for_sensor(self, noise_variance: float) -> EstimatorConfig:
         """This config with ``measurement_variance = "plant"`` resolved to the sensor's
@@ -156,70 +197,6 @@ class EstimatorConfig(FrozenModel):
         if self.measurement_variance != "plant":
             return self
         return self.model_copy(update={"measurement_variance": float(noise_variance)})
-
-
-@dataclass(frozen=True)
-class FilterDesign:
-    """What a :class:`JointKalmanFilter` is designed for: ``position_only`` (C = [1, 0]) or the
-    state measured (C = I); the measurement-noise variances ``position_variance`` (rad^2) and
-    ``velocity_variance`` ((rad/s)^2); the loop ``delay`` it predicts across (periods), of which
-    ``sensor_delay`` periods are the sensor's (the first sample is delivered until then, so the
-    filter starts predicting after them)."""
-
-    position_only: bool = False
-    position_variance: float = 0.0
-    velocity_variance: float = 0.0
-    delay: int = 0
-    sensor_delay: int = 0
-
-
-VARIANCE_FLOOR = 1e-12
-"""Smallest measurement variance (rad^2) of the general Riccati equation (a noise-free
-position-only sensor: the filter is then all but deadbeat)."""
-
-
-def riccati_covariance(
-    period: float, measurement: np.ndarray, noise: np.ndarray, acceleration_variance: float,
-    tolerance: float = 1e-13, max_iterations: int = 1_000_000,
-) -> np.ndarray:  # fmt: skip
-    """The steady-state prior covariance Sigma (2, 2) for the measurement matrix C
-    (``measurement``, (m, 2)) and noise covariance R (``noise``, (m, m)), by fixed-point
-    iteration of ``Sigma = A (Sigma - Sigma C^T (C Sigma C^T + R)^-1 C Sigma) A^T + Q_w``.
-    Raises :class:`ConfigError` if it does not converge."""
-    a_mat, b_vec = double_integrator(period)
-    process = acceleration_variance * np.outer(b_vec, b_vec)
-    c_mat = np.atleast_2d(measurement)
-    sigma = process.copy()
-    for _ in range(max_iterations):
-        gain = sigma @ c_mat.T @ np.linalg.inv(c_mat @ sigma @ c_mat.T + noise)
-        posterior = (np.eye(2) - gain @ c_mat) @ sigma
-        updated = a_mat @ posterior @ a_mat.T + process
-        if np.all(np.abs(updated - sigma) <= tolerance * np.abs(updated)):
-            return 0.5 * (updated + updated.T)
-        sigma = updated
-    raise ConfigError(
-        f"estimator: the Kalman covariance did not converge in {max_iterations} iterations "
-        f"(R = {np.asarray(noise).tolist()!r}, acceleration_variance = {acceleration_variance!r})"
-    )
-
-
-def double_integrator(period: float) -> tuple[np.ndarray, np.ndarray]:
-    """``(A (2, 2), B (2,))`` of the exact zero-order-hold double integrator with period T (s)."""
-    return np.array([[1.0, period], [0.0, 1.0]]), np.array([0.5 * period * period, period])
-
-
-def steady_state_covariance(
-    period: float, measurement_variance: float, acceleration_variance: float,
-    tolerance: float = 1e-14, max_iterations: int = 1_000_000,
-) -> np.ndarray:  # fmt: skip
-    """The steady-state prior covariance Sigma (2, 2) of the filter (module docstring) measuring
-    q and v with noise ``measurement_variance`` each: :func:`riccati_covariance` with C = I
-    (the same arithmetic: products with the identity are exact).
-
-    Raises :class:`ConfigError` if it does not converge (it does for any positive variances:
-    the pair (A, I) is observable and (A, B) controllable)."""
-    noise = measurement_variance * np.eye(2)
-    return riccati_covariance(period, np.eye(2), noise, acceleration_variance, tolerance, max_iterations)
 
 
 class JointKalmanFilter:
@@ -249,15 +226,22 @@ class JointKalmanFilter:
         self.delay = int(design.delay)
         self._skip_repeated = config.repeated == "skip"
         self._a, self._b = double_integrator(period)
+        acceleration = config.acceleration_variance  # an explicit setting wins
+        if acceleration is None:
+            acceleration = design.acceleration_variance
+        if acceleration is None:
+            acceleration = derived_acceleration_variance(design.position_only, design.position_variance, period)
+        self.acceleration_variance = float(acceleration)
         same = design.position_variance == design.velocity_variance
         variance = float(design.position_variance)
         self._exact = not design.position_only and same and variance == 0.0  # L = I: the measurement, bit for bit
         if self._exact:  # the prior is the process noise alone
-            self.covariance = config.acceleration_variance * np.outer(self._b, self._b)
+            self.covariance = self.acceleration_variance * np.outer(self._b, self._b)
             self.gain = np.eye(2)
         elif not design.position_only and same:  # the paper's sensor: one variance on q and v
-            self.covariance = steady_state_covariance(period, variance, config.acceleration_variance)
+            self.covariance = steady_state_covariance(period, variance, self.acceleration_variance)
             self.gain = self.covariance @ np.linalg.inv(self.covariance + variance * np.eye(2))
+            self._measurement, self._noise = np.eye(2), variance * np.eye(2)
         else:
             if design.position_only:
                 measurement = np.array([[1.0, 0.0]])
@@ -266,11 +250,12 @@ class JointKalmanFilter:
                 measurement = np.eye(2)
                 noise = np.diag([max(design.position_variance, VARIANCE_FLOOR),
                                  max(design.velocity_variance, VARIANCE_FLOOR)])  # fmt: skip
-            self.covariance = riccati_covariance(period, measurement, noise, config.acceleration_variance)
+            self.covariance = riccati_covariance(period, measurement, noise, self.acceleration_variance)
             self.gain = (
                 self.covariance @ measurement.T @ np.linalg.inv(measurement @ self.covariance @ measurement.T + noise)
             )
-            self._measurement = measurement
+            self._measurement, self._noise = measurement, noise
+        self._process = self.acceleration_variance * np.outer(self._b, self._b)
         self.reset()
 
     @property
@@ -287,11 +272,16 @@ class JointKalmanFilter:
         self._v: np.ndarray | None = None
         self._last: np.ndarray | None = None
         self.skipped = 0
+        self._prior: np.ndarray | None = None  # None: the steady state (covariance, gain)
+        self._posterior: np.ndarray | None = None  # set after a bridged sample, until the next predict
 
     def predict(self, acceleration: np.ndarray) -> None:
         """Advance the estimate by one period under the commanded ``acceleration`` (n,) rad/s^2."""
         if self._q is None:
             return
+        if self._posterior is not None:  # bridging lost samples: the covariance grows
+            self._prior = self._a @ self._posterior @ self._a.T + self._process
+            self._posterior = None
         period = self.period
         self._q = self._q + period * self._v + 0.5 * period * period * acceleration
         self._v = self._v + period * acceleration
@@ -307,22 +297,40 @@ class JointKalmanFilter:
             self._last = np.array(y, dtype=float)
         elif self._skip_repeated and self._last is not None and np.array_equal(y, self._last):
             self.skipped += 1  # a lost sample the sensor repeated: keep the prediction
+            if not self._exact:
+                self._posterior = self.covariance if self._prior is None else self._prior
         elif self._q is None or self._exact:
             self._q, self._v = q_meas.copy(), v_meas.copy()
             if self._skip_repeated:
                 self._last = np.array(y, dtype=float)
         elif self.position_only:
             self._last = np.array(y, dtype=float)
+            gain = self._gain_now()
             dq = q_meas - self._q
-            self._q = self._q + self.gain[0, 0] * dq
-            self._v = self._v + self.gain[1, 0] * dq
+            self._q = self._q + gain[0, 0] * dq
+            self._v = self._v + gain[1, 0] * dq
         else:
             self._last = np.array(y, dtype=float)
             dq, dv = q_meas - self._q, v_meas - self._v
-            gain = self.gain
+            gain = self._gain_now()
             self._q = self._q + gain[0, 0] * dq + gain[0, 1] * dv
             self._v = self._v + gain[1, 0] * dq + gain[1, 1] * dv
         return np.concatenate([self._q, self._v])
+
+    def _gain_now(self) -> np.ndarray:
+        """The gain of this correction: the steady one, or after bridged samples the one of the
+        grown prior ``P`` (``P C^T (C P C^T + R)^-1``: the lost samples' model error is
+        corrected by the gap it built up over, not by one period's), until it is back within
+        1e-9 of the steady gain."""
+        prior, self._prior = self._prior, None
+        if prior is None:
+            return self.gain
+        c_mat = self._measurement
+        gain = prior @ c_mat.T @ np.linalg.inv(c_mat @ prior @ c_mat.T + self._noise)
+        if np.allclose(gain, self.gain, rtol=1e-9, atol=0.0):
+            return self.gain
+        self._posterior = (np.eye(2) - gain @ c_mat) @ prior
+        return gain
 
     @property
     def estimate(self) -> np.ndarray | None:
@@ -339,7 +347,13 @@ class FilteredController:
     periods ahead (:meth:`predicted`).
     """
 
-    def __init__(self, controller: Controller, kalman: JointKalmanFilter, nominal: NominalModel):
+    def __init__(
+        self,
+        controller: Controller,
+        kalman: JointKalmanFilter,
+        nominal: NominalModel,
+        drives: ActuatorConfig | None = None,
+    ):
         self.controller = controller
         self.kalman = kalman
         self.nominal = nominal
@@ -353,6 +367,36 @@ class FilteredController:
         self._next: np.ndarray | None = None
         self._accelerations: deque[np.ndarray] = deque(maxlen=self.delay + 1)
         self._torques: deque[np.ndarray] = deque(maxlen=self.delay + 1)
+        lagging = drives is not None and (drives.rate_limit is not None or drives.bandwidth is not None)
+        self.drives = drives if lagging or (drives is not None and drives.torque_limit is not None) else None
+        self._drives: Actuator | None = None
+        self._commands: deque[np.ndarray] = deque()
+        self._corrections: deque[np.ndarray] = deque(maxlen=self.delay + 1)
+        self.reset_drives()
+
+    def reset_drives(self) -> None:
+        """A fresh copy of the drives' model (``drives``: their clip, lag and rate limit)."""
+        if self.drives is not None:
+            n = self.kalman.n
+            self._drives = Actuator(self.drives, n, self.kalman.period)
+            self._commands = deque(maxlen=self.delay - self.sensor_delay + 1)
+        self._corrections.clear()
+
+    def _drive_correction(self, state: np.ndarray, tau: np.ndarray) -> np.ndarray:
+        """The acceleration (n,) the drives add this step to the command acting now: the drives'
+        model given ``tau`` (n,) N m, its output against the command it answers (the one of
+        ``actuator.delay`` steps ago, none before), through the dry M(q) at ``state`` (2n,).
+        Zero without a drives' model."""
+        n = self.kalman.n
+        if self._drives is None:
+            return np.zeros(n)
+        applied = self._drives.apply(tau)
+        self._commands.append(tau)
+        nominal = self._commands[0] if len(self._commands) == self._commands.maxlen else np.zeros(n)
+        difference = applied - nominal
+        if not np.any(difference):
+            return np.zeros(n)
+        return np.linalg.solve(self.nominal.mass_matrix(state[:n]), difference)
 
     def reset(self) -> None:
         self.controller.reset()
@@ -361,6 +405,7 @@ class FilteredController:
         self._next = None
         self._accelerations.clear()
         self._torques.clear()
+        self.reset_drives()
         self._steps = 0
         self._bridged = False
 
@@ -371,20 +416,31 @@ class FilteredController:
         return self.nominal.forward_dynamics(state[:n], state[n:], np.zeros(n))
 
     def predicted(self, filtered: np.ndarray) -> np.ndarray:
-        """The filtered state (2n,) stepped ``delay`` periods on the double integrator under the
-        commanded accelerations still in flight (``filtered`` itself when there is no delay)."""
+        """The filtered state (2n,) stepped on the double integrator, under the commanded
+        accelerations still in flight, to the step this step's command acts at (``filtered``
+        itself when there is no delay).
+
+        At step k the filtered state is of step m = max(k - d_s, 0) (d_s: the sensor's delay;
+        the first sample is held until then) and the command acts from step k + d_a (d_a = d -
+        d_s: the drives' delay): ``min(k, d_s) + d_a`` steps, the acceleration of step j being
+        the command of step j - d_a, none (the dry model unforced) while j < d_a. Once k >= d_s
+        that is d steps under the last d commands."""
         d = self.delay
         if d == 0:
             return filtered
         n, period = self.kalman.n, self.period_
         q, v = filtered[:n].copy(), filtered[n:].copy()
-        flight = list(self._accelerations)[-d:] if self._accelerations else []
-        missing = d - len(flight)
-        for k in range(d):
+        steps = min(self._steps, self.sensor_delay) + d - self.sensor_delay
+        flight = list(self._accelerations)[-steps:] if self._accelerations and steps > 0 else []
+        missing = steps - len(flight)
+        past = min(self._steps, self.sensor_delay)  # steps already acted: the drives' output is known
+        for k in range(steps):
             if k < missing:
                 acceleration = self._unforced(np.concatenate([q, v]))
             else:
                 acceleration = flight[k - missing]
+            if k < past and past - k <= len(self._corrections):
+                acceleration = acceleration + self._corrections[k - past]
             q = q + period * v + 0.5 * period * period * acceleration
             v = v + period * acceleration
         return np.concatenate([q, v])
@@ -406,14 +462,18 @@ class FilteredController:
             acceleration = np.asarray(out.acceleration, dtype=float)
         else:
             acceleration = self.nominal.forward_dynamics(state[:n], state[n:], out.tau)
+        correction = self._drive_correction(state, np.asarray(out.tau, dtype=float))
         if self.delay == 0:
-            self.kalman.predict(acceleration)
+            self.kalman.predict(acceleration + correction if self._drives is not None else acceleration)
         else:
             self._accelerations.append(acceleration)
             self._torques.append(np.asarray(out.tau, dtype=float))
+            self._corrections.append(correction)
             full = len(self._accelerations) == self.delay + 1
             if self._steps >= self.sensor_delay:  # before: the first sample is held, the filter waits at t = 0
-                self.kalman.predict(self._accelerations[0] if full else self._unforced(filtered))
+                acting = self._accelerations[0] if full else self._unforced(filtered)
+                lag = self._corrections[-(self.sensor_delay + 1)] if self._drives is not None else 0.0
+                self.kalman.predict(acting + lag)
         self._steps += 1
         self._filtered = filtered
         out.timings["estimator"] = elapsed + time.perf_counter() - start

@@ -37,6 +37,7 @@ from hydroarm.config import FrozenModel
 from hydroarm.control.gp import GPConfig, SlidingWindowGP
 from hydroarm.control.interface import ControlOutput, Reference
 from hydroarm.control.mpc import LinearMPC
+from hydroarm.model import fixed_order
 from hydroarm.model.arm import Arm
 from hydroarm.model.nominal import NominalModel
 
@@ -130,8 +131,9 @@ class GPMPC:
             if self.config.variance_aware:
                 scaled = mean * mean**2 / (mean**2 + var + 1e-12)
             if self.config.feedforward == "acceleration":
-                mass = self.nominal.mass_matrix(y[:n])
-                feedforward = {"feedforward_acceleration": np.linalg.solve(mass, scaled)}
+                # M^-1 w by a fixed-order Cholesky (LAPACK's solve rounds by its CPU kernel)
+                solved, _ = fixed_order.cholesky_solve(self.nominal.mass_matrix(y[:n]), np.ascontiguousarray(scaled))
+                feedforward = {"feedforward_acceleration": solved}
             else:
                 feedforward = {"feedforward_torque": scaled}
         gp_time = time.perf_counter() - start

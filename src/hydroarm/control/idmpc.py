@@ -24,6 +24,12 @@ deadbeat law of the sampled double integrator (both closed-loop poles at 0), whi
 margin for a plant lighter than the model: ``r_floor`` keeps the lightest joints short of it.
 ``"uniform"``: ``R_a,j = r_acceleration``.
 
+Delay margin (``delay_margin`` = m > 0, off by default): every ``R_a,j`` is floored at
+:func:`delay_margin_weight`, the smallest weight whose LQR keeps the joint's loop at a spectral
+radius of at most :data:`MARGIN_RADIUS` (0.9) when its moves act m periods later than the loop
+was told (the filter predicts across the told delay only): a closed-loop bandwidth chosen for a
+stated margin (docs/robustness.md, section 6: what it buys and what it costs).
+
 In the error e = x - x_r and move u = a - a_r the model is ``e_{k+1} = A e_k + B u_k + c_k``
 with the reference's one-step defect ``c_k = x_r,k+1 - A x_r,k - B a_r,k`` (zero for a
 reference of constant acceleration). With the DARE terminal weight, the unconstrained optimum
@@ -96,6 +102,13 @@ class IDMPCConfig(FrozenModel):
     r_scaling: Literal["uniform", "authority"] = pydantic.Field(
         "authority", description="per-joint R_a: r_acceleration, or scaled by the torque authority (docstring)"
     )
+    delay_margin: int = pydantic.Field(
+        0,
+        ge=0,
+        le=5,
+        description="periods of loop delay beyond the told one each joint's loop must stay stable with "
+        "(delay_margin_weight); 0 = off, the ideal loop's weights (0-5)",
+    )
     r_floor: PositiveFloat = pydantic.Field(
         1e-6, description="lower bound of the authority-scaled R_a (s^4/rad^2), in (0, 1e8]"
     )
@@ -131,6 +144,56 @@ def joint_lqr(period: float, q_position: float, q_velocity: float, r_acceleratio
     scale = 1.0 / (r_acceleration + float(b_mat[:, 0] @ p_mat @ b_mat[:, 0]))
     gain = scale * (b_mat[:, 0] @ p_mat @ a_mat)
     return p_mat, gain, scale * b_mat[:, 0]
+
+
+MARGIN_RADIUS = 0.9
+"""The spectral radius (-) a joint's loop must keep with ``delay_margin`` periods of delay it is
+not told of (:func:`delay_margin_weight`)."""
+
+
+def delayed_radius(period: float, gain: np.ndarray, extra: int) -> float:
+    """The spectral radius (-) of one joint's loop ``u_k = -K x_k`` on the sampled double integrator
+    when the move acts ``extra`` periods late (a delay nothing predicts across); ``gain`` K (2,)."""
+    a_mat, b_vec = np.array([[1.0, period], [0.0, 1.0]]), np.array([0.5 * period * period, period])
+    size = 2 + extra
+    loop = np.zeros((size, size))
+    loop[:2, :2] = a_mat
+    if extra == 0:
+        loop[:2, :2] -= np.outer(b_vec, gain)
+    else:
+        loop[:2, 1 + extra] = b_vec  # the oldest move acts now
+        loop[2, :2] = -gain
+        for k in range(3, size):
+            loop[k, k - 1] = 1.0
+    return float(np.max(np.abs(np.linalg.eigvals(loop))))
+
+
+def delay_margin_weight(period: float, q_position: float, q_velocity: float, margin: int) -> float:
+    """The smallest acceleration weight R_a (s^4/rad^2) whose LQR (``joint_lqr``) keeps the joint's
+    loop at a spectral radius of at most :data:`MARGIN_RADIUS` with ``margin`` periods of delay it
+    is not told of: the closed-loop bandwidth chosen for a stated delay margin. The radius first
+    falls as R_a grows (the loop leaves the deadbeat law) and then rises towards 1 (a slow loop):
+    the smallest R_a that meets it is found on a grid of 20 per decade from 1e-9 and refined by
+    bisection. On the paper's weights (q_position 300, q_velocity 0.01, T = 10 ms) and a margin of
+    one period it is 5.6e-5 (the default wrist's 1e-6 has 1.33)."""
+
+    def radius(weight: float) -> float:
+        return delayed_radius(period, joint_lqr(period, q_position, q_velocity, weight)[1], margin)
+
+    low = 1e-9
+    if radius(low) <= MARGIN_RADIUS:
+        return low
+    for _ in range(400):
+        high = low * 10.0**0.05
+        if radius(high) <= MARGIN_RADIUS:
+            break
+        low = high
+    else:
+        raise ValueError(f"idmpc.delay_margin = {margin}: no acceleration weight up to {high:.3g} meets it")
+    for _ in range(60):
+        middle = float(np.sqrt(low * high))
+        low, high = (middle, high) if radius(middle) > MARGIN_RADIUS else (low, middle)
+    return high
 
 
 def authority_weights(inertia: np.ndarray, torque_limit: np.ndarray, r_acceleration: np.ndarray, r_floor: float):
@@ -198,6 +261,9 @@ class InverseDynamicsMPC:
         self.torque_limit = per_joint(arm.torque_limit, n, "torque_limit")  # the arm's actuators
         if cfg.r_scaling == "authority":
             r_acc = authority_weights(np.diag(arm.mass_matrix(np.zeros(n))), self.torque_limit, r_acc, cfg.r_floor)
+        if cfg.delay_margin > 0:  # each joint's bandwidth capped for the stated margin
+            floor = [delay_margin_weight(self.control_period, q_pos[j], q_vel[j], cfg.delay_margin) for j in range(n)]
+            r_acc = np.maximum(r_acc, floor)
         self.r_acceleration = r_acc
         self.P = np.empty((n, 2, 2))
         self.K = np.empty((n, 2))

@@ -51,6 +51,7 @@ from hydroarm.control.idmpc_limits import HorizonQP, allocate, predicted_plan
 from hydroarm.control.interface import ControlOutput, Reference, sample_times
 from hydroarm.control.observers import DisturbanceObserver
 from hydroarm.control.water_model import PhysicsInformedModel, WaterModelConfig
+from hydroarm.model import fixed_order
 from hydroarm.model.arm import Arm
 
 PLAN_TRUST = (20.0, 1000.0)
@@ -189,7 +190,7 @@ class PhysicsInformedIDMPC:
         w = np.empty((horizon, n))
         added, rest = self.model.terms_along(q, v)  # one compiled pass over the plan
         for k in range(horizon):
-            w[k] = rest[k] - added[k] @ a[k] + self._rest
+            w[k] = rest[k] - fixed_order.matvec(added[k], np.ascontiguousarray(a[k])) + self._rest
         # a plan far from feasible (light joints, long horizons) reaches speeds where |v| v drag
         # explodes; a force beyond the torque limit cannot be compensated anyway: hold it there
         return np.clip(w, -self.torque_limit, self.torque_limit), added
@@ -295,7 +296,9 @@ class PhysicsInformedIDMPC:
             tau, realised, saturated = self.mpc.limited_torque(mass, bias, acceleration, w_free)
         self._saturated = bool(saturated.any())
         self._commanded = realised
-        w_hat = w_free if added_mass is None else w_free - added_mass @ realised
+        w_hat = w_free
+        if added_mass is not None:
+            w_hat = w_free - fixed_order.matvec(added_mass, np.ascontiguousarray(realised))
         end = time.perf_counter()
         return ControlOutput(
             tau=tau,

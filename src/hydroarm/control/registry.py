@@ -27,7 +27,7 @@ from hydroarm.control.pi_idmpc import PhysicsInformedIDMPC
 from hydroarm.control.smc import SlidingModeController
 from hydroarm.model.arm import Arm
 from hydroarm.model.nominal import NominalModel
-from hydroarm.model.sensing import SensorConfig
+from hydroarm.model.sensing import ActuatorConfig, SensorConfig
 
 
 @dataclass(frozen=True)
@@ -224,11 +224,14 @@ def controller_spec(name: str) -> ControllerSpec:
     return REGISTRY[canonical_name(name)]
 
 
-def estimator_kind(name: str, estimator: EstimatorConfig | None) -> str:
-    """``"none"`` or ``"kalman"``: the estimator controller ``name`` runs behind (``"auto"`` =
-    the controller's default)."""
-    kind = "auto" if estimator is None else estimator.kind
-    return controller_spec(name).default_estimator if kind == "auto" else kind
+def estimator_kind(
+    name: str, estimator: EstimatorConfig | None, sensor: SensorConfig | None = None, loop_delay: int = 0
+) -> str:
+    """``"none"`` or ``"kalman"``: the estimator controller ``name`` runs behind (``"auto"``:
+    :meth:`EstimatorConfig.resolved_kind`, the filter behind a non-ideal sensor or a loop delay,
+    else the controller's default)."""
+    config = EstimatorConfig() if estimator is None else estimator
+    return config.resolved_kind(controller_spec(name).default_estimator, sensor, loop_delay)
 
 
 def build_controller(
@@ -239,6 +242,7 @@ def build_controller(
     sensor_variance: float | None = None,
     sensor: SensorConfig | None = None,
     loop_delay: int = 0,
+    actuator: ActuatorConfig | None = None,
 ) -> Controller:
     """Controller ``name`` on ``arm`` from its config ``sections`` (section name -> config
     model, e.g. ``{"mpc": MPCConfig()}``) with the control period (s), behind the state
@@ -251,7 +255,8 @@ def build_controller(
     ``sensor_variance``: the measurement-noise variance of the plant it will run on (rad^2),
     what ``estimator.measurement_variance = "plant"`` stands for; needed only then. ``sensor``:
     the plant's sensor (None: q and v measured) and ``loop_delay`` (periods, ``sensor.delay +
-    actuator.delay``): what ``estimator.measures`` and ``estimator.delay = "plant"`` stand for."""
+    actuator.delay``): what ``estimator.measures`` and ``estimator.delay = "plant"`` stand for;
+    ``actuator``: the drives (their clip, lag and rate limit go into the filter's prediction)."""
     spec = controller_spec(name)
     controller = spec.build(arm, sections, control_period)
     observer = sections.get("observer")
@@ -264,11 +269,11 @@ def build_controller(
             )
         controller = ObservedController(controller, DisturbanceObserver(arm, control_period, observer))
     estimator = sections.get("estimator")
-    if estimator_kind(spec.name, estimator) == "kalman":
+    if estimator_kind(spec.name, estimator, sensor, loop_delay) == "kalman":
         config = estimator if estimator is not None else EstimatorConfig()
+        design = config.design(sensor_variance, sensor, loop_delay)  # "plant": the noise and the quantum
         if sensor_variance is not None:
             config = config.for_sensor(sensor_variance)
-        design = config.design(sensor_variance, sensor, loop_delay)
         kalman = JointKalmanFilter(arm.n_joints, control_period, config, design)
-        controller = FilteredController(controller, kalman, NominalModel(arm, inner_step=None))
+        controller = FilteredController(controller, kalman, NominalModel(arm, inner_step=None), actuator)
     return controller

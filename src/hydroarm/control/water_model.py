@@ -48,6 +48,7 @@ from scipy.interpolate import make_smoothing_spline
 
 from hydroarm.config import ConfigError, FrozenModel
 from hydroarm.control.observers import ObserverConfig
+from hydroarm.model import fixed_order as fixed
 from hydroarm.model.arm import Arm
 from hydroarm.model.water import Water
 from hydroarm.model.water_regressor import WaterRegressor
@@ -152,8 +153,8 @@ class PhysicsInformedModel:
         n, model, data = self.n, self.arm.model, self.data
         q, v = y[:n], y[n:]
         mass = pin.crba(model, data, q)
-        mass = np.triu(mass) + np.triu(mass, 1).T
-        return mass @ (y_next[n:] - v) / period + pin.nonLinearEffects(model, data, q, v) - u
+        mass = np.ascontiguousarray(np.triu(mass) + np.triu(mass, 1).T)
+        return fixed.matvec(mass, y_next[n:] - v) / period + pin.nonLinearEffects(model, data, q, v) - u
 
     def transition_features(self, y: np.ndarray, y_next: np.ndarray, period: float):
         """``(q_mid, v_mid, a)``: the midpoint state and the mean acceleration of a transition."""
@@ -162,18 +163,27 @@ class PhysicsInformedModel:
 
     def update(self, phi: np.ndarray, target: np.ndarray) -> bool:
         """One RLS step with the regressor ``phi`` (n, 3C) and the observed force ``target`` (n,)
-        N m; False (nothing learned) for a non-finite sample."""
+        N m; False (nothing learned) for a non-finite sample, or if the innovation covariance is
+        not positive definite (P has lost it)."""
         if not (np.all(np.isfinite(phi)) and np.all(np.isfinite(target))):
             return False
+        # Fixed-order compiled products and a Cholesky solve (hydroarm.model.fixed_order): BLAS
+        # and LAPACK round by their CPU's kernel, and the plan built on theta amplifies that.
+        phi = np.ascontiguousarray(phi, dtype=float)
         lam = self.config.forgetting
         p = self.covariance
-        p_phi = p @ phi.T
-        innovation_cov = lam * self.config.noise_std**2 * np.eye(self.n) + phi @ p_phi
-        gain = np.linalg.solve(innovation_cov, p_phi.T).T
-        self.theta = np.clip(self.theta + gain @ (target - phi @ self.theta), 0.0, self._upper)
-        p = p - gain @ p_phi.T
+        phi_t = np.ascontiguousarray(phi.T)
+        p_phi = fixed.matmul(p, phi_t)
+        innovation_cov = lam * self.config.noise_std**2 * np.eye(self.n) + fixed.matmul(phi, p_phi)
+        solved, ok = fixed.cholesky_solve(innovation_cov, np.ascontiguousarray(p_phi.T))
+        if not ok:  # S = lam sigma^2 I + phi P phi^T is positive definite unless P lost it
+            return False
+        gain = np.ascontiguousarray(solved.T)
+        innovation = target - fixed.matvec(phi, self.theta)
+        self.theta = np.clip(self.theta + fixed.matvec(gain, innovation), 0.0, self._upper)
+        p = p - fixed.matmul(gain, np.ascontiguousarray(p_phi.T))
         if lam < 1.0:  # fade only the excited directions: P += (1/lam - 1) K S K^T
-            p = p + (1.0 / lam - 1.0) * gain @ innovation_cov @ gain.T
+            p = p + (1.0 / lam - 1.0) * fixed.matmul(fixed.matmul(gain, innovation_cov), np.ascontiguousarray(gain.T))
         self.covariance = 0.5 * (p + p.T)
         self.samples += 1
         return True

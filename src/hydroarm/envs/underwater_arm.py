@@ -90,6 +90,7 @@ from gymnasium import spaces
 
 from hydroarm.control.interface import Controller
 from hydroarm.sim.experiment import ExperimentConfig, build_controller, build_experiment, with_overrides
+from hydroarm.sim.loop import Loop
 from hydroarm.sim.runner import DIVERGENCE_SPEED
 
 __all__ = [
@@ -213,6 +214,9 @@ class UnderwaterArmEnv(gymnasium.Env):
         high = np.concatenate([np.full(self.n, POSITION_BOUND), np.full(self.n, DIVERGENCE_SPEED)] * 2)
         self.observation_space = spaces.Box(-high, high, dtype=np.float64)
         self._high = high
+        self.loop = Loop(self.plant, self.period)
+        """The closed loop's plant, sensor and drives (:class:`~hydroarm.sim.loop.Loop`); the agent is
+        the controller."""
         self._x = self.x0.copy()
         self._y = self.x0.copy()
         self._k = 0
@@ -268,7 +272,11 @@ class UnderwaterArmEnv(gymnasium.Env):
             if x0.shape != (2 * self.n,) or not np.all(np.isfinite(x0)):
                 raise ValueError(f"options['x0'] must be {2 * self.n} finite numbers [q, v]; got {x0!r}")
             self._x = x0.copy()
-        self._y = self.plant.measure(self._x, self.np_random)
+        # the sensor's dropout stream: the episode's seed, as the runner's; drawn only for a real sensor
+        # (the ideal sensor draws nothing beyond the noise, so its numbers stay the runner's)
+        if seed is None and not self.plant.sensor.ideal:
+            seed = int(self.np_random.integers(2**63))
+        self._y = self.loop.reset(self._x, self.np_random, 0 if seed is None else seed)
         return self._observation(), {"x": self._x.copy(), "t": 0.0}
 
     def step(self, action):
@@ -277,18 +285,26 @@ class UnderwaterArmEnv(gymnasium.Env):
         q_r, v_r, _ = self.reference.sample(t)
         error = q_r - self._x[: self.n]
         reward = -float(error @ error + VELOCITY_WEIGHT * np.sum((v_r - self._x[self.n :]) ** 2))
-        x_next, step_info = self.plant.step(t, self._x, tau, self.period)
+        step = self.loop.step(t, tau)
+        x_next, step_info = step.x_next, step.info
         diverged = (
             not np.all(np.isfinite(x_next))
             or np.max(np.abs(x_next[self.n :])) > DIVERGENCE_SPEED
             or np.max(np.abs(x_next[: self.n])) > POSITION_BOUND
         )
-        info = {"x": self._x.copy(), "t": t, "disturbance": step_info.disturbance, "error": error, "torque": tau}
+        info = {
+            "x": self._x.copy(),
+            "t": t,
+            "disturbance": step_info.disturbance,
+            "error": error,
+            "torque": tau,
+            "applied_torque": step.applied,
+        }
         self._k += 1
         if diverged:
             return self._observation(), reward, True, False, info
-        self._x = x_next
-        self._y = self.plant.measure(x_next, self.np_random)
+        self._y, _ = self.loop.measure_next()
+        self._x = self.loop.x
         truncated = self._k >= self.steps
         return self._observation(), reward, False, truncated, info
 

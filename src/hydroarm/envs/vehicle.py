@@ -110,6 +110,7 @@ class UVMSEnv(gymnasium.Env):
         self.x = self.experiment.x0.copy()
         self.target = self.x[:7].copy()
         self.k = 0
+        self._y_arm = self.plant.joint_state(self.x)
         # compile (or load from numba's cache) the plant's step and the arm controller's code now,
         # not at the first step; reset() resets the controller
         y_arm = self.plant.joint_state(self.plant.measure(self.x, np.random.default_rng(0)))
@@ -133,7 +134,12 @@ class UVMSEnv(gymnasium.Env):
         offset = self.episode.start_offset
         self.x[:3] += self.np_random.uniform(-offset, offset, size=3)
         self.k = 0
+        self._y_arm = self._measure_arm(self.x)
         return self._observation(), {"t": 0.0}
+
+    def _measure_arm(self, x: np.ndarray) -> np.ndarray:
+        """The arm's measured joint state [q, v] (2 n_arm,) at the floating system's state ``x``."""
+        return self.plant.joint_state(self.plant.measure(x, self.np_random))
 
     def step(self, action):
         action = np.asarray(action, dtype=float).reshape(-1)
@@ -143,9 +149,13 @@ class UVMSEnv(gymnasium.Env):
         vehicle = self.uvms.vehicle
         thrust = np.where(action >= 0.0, action * vehicle.thrust_max, -action * vehicle.thrust_min)
         t = self.k * self.period
-        y_arm = self.plant.joint_state(self.plant.measure(self.x, self.np_random))
+        y_arm = self._y_arm
         tau = self.arm_controller.compute(t, y_arm, self.reference).tau
         self.x, _ = self.plant.step(t, self.x, np.concatenate([tau, thrust]), self.period)
+        self._y_arm = self._measure_arm(self.x)
+        if np.all(np.isfinite(y_arm)) and np.all(np.isfinite(self._y_arm)):
+            # the arm controller sees the transition, as in the runner: a learning one learns over an episode
+            self.arm_controller.observe(t, y_arm, tau, self._y_arm)
         self.k += 1
         observation = self._observation()
         nq = self.uvms.nq

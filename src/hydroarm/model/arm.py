@@ -39,6 +39,7 @@ Vector3 = Annotated[list[Coordinate], pydantic.Field(min_length=3, max_length=3)
 InertiaEntry = Annotated[float, pydantic.Field(ge=-1e6, le=1e6)]
 Inertia = Annotated[float, pydantic.Field(gt=0.0, le=1e6)]
 TorqueLimit = Annotated[float, pydantic.Field(gt=0.0, le=1e7)]
+Armature = Annotated[float, pydantic.Field(ge=0.0, le=1e4)]
 
 
 class LinkSpec(FrozenModel):
@@ -149,7 +150,10 @@ class LinkSpec(FrozenModel):
 
 class ArmSpec(FrozenModel):
     """A whole arm file: 1 to 12 links with distinct names; ``gravity`` in (0, 100] m/s^2;
-    ``torque_limit`` in (0, 1e7] N m, one value or one per link."""
+    ``torque_limit`` in (0, 1e7] N m, one value or one per link; ``armature`` in [0, 1e4]
+    kg m^2, one value or one per link: each joint's reflected rotor inertia (the motor rotor's
+    inertia times the gear ratio squared, Pinocchio's ``model.armature``: added to M(q)'s
+    diagonal, in the plant and in every model a controller builds from the arm)."""
 
     name: str
     description: str = ""
@@ -158,17 +162,21 @@ class ArmSpec(FrozenModel):
     torque_limit: list[TorqueLimit] | TorqueLimit = pydantic.Field(
         description="|tau_i| <= limit (N m): one value or one per joint"
     )
+    armature: list[Armature] | Armature = pydantic.Field(
+        0.0, description="reflected rotor inertia per joint (kg m^2): one value or one per joint; 0 = none"
+    )
     links: list[LinkSpec] = pydantic.Field(min_length=1, max_length=12)
 
     @pydantic.model_validator(mode="after")
     def _check(self) -> Self:
-        if isinstance(self.torque_limit, list) and len(self.torque_limit) != len(self.links):
-            raise field_error(
-                "torque_limit",
-                self.torque_limit,
-                f"{len(self.torque_limit)} values for {len(self.links)} links: "
-                f"give one value or a list of {len(self.links)}",
-            )
+        for field in ("torque_limit", "armature"):
+            value = getattr(self, field)
+            if isinstance(value, list) and len(value) != len(self.links):
+                raise field_error(
+                    field,
+                    value,
+                    f"{len(value)} values for {len(self.links)} links: give one value or a list of {len(self.links)}",
+                )
         names = [link.name for link in self.links]
         for index, name in enumerate(names):
             if name in names[:index]:
@@ -406,6 +414,7 @@ def build_arm(spec: ArmSpec) -> Arm:
         placement = link.dh_transform()  # joint i+1 sits at DH frame i
         parent = joint_id
     model.addFrame(pin.Frame("flange", parent, placement, pin.FrameType.OP_FRAME))
+    model.armature = per_joint(spec.armature, model.nv, "armature")
     limit = spec.torque_limit
     return Arm(name=spec.name, model=model, cylinders=tuple(cylinders), torque_limit=np.asarray(limit), spec=spec)
 

@@ -14,6 +14,7 @@ Vector3 = Annotated[list[Coordinate], pydantic.Field(min_length=3, max_length=3)
 Coefficient = Annotated[float, pydantic.Field(ge=0.0, le=10.0)]
 Volume = Annotated[float, pydantic.Field(ge=0.0, le=1e3)]
 TorqueLimit = Annotated[float, pydantic.Field(gt=0.0, le=1e7)]
+Armature = Annotated[float, pydantic.Field(ge=0.0, le=1e4)]
 
 HYDRO_SUFFIXES = (".hydro.toml", ".hydro.yaml", ".hydro.yml")
 REVOLUTE_JOINTS = ("JointModelRX", "JointModelRY", "JointModelRZ", "JointModelRevoluteUnaligned")
@@ -122,6 +123,9 @@ class HydroSpec(FrozenModel):
     gravity: float = pydantic.Field(9.81, gt=0.0, le=100.0, description="m/s^2 along -z of the root")
     torque_limit: list[TorqueLimit] | TorqueLimit | None = pydantic.Field(
         None, description="N m, one value or one per moving joint; default: the URDF efforts"
+    )
+    armature: list[Armature] | Armature = pydantic.Field(
+        0.0, description="reflected rotor inertia (kg m^2), one value or one per moving joint; 0 = none"
     )
     fixed_joints: dict[str, Annotated[float, pydantic.Field(ge=-100.0, le=100.0)]] = pydantic.Field(
         default_factory=dict, description="joint name -> locked position (rad or m)"

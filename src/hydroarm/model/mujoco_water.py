@@ -163,7 +163,8 @@ def arm_to_mjcf(
         lines = [
             f'{indent}<body name="{name}" pos="{_fmt(placement.translation)}" '
             f'quat="{_fmt(_quat(placement.rotation))}">',
-            f'{indent}  <joint name="{name}" type="hinge" axis="{_fmt(axes[joint_id])}" limited="false" damping="0"/>',
+            f'{indent}  <joint name="{name}" type="hinge" axis="{_fmt(axes[joint_id])}" limited="false" damping="0" '
+            f'armature="{float(model.armature[model.joints[joint_id].idx_v]):.17g}"/>',
             f'{indent}  <inertial pos="{_fmt(lever)}" mass="{mass:.17g}" fullinertia="{_fmt(full)}"/>',
         ]
         wet = geoms(joint_id, indent + "  ")

@@ -25,6 +25,7 @@ import numpy as np
 import pinocchio as pin
 
 from hydroarm.config import ConfigError
+from hydroarm.model import fixed_order
 from hydroarm.model.arm import Arm
 from hydroarm.model.integrator import StepInfo, inner_steps, rk4_second_order_stage, rk4_step
 
@@ -110,7 +111,8 @@ class NominalModel:
         prediction ``x_nominal = predict(y, tau, dt)``."""
         n = self.n
         nominal = self.predict(y, tau, dt)
-        return self.mass_matrix(y[:n]) @ (y_next[n:] - nominal[n:]) / dt, nominal
+        # fixed-order product (not BLAS's dgemv): the GP learns from it, and amplifies last bits
+        return fixed_order.matvec(self.mass_matrix(y[:n]), y_next[n:] - nominal[n:]) / dt, nominal
 
     # --- linearisation ------------------------------------------------------------------
     def linearise(

@@ -46,6 +46,11 @@ def arm_to_urdf(arm: Arm) -> str:
     axes = revolute_axes(arm)
     model = arm.model
     lines = ['<?xml version="1.0"?>', f"<robot name={quoteattr(arm.name)}>", '  <link name="base_link"/>']
+    if np.any(model.armature != 0.0):  # URDF has no reflected rotor inertia: say so where it is lost
+        lines.append(
+            f"  <!-- armature (kg m^2, per joint) = {_fmt(model.armature)}: URDF cannot carry it; "
+            "give it as armature in the hydrodynamics file (hydro_spec_of writes it there) -->"
+        )
     cylinders_by_joint: dict[int, list] = {}
     for cylinder in arm.cylinders:
         cylinders_by_joint.setdefault(cylinder.joint_id, []).append(cylinder)

@@ -9,6 +9,7 @@ which parts of which links the water acts on::
     urdf = "myarm.urdf"                 # relative to this file (when loading the file itself)
     gravity = 9.81                      # m/s^2 along -z of the URDF root link
     torque_limit = [20.0, 20.0, 10.0]   # N m, optional: default the URDF <limit effort>
+    armature = 0.0                      # kg m^2, reflected rotor inertia: one value or one per joint
     fixed_joints = { gripper = 0.0 }    # lock joints (e.g. a prismatic jaw) at a position
     all_collision_cylinders = false     # true: every <collision> cylinder of every link is wet
     joint_offsets = { wrist = 2.879 }   # rad: the URDF angle is sign * (q - offset), q the encoder's
@@ -231,6 +232,13 @@ def arm_from_urdf(urdf_xml: str, hydro: HydroSpec | dict | None = None, source: 
             )
     cylinders = _wetted_cylinders(model, hydro, collisions, source)
     torque_limit = _torque_limit(model, hydro, source)
+    armature = np.atleast_1d(np.asarray(hydro.armature, dtype=float))
+    if armature.size not in (1, model.nv):
+        raise ConfigError(
+            f"{source}: armature has {armature.size} values for {model.nv} joints: "
+            f"{shown(hydro.armature)}; give one value or a list of {model.nv}"
+        )
+    model.armature = np.broadcast_to(armature, (model.nv,)).copy()
     lower = np.asarray(model.lowerPositionLimit, dtype=float).copy()
     upper = np.asarray(model.upperPositionLimit, dtype=float).copy()
     for joint_id in range(1, model.njoints):
@@ -460,4 +468,7 @@ def hydro_spec_of(arm: Arm, use_collision: bool = True) -> dict[str, Any]:
                     row["cd_axial"] = c.cd_axial
                 entry["cylinders"].append(row)
         links.append(entry)
-    return {"name": arm.name, "gravity": arm.gravity_acceleration, "links": links}
+    spec: dict = {"name": arm.name, "gravity": arm.gravity_acceleration, "links": links}
+    if np.any(arm.model.armature != 0.0):  # URDF has no armature: the hydrodynamics file carries it
+        spec["armature"] = [float(x) for x in arm.model.armature]
+    return spec

@@ -38,6 +38,7 @@ import pinocchio as pin
 from numba.core import types
 from numba.experimental import structref
 
+from hydroarm.config import ConfigError
 from hydroarm.model.arm import Arm
 from hydroarm.model.current import CurrentField
 from hydroarm.model.loading import load_arm
@@ -106,6 +107,11 @@ def build_uvms(
         vehicle = load_vehicle(vehicle or "bluerov2-heavy")
     if isinstance(arm, str):
         arm = load_arm(vehicle.mount_arm if arm == "mount" else arm)
+    if arm is not None and np.any(arm.model.armature != 0.0):
+        raise ConfigError(
+            f"arm {arm.name!r}: armature = {arm.model.armature.tolist()}: the floating system does not model "
+            "reflected rotor inertia yet; mount an arm with armature = 0"
+        )
     mount = vehicle.mount if mount is None else mount
     root = pin.Model()
     root.name = vehicle.name

@@ -14,6 +14,8 @@ built-in vehicle puts at its centre of gravity):
   ``allocation`` matrix of that shape), per-thruster limits ``[-max_reverse, max_forward]`` (N),
   and an optional first-order thrust lag ``thrust_time_constant`` (s, 0 = none);
 * ``hull``: the frame's bounding box (length x width x height, centred on the body origin);
+* ``replay``: the replay settings a calibration fitted together with this file (``hydroarm
+  calibrate`` writes them, ``hydroarm replay`` applies them under any ``--set``);
 * ``mount``: where the arm sits (``arm``, ``position``, ``rpy_deg``); a mount outside the hull
   box is allowed with a warning (a real arm often sits on a bracket ahead of the frame);
 * ``[[ballast]]`` and ``[[float]]``: extra point loads as tested (weights, foam blocks, a DVL),
@@ -144,6 +146,11 @@ class VehicleSpec(FrozenModel):
         None, description="explicit 6 x n_thrusters allocation matrix (default: from positions and axes)"
     )
     mount: MountSpec
+    replay: dict[str, float | list[float]] = pydantic.Field(
+        default_factory=dict,
+        description="the settings of `hydroarm replay` that a calibration fitted with this file "
+        "(joint_time_offset, trim, imu_mounting_rpy_deg); replay applies them, a --set wins",
+    )
 
     @pydantic.model_validator(mode="after")
     def _check(self) -> Self:

@@ -30,6 +30,7 @@ import numba
 import numpy as np
 import pinocchio as pin
 
+from hydroarm.model import fixed_order
 from hydroarm.model.arm import Arm
 from hydroarm.model.strips import StripGeometry, forward_kinematics, jacobian_frame, water_terms, world_frame
 from hydroarm.model.water import Water
@@ -134,7 +135,7 @@ class WaterRegressor:
         """``Phi(q, v, a) theta`` (n,) N m (:meth:`terms`: coefficients clipped at zero); equals
         :meth:`basis` @ theta for theta >= 0."""
         mass, rest = self.terms(theta, q, v)
-        return rest - mass @ np.asarray(a, dtype=float)
+        return rest - fixed_order.matvec(mass, np.ascontiguousarray(a, dtype=float))
 
     def basis(self, q: np.ndarray, v: np.ndarray, a: np.ndarray) -> np.ndarray:
         """``Phi`` (n, 3C) at joint state q, v (n,) rad, rad/s and acceleration a (n,) rad/s^2:

@@ -33,6 +33,7 @@ from hydroarm.config import (
 )
 from hydroarm.control import registry
 from hydroarm.control.estimator import EstimatorConfig
+from hydroarm.control.filter_design import MEASURED_VELOCITY_ACCELERATION_VARIANCE
 from hydroarm.control.gp import GPConfig
 from hydroarm.control.gpmpc import GPMPCConfig
 from hydroarm.control.idmpc import IDMPCConfig
@@ -53,7 +54,14 @@ from hydroarm.model.task_file import SplineReference, TaskConfig, reference_for
 from hydroarm.model.water import Water
 from hydroarm.sim.plant import Plant
 from hydroarm.sim.runner import Trajectory, run_closed_loop
-from hydroarm.sim.vehicle import VehicleRun, source_name, station_keeper, station_keeping_metrics, vehicle_parts
+from hydroarm.sim.vehicle import (
+    VehicleRun,
+    check_vehicle_settings,
+    source_name,
+    station_keeper,
+    station_keeping_metrics,
+    vehicle_parts,
+)
 
 TorqueLimit = Annotated[float, pydantic.Field(gt=0.0, le=1e12)]
 
@@ -83,9 +91,8 @@ MAX_CONTROL_STEPS = 1_000_000
 """Most control steps of one run (duration / control_period): every step's row is stored."""
 
 REAL_LOOP_SECTIONS: tuple[str, ...] = ("sensor", "actuator", "friction")
-"""The sections of the real loop (issue 23). At their defaults (the idealised loop) they are
-left out of :meth:`ExperimentConfig.canonical` (digests, run ids), so results made before they
-existed still match."""
+"""The sections of the real loop (issue 23); at their defaults (the idealised loop) left out of
+:meth:`ExperimentConfig.canonical` (digests, run ids): results made before them still match."""
 
 OPTIONAL_SECTIONS: tuple[str, ...] = (*REAL_LOOP_SECTIONS, "vehicle", "observer", "water_model", "pi_idmpc", "task")
 """The sections left out of :meth:`ExperimentConfig.canonical` at their defaults: the real loop's,
@@ -229,6 +236,8 @@ class ExperimentConfig(FrozenModel):
             if getattr(self, section) == type(getattr(self, section))():
                 data.pop(section)
         defaults = EstimatorConfig()
+        if self.estimator.acceleration_variance is None and self.estimator.measures_velocity(self.sensor):
+            data["estimator"]["acceleration_variance"] = MEASURED_VELOCITY_ACCELERATION_VARIANCE  # null = 100 here
         for key in REAL_LOOP_ESTIMATOR_KEYS:
             if getattr(self.estimator, key) == getattr(defaults, key):
                 data["estimator"].pop(key)
@@ -236,6 +245,8 @@ class ExperimentConfig(FrozenModel):
         for key in LATER_WATER_KEYS:
             if getattr(self.water, key) == getattr(water_defaults, key):
                 data["water"].pop(key)
+        if self.idmpc.delay_margin == 0:  # added after run ids were first made (issue 32)
+            data["idmpc"].pop("delay_margin")
         return data
 
     def digest(self) -> str:
@@ -374,6 +385,7 @@ def build_controller(name: str, arm: Arm, config: ExperimentConfig) -> Controlle
         sensor_variance=config.plant.noise_variance,
         sensor=config.sensor,
         loop_delay=config.sensor.delay + config.actuator.delay,
+        actuator=config.actuator,
     )
 
 
@@ -462,7 +474,8 @@ def build_experiment(
 
 
 def _build_vehicle_experiment(config: ExperimentConfig, controller: str | None, arm: Arm | None) -> Experiment:
-    """:func:`build_experiment` for a vehicle run (``config.vehicle.name`` set)."""
+    """:func:`build_experiment` for a vehicle run; fixed-base settings are refused (:func:`check_vehicle_settings`)."""
+    check_vehicle_settings(config)
     parts = vehicle_parts(config.vehicle, config.arm if arm is None else arm, config.water, config.torque_limit)
     check_settings_for_arm(config, parts.arm, controllers=() if controller is None else (controller,))
     built = None

@@ -42,6 +42,7 @@ import numpy as np
 
 from hydroarm.control.interface import FAULT_EVENTS, Controller, Reference
 from hydroarm.sim.files import atomic_file
+from hydroarm.sim.loop import Loop, LoopStep
 from hydroarm.sim.plant import Plant
 
 DIVERGENCE_SPEED = 1e3  # rad/s: beyond this the run is declared diverged
@@ -127,6 +128,101 @@ class Trajectory:
         return cls(**data, timings=timings, meta=meta, extra=extra)
 
 
+class _Recorder:
+    """The rows of a run of ``steps`` control steps on ``n`` joints, filled step by step, and the
+    run's fault counts; :meth:`trajectory` cuts them to the steps used."""
+
+    def __init__(self, steps: int, n: int, period: float, commands: bool):
+        widths = {"x": 2 * n, "y": 2 * n, "u": n, "q_ref": n, "v_ref": n}
+        widths |= {"disturbance": n, "disturbance_estimate": n, "disturbance_var": n}
+        self.rows = {name: np.full((steps, width), np.nan) for name, width in widths.items()}
+        self.steps, self.t = steps, np.arange(steps) * period
+        self.violation = np.zeros(steps)
+        self.status = np.full(steps, "", dtype=object)
+        self.events = np.full(steps, "", dtype=object)
+        self.timings: dict[str, np.ndarray] = {}
+        self.extra: dict[str, np.ndarray] = {}
+        self.faults = dict.fromkeys(FAULT_EVENTS, 0)
+        self.commands = np.full((steps, n), np.nan) if commands else None
+
+    def record(self, k: int, values: dict[str, np.ndarray]) -> None:
+        """Per-step arrays beyond the joints (``Trajectory.extra``), allocated on first sight."""
+        for key, value in values.items():
+            value = np.asarray(value)
+            if key not in self.extra:
+                self.extra[key] = np.zeros((self.steps, *value.shape), dtype=value.dtype)
+            self.extra[key][k] = value
+
+    def step(self, k: int, plant: Plant, y: np.ndarray, tau: np.ndarray, out, step: LoopStep, reference) -> None:
+        """Step k's row: true and measured state, applied torque, reference, disturbance true and
+        estimated, what the controller reported (``out``: its :class:`ControlOutput`)."""
+        n, rows = plant.n, self.rows
+        rows["x"][k], rows["y"][k], rows["u"][k] = plant.joint_state(step.x), plant.joint_state(y), step.applied[:n]
+        if self.commands is not None:
+            self.commands[k] = tau[:n]
+        self.record(k, plant.state_record(step.x))
+        self.record(k, out.record)
+        rows["q_ref"][k], rows["v_ref"][k], _ = reference.sample(self.t[k])
+        rows["disturbance"][k] = step.info.disturbance
+        if out.disturbance_mean is not None:
+            rows["disturbance_estimate"][k] = out.disturbance_mean
+        if out.disturbance_var is not None:
+            rows["disturbance_var"][k] = out.disturbance_var
+        self.violation[k], self.status[k] = out.terminal_violation, out.status
+        for key, value in out.timings.items():
+            self.timings.setdefault(key, np.full(self.steps, np.nan))[k] = value
+
+    def count(self, k: int, names: list[str]) -> None:
+        """Step k's fault events: counted, and listed in its row."""
+        for name in names:
+            self.faults[name] = self.faults.get(name, 0) + 1
+        self.events[k] = ",".join(filter(None, (self.events[k], *names)))
+
+    def trajectory(self, used: int, meta: dict) -> Trajectory:
+        cut = slice(0, used)
+        extra = {key: value[cut] for key, value in self.extra.items()}
+        if self.commands is not None:
+            extra["u_command"] = self.commands[cut]
+        return Trajectory(
+            t=self.t[cut],
+            **{name: value[cut] for name, value in self.rows.items()},
+            terminal_violation=self.violation[cut],
+            status=np.asarray(self.status[cut], dtype=str),
+            events=np.asarray(self.events[cut], dtype=str),
+            timings={key: value[cut] for key, value in self.timings.items()},
+            meta=meta,
+            extra=extra,
+        )
+
+
+def _controller_step(controller: Controller, t: float, y: np.ndarray, reference: Reference, m: int):
+    """``(out, tau, None)`` of the controller at (t, y), or ``(None, None, message)`` when it raised
+    or returned a torque that is not m finite numbers (the runner then stops cleanly)."""
+    try:
+        out = controller.compute(t, y, reference)
+        tau = np.asarray(out.tau, dtype=float)
+        if tau.shape != (m,) or not np.all(np.isfinite(tau)):
+            raise ValueError(f"{controller.name} returned a torque that is not finite with shape ({m},): {tau}")
+    except Exception as exc:  # noqa: BLE001 - the last guard: stop cleanly, record why
+        return None, None, f"{type(exc).__name__}: {exc}"
+    return out, tau, None
+
+
+def _observe(controller: Controller, t: float, y: np.ndarray, tau: np.ndarray, y_next: np.ndarray) -> str | None:
+    """The controller observes the transition; the error message if it raised (else None)."""
+    try:
+        controller.observe(t, y, tau, y_next)
+    except Exception as exc:  # noqa: BLE001 - as in compute
+        return f"{type(exc).__name__}: {exc}"
+    return None
+
+
+def _diverged(plant: Plant, x_next: np.ndarray) -> bool:
+    """A non-finite state or a joint faster than :data:`DIVERGENCE_SPEED`."""
+    speeds = np.abs(plant.joint_state(x_next)[plant.n :])
+    return not np.all(np.isfinite(x_next)) or np.max(speeds, initial=0.0) > DIVERGENCE_SPEED
+
+
 def run_closed_loop(
     plant: Plant,
     controller: Controller,
@@ -140,142 +236,60 @@ def run_closed_loop(
 
     ``seed`` drives the measurement noise (the only random thing here);
     ``x0`` (``plant.state_size``,) defaults to rest at q = 0 (the paper's start; a fixed-base
-    plant only); ``progress(k, K)``
-    is called after every step. Returns a :class:`Trajectory`; faults are
+    plant only); ``progress(k, K)`` is called after every step. The loop's plant, sensor and
+    drives are :class:`~hydroarm.sim.loop.Loop`'s. Returns a :class:`Trajectory`; faults are
     handled and counted as the module docstring says. No exception from the
     controller or the plant's numbers escapes (bad arguments still raise).
     """
-    n, m, size = plant.n, plant.n_inputs, plant.state_size
-    period = controller.control_period
+    period, size = controller.control_period, plant.state_size
     steps = int(round(duration / period))
-    rng = np.random.default_rng(seed)
     x = np.zeros(size) if x0 is None else np.asarray(x0, dtype=float).copy()
     if x.shape != (size,) or not np.all(np.isfinite(x)):
         raise ValueError(f"x0 must be finite with shape ({size},); got {x}")
-    rows = {
-        name: np.full((steps, width), np.nan)
-        for name, width in (
-            ("x", 2 * n), ("y", 2 * n), ("u", n), ("q_ref", n), ("v_ref", n),
-            ("disturbance", n), ("disturbance_estimate", n), ("disturbance_var", n),
-        )
-    }  # fmt: skip
-    t_grid = np.arange(steps) * period
-    violation = np.zeros(steps)
-    status = np.full(steps, "", dtype=object)
-    events = np.full(steps, "", dtype=object)
-    timings: dict[str, np.ndarray] = {}
-    extra: dict[str, np.ndarray] = {}
-    faults = dict.fromkeys(FAULT_EVENTS, 0)
-
-    def record(k: int, values: dict[str, np.ndarray]) -> None:
-        for key, value in values.items():
-            value = np.asarray(value)
-            if key not in extra:
-                extra[key] = np.zeros((steps, *value.shape), dtype=value.dtype)
-            extra[key][k] = value
-
     controller.reset()
-    last_valid = x.copy()  # before any valid measurement: the known initial state
-    sensor = plant.new_sensor(period, rng, seed)  # None: the plant's own measure (the ideal sensor)
-    actuator = plant.new_actuator(period)  # None: the torque acts as commanded, at once
-    commands = None if actuator is None else np.full((steps, n), np.nan)
-
-    def measure(state: np.ndarray) -> tuple[np.ndarray, bool]:
-        nonlocal last_valid
-        measured = plant.measure(state, rng) if sensor is None else sensor.sample(state)
-        if np.all(np.isfinite(measured)):
-            last_valid = measured
-            return measured, True
-        return last_valid.copy(), False
-
-    y, y_valid = measure(x)
-    step_events: list[str] = [] if y_valid else ["measurement_held"]
-    stopped, error, used, stop_time = None, None, steps, None
-    final = x  # the last state the plant reached
+    loop = Loop(plant, period)
+    y, y_valid = loop.reset(x, np.random.default_rng(seed), seed), loop.y_valid
+    rec = _Recorder(steps, plant.n, period, commands=not loop.ideal_drives)
+    pending: list[str] = [] if y_valid else ["measurement_held"]
+    stopped, error, used, stop_time, final = None, None, steps, None, x  # final: the last state reached
     for k in range(steps):
-        t = t_grid[k]
-        q_r, v_r, _ = reference.sample(t)
-        try:
-            out = controller.compute(t, y, reference)
-            tau = np.asarray(out.tau, dtype=float)
-            if tau.shape != (m,) or not np.all(np.isfinite(tau)):
-                raise ValueError(f"{controller.name} returned a torque that is not finite with shape ({m},): {tau}")
-        except Exception as exc:  # noqa: BLE001 - the last guard: stop cleanly, record why
-            stopped, error, used, stop_time = "controller_error", f"{type(exc).__name__}: {exc}", k, float(t)
-            faults["controller_error"] += 1
+        t = rec.t[k]
+        out, tau, error = _controller_step(controller, t, y, reference, plant.n_inputs)
+        if error is not None:
+            stopped, used, stop_time = "controller_error", k, float(t)
+            rec.faults["controller_error"] += 1
             break
-        applied = tau if actuator is None else actuator.apply(tau)
-        x_next, info = plant.step(t, x, applied, period)
-        final = x_next
-        rows["x"][k], rows["y"][k], rows["u"][k] = plant.joint_state(x), plant.joint_state(y), applied[:n]
-        if commands is not None:
-            commands[k] = tau[:n]
-        record(k, plant.state_record(x))
-        record(k, out.record)
-        rows["q_ref"][k], rows["v_ref"][k] = q_r, v_r
-        rows["disturbance"][k] = info.disturbance
-        if out.disturbance_mean is not None:
-            rows["disturbance_estimate"][k] = out.disturbance_mean
-        if out.disturbance_var is not None:
-            rows["disturbance_var"][k] = out.disturbance_var
-        violation[k] = out.terminal_violation
-        status[k] = out.status
-        for key, value in out.timings.items():
-            timings.setdefault(key, np.full(steps, np.nan))[k] = value
-        step_events.extend(out.events)
-        if (
-            not np.all(np.isfinite(x_next))
-            or np.max(np.abs(plant.joint_state(x_next)[n:]), initial=0.0) > DIVERGENCE_SPEED
-        ):
-            step_events.append("diverged")
+        step = loop.step(t, tau)
+        final = step.x_next
+        rec.step(k, plant, y, tau, out, step, reference)
+        pending.extend(out.events)
+        if _diverged(plant, step.x_next):
+            pending.append("diverged")
             stopped, used, stop_time = "diverged", k + 1, float(t)
-        for name in step_events:
-            faults[name] = faults.get(name, 0) + 1
-        events[k] = ",".join(step_events)
+        rec.count(k, pending)
         if stopped is not None:
             break
-        y_next, next_valid = measure(x_next)
-        step_events = [] if next_valid else ["measurement_held"]
+        y_next, next_valid = loop.measure_next()
+        pending = [] if next_valid else ["measurement_held"]
         if y_valid and next_valid:
-            try:
-                controller.observe(t, y, tau, y_next)
-            except Exception as exc:  # noqa: BLE001 - as in compute
-                stopped, error, used, stop_time = "controller_error", f"{type(exc).__name__}: {exc}", k + 1, float(t)
-                faults["controller_error"] += 1
-                events[k] = ",".join(filter(None, (events[k], "controller_error")))
+            error = _observe(controller, t, y, tau, y_next)
+            if error is not None:
+                stopped, used, stop_time = "controller_error", k + 1, float(t)
+                rec.count(k, ["controller_error"])
                 break
-        x, y, y_valid = x_next, y_next, next_valid
+        y, y_valid = y_next, next_valid
         if progress is not None:
             progress(k + 1, steps)
     meta = {
-        "controller": controller.name,
-        "seed": seed,
-        "duration": duration,
-        "control_period": period,
-        "steps": used,
-        "diverged": stopped == "diverged",
+        "controller": controller.name, "seed": seed, "duration": duration, "control_period": period,
+        "steps": used, "diverged": stopped == "diverged",
         "diverged_at_s": stop_time if stopped == "diverged" else None,
-        "stopped": stopped,
-        "stopped_at_s": stop_time,
-        "error": error,
-        "faults": faults,
+        "stopped": stopped, "stopped_at_s": stop_time, "error": error, "faults": rec.faults,
         "final_state": np.asarray(final, dtype=float).tolist(),
-    }
-    if sensor is not None:
-        meta["sensor"] = {"samples": sensor.samples, "dropped": sensor.dropped}
-    extra = {key: value[:used] for key, value in extra.items()}
-    if commands is not None:
-        extra["u_command"] = commands[:used]
-    return Trajectory(
-        t=t_grid[:used],
-        **{name: value[:used] for name, value in rows.items()},
-        terminal_violation=violation[:used],
-        status=np.asarray(status[:used], dtype=str),
-        events=np.asarray(events[:used], dtype=str),
-        timings={key: value[:used] for key, value in timings.items()},
-        meta=meta,
-        extra=extra,
-    )
+    }  # fmt: skip
+    if loop.sensor_counts() is not None:
+        meta["sensor"] = loop.sensor_counts()
+    return rec.trajectory(used, meta)
 
 
 def fault_counts(traj: Trajectory) -> dict[str, int]:

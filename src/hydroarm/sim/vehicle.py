@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pinocchio as pin
@@ -187,3 +188,27 @@ def station_keeping_metrics(uvms: UVMS, traj, reference) -> dict:
         "ee_error_rms_m": float(np.sqrt(np.mean(ee_error**2))),
         "ee_error_max_m": float(np.max(ee_error)),
     }
+
+
+FIXED_BASE_ONLY_SECTIONS: tuple[str, ...] = ("plant", "sensor", "actuator", "friction")
+"""Sections of the fixed-base plant that a vehicle run has no place for: the floating plant
+measures its true state, applies the arm's torques as commanded, has no joint friction model and
+integrates by its own settings (``vehicle.plant.*``). A value away from its default is refused
+(:func:`check_vehicle_settings`), never validated and then ignored."""
+
+
+def check_vehicle_settings(config: Any) -> None:
+    """Raise :class:`ConfigError` naming the first fixed-base setting (:data:`FIXED_BASE_ONLY_SECTIONS`)
+    that a vehicle run (``vehicle.name`` set) was given away from its default. ``config``: an
+    :class:`~hydroarm.sim.experiment.ExperimentConfig`."""
+    for section in FIXED_BASE_ONLY_SECTIONS:
+        value, default = getattr(config, section), type(getattr(config, section))()
+        for key in type(value).model_fields:
+            if getattr(value, key) != getattr(default, key):
+                raise ConfigError(
+                    f"{section}.{key} = {shown(getattr(value, key))}: not used on a vehicle run "
+                    f"(vehicle.name = {config.vehicle.name!r}): the floating plant measures its true state, "
+                    "applies the arm's torques as commanded and has no joint friction model; its integration "
+                    f"is vehicle.plant.*. Leave {section}.{key} at its default ({shown(getattr(default, key))}) "
+                    "or run the arm on a fixed base"
+                )

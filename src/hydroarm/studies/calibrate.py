@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import shlex
 import time as clock
 import warnings
 from concurrent.futures import ProcessPoolExecutor
@@ -97,13 +98,25 @@ def check_parameters(names: list[str]) -> list[str]:
     return out
 
 
-def replay_settings_hint(values: dict[str, float]) -> str:
-    """The ``--set`` options that pass the fitted replay settings among ``values`` ('' if none)."""
-    config = replay_config(ReplayConfig(), values)
-    out = [f"--set {k}={getattr(config, k):.6g}" for k in SCALAR_REPLAY_SETTINGS if k in values]
+def fitted_replay_settings(config: ReplayConfig, values: dict[str, float]) -> dict[str, float | list[float]]:
+    """The replay settings among the fitted ``values`` (:data:`REPLAY_SETTINGS`) as they stand on
+    ``config``, the replay settings the calibration ran with: what the calibrated file's
+    ``[replay]`` table holds ({} if none was fitted)."""
+    fitted = replay_config(config, values)
+    out: dict[str, float | list[float]] = {k: float(getattr(fitted, k)) for k in SCALAR_REPLAY_SETTINGS if k in values}
     if any(k.startswith("imu_") for k in values):
-        out.append("--set imu_mounting_rpy_deg=[" + ",".join(f"{v:.6g}" for v in config.imu_mounting_rpy_deg) + "]")
-    return " ".join(out)
+        out["imu_mounting_rpy_deg"] = [float(v) for v in fitted.imu_mounting_rpy_deg]
+    return out
+
+
+def replay_settings_hint(settings: dict[str, float | list[float]]) -> str:
+    """``settings`` (:func:`fitted_replay_settings`) as ``--set`` options, each quoted for a POSIX
+    shell (zsh globs an unquoted ``[...]``); '' if none."""
+
+    def text(value: float | list[float]) -> str:
+        return "[" + ",".join(f"{v:.6g}" for v in value) + "]" if isinstance(value, list) else f"{value:.6g}"
+
+    return " ".join(f"--set {shlex.quote(f'{key}={text(value)}')}" for key, value in settings.items())
 
 
 def apply_parameters(spec: VehicleSpec, values: dict[str, float]) -> VehicleSpec:
@@ -293,14 +306,25 @@ def calibrate(
 
 
 def write_calibrated_vehicle(
-    path: Path, spec: VehicleSpec, calibration: Calibration, sources: list[str], arm=None
+    path: Path,
+    spec: VehicleSpec,
+    calibration: Calibration,
+    sources: list[str],
+    arm=None,
+    config: ReplayConfig | None = None,
 ) -> None:
-    """The calibrated vehicle file (TOML) with a header saying what was fitted on what (and, with
-    ``arm_buoyancy_scale``, the calibrated arm file ``<stem>.arm.hydro.toml`` beside it; ``arm``
-    the mounted :class:`~hydroarm.model.arm.Arm`)."""
+    """The calibrated vehicle file (TOML) with a header saying what was fitted on what, and the
+    fitted replay settings in its ``[replay]`` table (on ``config``, the replay settings the
+    calibration ran with; default: the defaults), so that ``hydroarm replay --vehicle <path>``
+    alone replays what was calibrated; with ``arm_buoyancy_scale``, the calibrated arm file
+    ``<stem>.arm.hydro.toml`` beside it (``arm`` the mounted :class:`~hydroarm.model.arm.Arm`)."""
     calibrated = apply_parameters(spec, calibration.values)
     data = calibrated.model_dump(by_alias=True, exclude_none=True)
     data["name"] = f"{spec.name}-calibrated"
+    replay = {**spec.replay, **fitted_replay_settings(config or ReplayConfig(), calibration.values)}
+    data.pop("replay", None)
+    if replay:
+        data["replay"] = replay
     if "arm_buoyancy_scale" in calibration.values:
         arm_path = path.with_name(path.stem + ".arm.hydro.toml")
         scale = calibration.values["arm_buoyancy_scale"]
@@ -315,9 +339,8 @@ def write_calibrated_vehicle(
             f"# {name} = {calibration.values[name]:.6g} +- {calibration.uncertainty[name]:.2g} ({PARAMETERS[name][0]})"
         )
     lines.append(f"# cost (sum of the trials' mean squared roll and pitch errors): {calibration.cost:.4g} deg^2")
-    hint = replay_settings_hint(calibration.values)
-    if hint:
-        lines.append(f"# fitted replay settings, not in this file: replay with {hint}")
+    if replay:
+        lines.append("# the fitted replay settings: the [replay] table (hydroarm replay applies them)")
     path.parent.mkdir(parents=True, exist_ok=True)
     atomic_write(path, "\n".join(lines) + "\n" + to_toml(data))
 

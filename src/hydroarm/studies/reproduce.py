@@ -48,6 +48,7 @@ from pathlib import Path
 
 import numpy as np
 
+from hydroarm.config import ConfigError
 from hydroarm.control.registry import PAPER_CONTROLLERS
 from hydroarm.model.arm import Arm
 from hydroarm.model.loading import arm_description, load_arm
@@ -109,6 +110,23 @@ ROWS: tuple[str, ...] = (*PAPER_CONTROLLERS, *EXTRA_ROWS)
 
 PAPER_DURATION = 10.0
 """s: the paper's task (its Tables 1-2)."""
+
+REPLICATED_ROWS: tuple[str, ...] = ("GP-MPC", "GP-MPC+KF", BEST)
+"""The rows whose closed loop amplifies a last-bit difference into another run (the sliding-window
+GP's accept / reject of each hyperparameter step): measured, the quick reproduction under
+OpenBLAS's Haswell and Sandybridge kernels moved their clean E_p by up to 39 % while every other
+row agreed to 2e-10 (docs/data/reproducibility.md). Their clean runs are repeated from
+:data:`REPLICA_OFFSET`-perturbed starts and reported as a mean and a spread (:func:`replica_summary`)."""
+
+REPLICA_OFFSET = 1e-12
+"""rad: the half-width of the uniform draw added to each joint's start position of a replica
+(``initial_state.position_spread``, drawn with ``initial_state.seed`` = the replica's number)."""
+
+DEFAULT_REPLICAS = {"full": 8, "quick": 4}
+"""K, the runs per replicated row (the unperturbed one included), by mode."""
+
+MAX_REPLICAS = 64
+"""The most runs per replicated row ``--replicas`` takes."""
 
 
 # The plan and the runs: every run of the study, resumed from runs/
@@ -203,10 +221,19 @@ def idmpc_ablation_cases() -> list[tuple[str, str, str, dict]]:
     return cases
 
 
-def plan_runs(base: ExperimentConfig, noisy_seeds: int, ablation: bool) -> list[RunSpec]:
+def replica_config(config: ExperimentConfig, replica: int) -> ExperimentConfig:
+    """``config`` started from the task's start plus a seeded draw of :data:`REPLICA_OFFSET` rad
+    per joint (replica 0: unchanged)."""
+    if replica == 0:
+        return config
+    return with_overrides(config, {"initial_state.position_spread": REPLICA_OFFSET, "initial_state.seed": replica})
+
+
+def plan_runs(base: ExperimentConfig, noisy_seeds: int, ablation: bool, replicas: int = 1) -> list[RunSpec]:
     """Every run of the study: clean (seed 0), noisy (seeds 0..noisy_seeds-1), the paper's
     controllers and :data:`EXTRA_ROWS`, the dry-arm bound (MPC with the water removed:
-    perfect disturbance knowledge), the ablations."""
+    perfect disturbance knowledge), the ablations, and replicas 1..replicas-1 of the clean
+    runs of :data:`REPLICATED_ROWS` (case ``replica<r>-clean``, :func:`replica_config`)."""
     noisy = with_overrides(base, {"plant.noise_variance": NOISE_VARIANCE})
     runs = [RunSpec("clean", name, 0, base) for name in PAPER_CONTROLLERS]
     runs += [RunSpec("noisy", name, seed, noisy) for seed in range(noisy_seeds) for name in PAPER_CONTROLLERS]
@@ -216,6 +243,11 @@ def plan_runs(base: ExperimentConfig, noisy_seeds: int, ablation: bool) -> list[
         runs += [RunSpec("noisy", row, seed, noisy_row, name) for seed in range(noisy_seeds)]
     runs.append(RunSpec("bound-clean", "MPC", 0, with_overrides(base, DRY)))
     runs += [RunSpec("bound-noisy", "MPC", seed, with_overrides(noisy, DRY)) for seed in range(noisy_seeds)]
+    clean_runs = {spec.controller: spec for spec in runs if spec.case == "clean"}
+    for replica in range(1, replicas):
+        for row in REPLICATED_ROWS:
+            spec = clean_runs[row]
+            runs.append(RunSpec(f"replica{replica}-clean", row, 0, replica_config(spec.config, replica), spec.build))
     if ablation:
         for group, label, overrides in ablation_cases(base):
             config = with_overrides(base, overrides)
@@ -311,9 +343,38 @@ def fault_totals(trajs: list[Trajectory]) -> dict[str, int]:
     return totals
 
 
+def _spread(values: np.ndarray) -> np.ndarray:
+    """The std over the first axis (ddof 1: the spread of one run); zeros for one run."""
+    return values.std(axis=0, ddof=1) if values.shape[0] > 1 else np.zeros(values.shape[1:])
+
+
+def replica_summary(trajs: list[Trajectory]) -> dict:
+    """The replicas' E_p and E_p after 2 s (K, n): per joint the mean, the spread (std, ddof 1),
+    min and max; the same of the mean over joints."""
+    metrics = [tracking_metrics(t) for t in trajs]
+    ep = np.array([m["Ep"] for m in metrics], dtype=float)
+    steady = np.array([m["Ep_steady"] for m in metrics], dtype=float)
+    return {
+        "count": len(trajs),
+        "offset_rad": REPLICA_OFFSET,
+        "Ep_mean": ep.mean(axis=0).tolist(),
+        "Ep_spread": _spread(ep).tolist(),
+        "Ep_min": ep.min(axis=0).tolist(),
+        "Ep_max": ep.max(axis=0).tolist(),
+        "Ep_mean_of_joints": float(ep.mean()),
+        "Ep_mean_of_joints_spread": float(_spread(ep.mean(axis=1, keepdims=True))[0]),
+        "Ep_steady_mean": steady.mean(axis=0).tolist(),
+        "Ep_steady_spread": _spread(steady).tolist(),
+        "Ep_per_replica": ep.tolist(),
+    }
+
+
 def summarise(runs: list, results: dict[str, Trajectory], paper_arm: bool = True) -> dict:
     """metrics.json: per case and controller, E_p per joint (mean over seeds) and more.
-    ``paper_arm``: the runs are on the paper's arm (then the paper's gain is recorded beside ours)."""
+    ``paper_arm``: the runs are on the paper's arm (then the paper's gain is recorded beside ours).
+    A row of :data:`REPLICATED_ROWS` with replicas (clean case) also gets ``replicas``
+    (:func:`replica_summary`; its ``Ep`` stays the unperturbed run's); in the noisy case every such
+    row's ``Ep_spread`` is the standard error of its mean over the seeds (std / sqrt(seeds))."""
     metrics: dict = {}
     for case in ("clean", "noisy"):
         metrics[case] = {}
@@ -345,6 +406,15 @@ def summarise(runs: list, results: dict[str, Trajectory], paper_arm: bool = True
                 truth = np.concatenate([t.disturbance[a] for t, a in zip(trajs, after)])
                 entry["disturbance_estimate_rms_after_1s"] = np.sqrt(np.mean(errors**2, axis=0)).tolist()
                 entry["disturbance_rms_after_1s"] = np.sqrt(np.mean(truth**2, axis=0)).tolist()
+            if name in REPLICATED_ROWS and case == "clean":
+                replicas = [results[s.key] for s in runs if s.controller == name and s.case.startswith("replica")]
+                if replicas:
+                    entry["replicas"] = replica_summary(trajs + replicas)
+            elif name in REPLICATED_ROWS and len(trajs) > 1:  # the seeds are the replicas: the mean's error
+                root = math.sqrt(len(trajs))
+                entry["Ep_spread"] = (_spread(ep) / root).tolist()
+                entry["Ep_steady_spread"] = (_spread(steady) / root).tolist()
+                entry["Ep_mean_of_joints_spread"] = float(_spread(ep.mean(axis=1, keepdims=True))[0] / root)
             metrics[case][name] = entry
         bound = [tracking_metrics(results[s.key]) for s in runs if s.case == f"bound-{case}"]
         bound_ep = np.mean([m["Ep"] for m in bound], axis=0).tolist()
@@ -427,6 +497,60 @@ def _fmt(x: float) -> str:
     return f"{x:.4g}"
 
 
+def held(entry: dict, key: str = "Ep") -> tuple[list[float], list[float] | None, float, float | None]:
+    """``(per joint, their spreads or None, mean of joints, its spread or None)`` of a row's ``key``
+    (``"Ep"`` or ``"Ep_steady"``): a replicated clean row's replica mean and spread, a replicated
+    noisy row's mean over seeds and its standard error, any other row's numbers (spread None)."""
+    replicas = entry.get("replicas")
+    if replicas is not None:
+        values, spread = replicas[f"{key}_mean"], replicas[f"{key}_spread"]
+        mean_spread = replicas["Ep_mean_of_joints_spread"] if key == "Ep" else None
+        return values, spread, float(np.mean(values)), mean_spread
+    values = entry[key]
+    spread = entry.get(f"{key}_spread")
+    mean_spread = entry.get("Ep_mean_of_joints_spread") if key == "Ep" else None
+    return values, spread, float(np.mean(values)), mean_spread
+
+
+def held_digits(x: float, spread: float | None) -> str:
+    """``x`` with only the digits its ``spread`` leaves: rounded at the spread's first significant
+    digit, with the spread (``0.05 ± 0.02``); 4 significant digits when the spread is below them
+    (or unknown)."""
+    if spread is None or not math.isfinite(x) or not math.isfinite(spread) or spread <= 5e-5 * abs(x):
+        return _fmt(x)
+    decimals = -math.floor(math.log10(spread))
+    factor = 10.0**decimals
+    spread_rounded = math.ceil(spread * factor - 1e-9) / factor  # never below the spread
+    if decimals <= 0:
+        return f"{round(x * factor) / factor:.0f} ± {spread_rounded:.0f}"
+    return f"{x:.{decimals}f} ± {spread_rounded:.{decimals}f}"
+
+
+def _held_cells(entry: dict, key: str = "Ep") -> list[str]:
+    values, spread, mean, mean_spread = held(entry, key)
+    spreads = spread if spread is not None else [None] * len(values)
+    return [held_digits(x, e) for x, e in zip(values, spreads)] + [held_digits(mean, mean_spread)]
+
+
+def spread_note(block: dict, case: str) -> str:
+    """What the ``±`` of a table's replicated rows (:data:`REPLICATED_ROWS`) is; ``""`` if none has one."""
+    rows = [name for name in REPLICATED_ROWS if name in block]
+    if case == "clean":
+        counts = {block[name]["replicas"]["count"] for name in rows if "replicas" in block[name]}
+        if not counts:
+            return ""
+        return (
+            f"; rows {', '.join(rows)}: mean ± std of {max(counts)} runs from starts {REPLICA_OFFSET:g} rad apart "
+            "(their closed loop turns a last-bit difference into another run), digits beyond the spread dropped"
+        )
+    if not any(block[name].get("Ep_spread") is not None for name in rows):
+        return ""
+    return (
+        f"; rows {', '.join(rows)}: mean over seeds ± its standard error (their closed loop turns a last-bit "
+        "difference into another run), digits beyond it dropped"
+    )
+
+
 def write_tables(metrics: dict, out: Path) -> None:
     """table1/2 (.md and .csv): ours beside the paper's (on the paper's arm only: elsewhere the
     paper's numbers, of another arm, are left out), steady state, gains; ablation tables."""
@@ -439,9 +563,8 @@ def write_tables(metrics: dict, out: Path) -> None:
         header = ["row"] + [f"joint {j + 1}" for j in range(n)] + ["mean"]
         rows = []
         for name in PAPER_CONTROLLERS:
-            ep = block[name]["Ep"]
             label = f"{name} (ours" + (f", mean of {len(block[name]['seeds'])} seeds)" if case == "noisy" else ")")
-            rows.append([label] + [_fmt(x) for x in ep] + [_fmt(np.mean(ep))])
+            rows.append([label] + _held_cells(block[name]))
             if case == "noisy":
                 rows.append([f"{name} (ours, std over seeds)"] + [_fmt(x) for x in block[name]["Ep_std"]] + [""])
             if paper_arm:
@@ -450,18 +573,11 @@ def write_tables(metrics: dict, out: Path) -> None:
         bound = block["MPC_dry_arm_bound"]["Ep"]
         rows.append(["MPC on the arm without water (bound)"] + [_fmt(x) for x in bound] + [_fmt(np.mean(bound))])
         for name in EXTRA_ROWS:
-            ep = block[name]["Ep"]
             label = "hydroarm's flagship: GP-IDMPC, Kalman filter" if name == BEST else f"{name[:-3]} + Kalman filter"
-            rows.append([label] + [_fmt(x) for x in ep] + [_fmt(np.mean(ep))])
+            rows.append([label] + _held_cells(block[name]))
         for name in ROWS:
-            steady = block[name]["Ep_steady"]
-            rows.append([f"{name} (ours, t > 2 s)"] + [_fmt(x) for x in steady] + [_fmt(np.mean(steady))])
-        gain = block["gain_gp_mpc_over_mpc_percent"]
-        rows.append(
-            ["GP-MPC gain over MPC, % (ours)"]
-            + [f"{g:.1f}" for g in gain["per_joint"]]
-            + [f"{gain['mean_of_joints']:.1f}"]
-        )
+            rows.append([f"{name} (ours, t > 2 s)"] + _held_cells(block[name], "Ep_steady"))
+        rows.append(["GP-MPC gain over MPC, % (ours)"] + _gain_cells(block))
         if paper_arm:
             paper_gain = gain_percent(PAPER_EP[case]["MPC"][:n], PAPER_EP[case]["GP-MPC"][:n])
             rows.append(
@@ -473,16 +589,13 @@ def write_tables(metrics: dict, out: Path) -> None:
             + [f"{g:.1f}" for g in bound_gain]
             + [f"{np.mean(bound_gain):.1f}"]
         )
-        rows.append(
-            ["GP-MPC gain, t > 2 s, % (ours)"]
-            + [f"{g:.1f}" for g in gain["steady_per_joint"]]
-            + [f"{np.mean(gain['steady_per_joint']):.1f}"]
-        )
+        rows.append(["GP-MPC gain, t > 2 s, % (ours)"] + _gain_cells(block, "Ep_steady"))
         title = (
             f"Table 1: E_p (rad^2){on_arm}, no measurement noise"
             if case == "clean"
             else f"Table 2: E_p (rad^2){on_arm}, measurement noise of variance 0.001"
         )
+        title += spread_note(block, case)
         duration = settings.get("experiment", {}).get("duration", PAPER_DURATION)
         if paper_arm and duration != PAPER_DURATION:
             title += (
@@ -529,6 +642,20 @@ def write_tables(metrics: dict, out: Path) -> None:
         )
 
 
+def _gain_cells(block: dict, key: str = "Ep") -> list[str]:
+    """GP-MPC's gain over MPC per joint and its mean of joints (%), from the GP-MPC row's held
+    numbers (:func:`held`) and with their spread (MPC's own is at round-off)."""
+    values, spread, _, _ = held(block["GP-MPC"], key)
+    mpc = block["MPC"][key]
+    gains = gain_percent(mpc, values)
+    if spread is None:
+        return [f"{g:.1f}" for g in gains] + [f"{np.mean(gains):.1f}"]
+    spreads = [100.0 * e / b if b > 0 else math.nan for e, b in zip(spread, mpc)]
+    cells = [held_digits(g, max(e, 0.05)) for g, e in zip(gains, spreads)]
+    mean_spread = float(np.sqrt(np.sum(np.square(spreads)))) / len(spreads)  # joints independent
+    return cells + [held_digits(float(np.mean(gains)), max(mean_spread, 0.05))]
+
+
 def _write_table(stem: Path, title: str, header: list[str], rows: list[list[str]]) -> None:
     with stem.with_suffix(".csv").open("w", newline="") as handle:
         writer = csv.writer(handle)
@@ -573,6 +700,8 @@ class Study:
     ablation: bool
     quick: bool
     runs: list[RunSpec]
+    replicas: int = 1
+    """K, the runs of each clean row of :data:`REPLICATED_ROWS` (:data:`DEFAULT_REPLICAS`)."""
 
     def settings(self) -> dict:
         """The settings that determine the results (the output folder's manifest)."""
@@ -581,12 +710,16 @@ class Study:
             "noisy_seeds": self.noisy_seeds,
             "ablation": self.ablation,
             "quick": self.quick,
+            "replicas": self.replicas,
         }
 
     def description(self) -> str:
         what = "--quick" if self.quick else f"{self.base.duration:g} s"
         ablation = "ablation" if self.ablation else "no ablation"
-        return f"hydroarm reproduce --arm {self.base.arm} ({what}, {self.noisy_seeds} noisy seeds, {ablation})"
+        return (
+            f"hydroarm reproduce --arm {self.base.arm} ({what}, {self.noisy_seeds} noisy seeds, {ablation}, "
+            f"{self.replicas} replicas)"
+        )
 
 
 def plan_study(
@@ -594,6 +727,7 @@ def plan_study(
     noisy_seeds: int | None = None,
     ablation: bool | None = None,
     config: ExperimentConfig | None = None,
+    replicas: int | None = None,
 ) -> Study:
     """The study :func:`reproduce` runs for these arguments (see there)."""
     base = config if config is not None else ExperimentConfig()
@@ -601,7 +735,10 @@ def plan_study(
         base = with_overrides(base, {"duration": 3.0})
     seeds = noisy_seeds if noisy_seeds is not None else (2 if quick else 5)
     do_ablation = ablation if ablation is not None else not quick
-    return Study(base, seeds, do_ablation, quick, plan_runs(base, seeds, do_ablation))
+    count = replicas if replicas is not None else DEFAULT_REPLICAS["quick" if quick else "full"]
+    if not (isinstance(count, int) and 1 <= count <= MAX_REPLICAS):
+        raise ConfigError(f"replicas = {count!r}: must be an integer in [1, {MAX_REPLICAS}] (runs per replicated row)")
+    return Study(base, seeds, do_ablation, quick, plan_runs(base, seeds, do_ablation, count), count)
 
 
 def claim_folder(out: Path, study: Study, overwrite: bool = False, dry_run: bool = False) -> None:
@@ -642,6 +779,7 @@ def reproduce(
     on_progress: ProgressHook | None = None,
     on_step: ProgressHook | None = None,
     overwrite: bool = False,
+    replicas: int | None = None,
 ) -> dict:
     """Run the whole study into ``out`` (see the module docstring); returns summary.json's content.
 
@@ -650,10 +788,11 @@ def reproduce(
     (finished or reused); ``on_step(k, total, label)``: the control steps of a run.
     A folder holding results of other settings is refused
     (:class:`~hydroarm.studies.outputs.OutputConflict`) unless ``overwrite`` (see
-    :func:`claim_folder`).
+    :func:`claim_folder`). ``replicas``: K, the runs of each clean row of
+    :data:`REPLICATED_ROWS` (default :data:`DEFAULT_REPLICAS`: 8, quick 4; 1 = none).
     """
     out = Path(out)
-    study = plan_study(quick, noisy_seeds, ablation, config)
+    study = plan_study(quick, noisy_seeds, ablation, config, replicas)
     claim_folder(out, study, overwrite)
     base, seeds, do_ablation, runs = study.base, study.noisy_seeds, study.ablation, study.runs
     arm = load_arm(base.arm)
@@ -668,6 +807,9 @@ def reproduce(
         "noisy_seeds": seeds,
         "quick": quick,
         "ablation": do_ablation,
+        "replicas": study.replicas,
+        "replica_offset_rad": REPLICA_OFFSET,
+        "replicated_rows": list(REPLICATED_ROWS),
         "workers": workers,
         "paper_arm": paper,
         "arm": arm_summary(arm, base),

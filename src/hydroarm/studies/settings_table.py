@@ -211,17 +211,22 @@ def _sections(rows: list[SettingRow]) -> dict[str, list[SettingRow]]:
     return grouped
 
 
-def settings_text(rows: list[SettingRow], columns: int | None = None) -> str:
+def settings_text(
+    rows: list[SettingRow], columns: int | None = None, titles: dict[str, str] | None = None, top: str | None = None
+) -> str:
     """Plain text, one line per key: ``key = default  [kind; allowed]  description``; with
     ``columns`` (a terminal's width), a key whose line would be wider gets ``key = default
-    [kind; allowed]`` on one line and its description wrapped below it, indented."""
+    [kind; allowed]`` on one line and its description wrapped below it, indented. ``titles``:
+    each section's line (default: the run's sections); ``top``: the title of the keys outside a
+    section (default: the run's top level)."""
     import textwrap
 
-    titles = section_descriptions()
+    titles = section_descriptions() if titles is None else titles
+    top = "top level: the run" if top is None else top
     width = min(48, max(len(f"{row.key} = {_shown(row.default)}") for row in rows))
     lines = []
     for section, members in _sections(rows).items():
-        title = f"[{section}]  {titles.get(section, '')}" if section else "top level: the run"
+        title = f"[{section}]  {titles.get(section, '')}" if section else top
         lines += textwrap.wrap(title, columns, subsequent_indent="    ") if columns else [title]
         for row in members:
             left = f"{row.key} = {_shown(row.default)}"
@@ -234,6 +239,28 @@ def settings_text(rows: list[SettingRow], columns: int | None = None) -> str:
             lines += textwrap.wrap(row.description, columns, initial_indent="      ", subsequent_indent="      ")
         lines.append("")
     return "\n".join(lines)
+
+
+def other_settings_text(columns: int | None = None) -> str:
+    """The settings beside a run's, as :func:`settings_text` prints them: the sweep's model
+    mismatch (``mismatch.*``) and the replay's (``hydroarm replay`` / ``calibrate --set``, and a
+    calibrated vehicle file's ``[replay]`` table), so that plain ``hydroarm settings`` lists every
+    section that ``--markdown`` does."""
+    from hydroarm.studies.replay import ReplayConfig
+    from hydroarm.studies.sweep.schema import Mismatch
+
+    mismatch = settings_text(
+        settings_table(Mismatch, "mismatch."),
+        columns,
+        titles={"mismatch": "the true plant's model mismatch: sweep files and hydroarm run --set (not --config)"},
+    )
+    replay = settings_text(
+        settings_table(ReplayConfig),
+        columns,
+        titles=section_descriptions(ReplayConfig),
+        top="replay: hydroarm replay / calibrate --set key=value, or a calibrated vehicle file's [replay] table",
+    )
+    return mismatch + "\n" + replay
 
 
 def settings_json(rows: list[SettingRow]) -> str:

@@ -23,7 +23,13 @@ from typing import NamedTuple
 import numpy as np
 
 from hydroarm.control.gp._cholesky import _cholesky_inverse
-from hydroarm.control.gp._compiled import _NO_FACTOR, _evaluate_kernel, _predict_kernel
+from hydroarm.control.gp._compiled import (
+    _NO_FACTOR,
+    _evaluate_kernel,
+    _kernel_matrices,
+    _predict_kernel,
+    _solve_kernel,
+)
 
 LOG_2PI = math.log(2.0 * math.pi)
 
@@ -138,8 +144,9 @@ def _evaluate_numpy(
 
 
 def _solve_with_factor(linv: np.ndarray, Y_fit: np.ndarray) -> np.ndarray:
-    """alpha = K^-1 y = Linv^T (Linv y) per output, (o, n), two O(n^2) products."""
-    return np.einsum("oba,ob->oa", linv, np.einsum("oab,ob->oa", linv, Y_fit))
+    """alpha = K^-1 y = Linv^T (Linv y) per output, (o, n), two O(n^2) products (compiled,
+    in `_evaluate_kernel`'s order)."""
+    return _solve_kernel(np.ascontiguousarray(linv, dtype=np.float64), np.ascontiguousarray(Y_fit, dtype=np.float64))
 
 
 def _predict_with_factor_numpy(window: _Window, X_star, log_theta, linv, alpha):
@@ -163,20 +170,25 @@ def _evaluate(
     with_gradient: bool,
     cached: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> _Evaluation:
-    """`_evaluate_numpy` by the compiled kernel; `_evaluate_numpy` reruns if a Cholesky fails."""
-    result = _evaluate_kernel(
-        np.ascontiguousarray(window.X, dtype=np.float64),
-        np.ascontiguousarray(Y_fit, dtype=np.float64),
-        np.ascontiguousarray(log_theta, dtype=np.float64),
-        np.ascontiguousarray(sn2, dtype=np.float64),
-        float(jitter),
-        _NO_FACTOR if cached is None else np.ascontiguousarray(cached[0]),
-        bool(with_gradient),
-    )
+    """`_evaluate_numpy` by the compiled kernels (fixed-order loops, no BLAS / LAPACK: the same
+    bits on any CPU). If a Cholesky fails, the factors are recomputed with the jitter ladder
+    (`_cholesky_inverse`) and the evaluation reruns on them."""
+    X = np.ascontiguousarray(window.X, dtype=np.float64)
+    Y_fit = np.ascontiguousarray(Y_fit, dtype=np.float64)
+    log_theta = np.ascontiguousarray(log_theta, dtype=np.float64)
+    sn2 = np.ascontiguousarray(sn2, dtype=np.float64)
+    cached_linv = _NO_FACTOR if cached is None else np.ascontiguousarray(cached[0])
+    result = _evaluate_kernel(X, Y_fit, log_theta, sn2, float(jitter), cached_linv, bool(with_gradient))
     lml, grad, half_trace_w, alpha, linv, linv_finite, factorised = result
-    if not factorised:
-        return _evaluate_numpy(window, Y_fit, log_theta, sn2, jitter, max_jitter_retries, with_gradient, cached)
-    if cached is None:
+    if not factorised:  # a Cholesky failed: the jitter ladder, then the evaluation on its factors
+        K = _kernel_matrices(X, X, log_theta)
+        diagonal = np.arange(window.n)
+        K[:, diagonal, diagonal] += (sn2 + jitter)[:, None]
+        linv, extra_diag, ok, _ = _cholesky_inverse(K, max_jitter_retries)
+        result = _evaluate_kernel(X, Y_fit, log_theta, sn2, float(jitter), linv, bool(with_gradient))
+        lml, grad, half_trace_w, alpha = result[:4]
+        ok = ok & np.isfinite(lml)
+    elif cached is None:
         extra_diag, ok = np.zeros(log_theta.shape[0]), linv_finite & np.isfinite(lml)
     else:
         extra_diag, ok = cached[1], np.isfinite(lml)

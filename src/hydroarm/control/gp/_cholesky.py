@@ -4,6 +4,9 @@ ladder, and the O(N^2) update of a sliding window's factor.
 Every factor here is the *inverse* lower Cholesky factor ``Linv = L^-1`` of
 ``K = L L^T`` (what prediction and the gradient need), stacked over outputs: (o, n, n).
 
+Everything here runs in compiled fixed-order loops or elementwise NumPy (no LAPACK / BLAS,
+no CPU-dispatched reduction): the same bits on any x86-64 CPU (issue 29).
+
 Full factorisation (`_cholesky_inverse`): a failed Cholesky is retried with extra
 diagonal ``mean_diag * 1e-10 * 100**r``, r = 0 .. max_jitter_retries-1; an output that
 still fails gets ``ok = False`` and a NaN factor.
@@ -21,8 +24,11 @@ Window update at fixed hyperparameters, O(N^2) instead of O(N^3):
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
-from scipy.linalg.lapack import dpotrf, dtrtri
+
+from hydroarm.control.gp._compiled import _append_kernel, _factor_rows
 
 # Extra diagonal tried after a failed Cholesky, relative to the mean diagonal.
 _JITTER_LADDER_START = 1e-10
@@ -33,47 +39,29 @@ def _cholesky_inverse(K: np.ndarray, max_jitter_retries: int):
     """Inverse lower Cholesky factors of the stacked SPD matrices K (o, n, n).
 
     Returns (linv (o, n, n), extra_diag (o,), ok (o,) bool, n_jittered (int)).
-    Fast path: one batched np.linalg.cholesky plus a LAPACK dtrtri per output.
-    If any output fails, each is factorised alone; a failed one is retried
-    with extra diagonal mean_diag * 1e-10 * 100**r, r = 0 .. max_jitter_retries-1;
-    outputs that still fail get ok = False and a NaN linv.
+    Compiled fixed-order loops (`_compiled._factor_rows`: no LAPACK / BLAS, the same bits on
+    any CPU). An output whose Cholesky fails is retried with extra diagonal
+    mean_diag * 1e-10 * 100**r, r = 0 .. max_jitter_retries-1; outputs that still fail, or
+    whose inverse is not finite (overflow), get ok = False and a NaN linv.
     """
     n_out, n, _ = K.shape
+    K = np.ascontiguousarray(K, dtype=np.float64)
     extra_diag = np.zeros(n_out)
-    ok = np.ones(n_out, dtype=bool)
-    try:
-        chol = np.linalg.cholesky(K)
-    except np.linalg.LinAlgError:
-        chol = None
-    if chol is not None:
-        # dtrtri on the F-contiguous transpose (upper) avoids a copy; result transposed back.
-        linv = np.array([dtrtri(chol[o].T, lower=0)[0].T for o in range(n_out)])
-        finite = np.isfinite(linv.sum(axis=(1, 2)))  # a sum propagates any inf / NaN
-        if not finite.all():  # overflow in the inverse of a nearly singular factor
-            ok = finite
-            linv[~ok] = np.nan
-        return linv, extra_diag, ok, 0
-
-    linv = np.empty_like(K)
+    linv, status = _factor_rows(K, extra_diag)
     n_jittered = 0
-    for o in range(n_out):
-        factor, info = dpotrf(K[o], lower=1, clean=1)
-        if info != 0:
-            extra = _JITTER_LADDER_START * float(np.trace(K[o])) / n
-            for _ in range(max_jitter_retries):
-                factor, info = dpotrf(K[o] + extra * np.eye(n), lower=1, clean=1)
-                if info == 0:
+    for o in np.flatnonzero(status == 1):
+        extra = _JITTER_LADDER_START * math.fsum(np.diagonal(K[o]).tolist()) / n
+        for _ in range(max_jitter_retries):
+            factor, row_status = _factor_rows(K[o : o + 1], np.array([extra]))
+            if row_status[0] != 1:
+                linv[o], status[o] = factor[0], row_status[0]
+                if row_status[0] == 0:
                     extra_diag[o] = extra
                     n_jittered += 1
-                    break
-                extra *= _JITTER_LADDER_FACTOR
-        if info == 0:
-            inverse, info = dtrtri(factor, lower=1)
-        if info != 0 or not np.all(np.isfinite(inverse)):
-            ok[o] = False
-            linv[o] = np.nan
-            continue
-        linv[o] = inverse
+                break
+            extra *= _JITTER_LADDER_FACTOR
+    ok = status == 0
+    linv[~ok] = np.nan
     return linv, extra_diag, ok, n_jittered
 
 
@@ -100,15 +88,10 @@ def _drop_oldest(linv: np.ndarray) -> np.ndarray:
 
 def _append_sample(linv: np.ndarray, k_new: np.ndarray, kappa: np.ndarray, min_schur: np.ndarray):
     """Inverse factor (o, n+1, n+1) after appending a sample with kernel column k_new (o, n)
-    and prior diagonal kappa (o,); None if a Schur complement falls below min_schur (o,)."""
-    c = np.einsum("oab,ob->oa", linv, k_new)
-    schur = kappa - np.einsum("oa,oa->o", c, c)
-    if not (np.all(np.isfinite(schur)) and np.all(schur > min_schur)):
-        return None
-    delta = np.sqrt(schur)
-    n_out, n, _ = linv.shape
-    grown = np.zeros((n_out, n + 1, n + 1))
-    grown[:, :n, :n] = linv
-    grown[:, n, :n] = -np.einsum("oba,ob->oa", linv, c) / delta[:, None]
-    grown[:, n, n] = 1.0 / delta
-    return grown
+    and prior diagonal kappa (o,); None if a Schur complement falls below min_schur (o,).
+    Compiled fixed-order loops (`_compiled._append_kernel`)."""
+    grown, ok = _append_kernel(
+        np.ascontiguousarray(linv, dtype=np.float64), np.ascontiguousarray(k_new, dtype=np.float64),
+        np.ascontiguousarray(kappa, dtype=np.float64), np.ascontiguousarray(min_schur, dtype=np.float64),
+    )  # fmt: skip
+    return grown if ok else None

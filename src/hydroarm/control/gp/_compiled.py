@@ -3,9 +3,12 @@ functions of `_batched` (`_evaluate_numpy`, `_predict_with_factor_numpy`), in pl
 one call per batched evaluation instead of some 40 small NumPy calls.
 
 They differ from the NumPy versions only by rounding (summation order); tests compare the
-two. A Cholesky that fails in `_evaluate_kernel` (a pivot <= 0 or NaN, LAPACK dpotrf's
-test) returns ``factorised = False``: the caller (`_batched._evaluate`) then reruns the
-NumPy version, whose jitter ladder and fault events apply unchanged. Compiled on first
+two. Unlike NumPy's (BLAS, LAPACK, SIMD exp chosen per CPU) their order of operations is
+fixed (no fastmath: no reassociation, no FMA contraction; scalar libm exp), so the same
+inputs give the same bits on any x86-64 CPU (issue 29). A Cholesky that fails in
+`_evaluate_kernel` (a pivot at round-off level or below, or NaN: `_PIVOT_FLOOR`) returns
+``factorised = False``: the caller (`_batched._evaluate`) then runs the jitter ladder
+(`_cholesky._cholesky_inverse`, compiled too) and evaluates on its factors. Compiled on first
 use and cached on disk (``cache=True``), like ``hydroarm.model.water``.
 """
 
@@ -16,14 +19,13 @@ import math
 import numba
 import numpy as np
 
+_PIVOT_FLOOR = 8.0 * 2.220446049250313e-16
+"""A Cholesky pivot must exceed this times its diagonal entry: a pivot at round-off level is
+what an exactly singular K (two equal samples, no noise) leaves, and its sign is chance (LAPACK
+only tests > 0, so its verdict there depends on its kernel's rounding)."""
+
 _NO_FACTOR = np.empty((0, 0, 0))
 """Empty ``cached_linv`` argument of `_evaluate_kernel`: factorise."""
-
-# Windows above this size factorise with LAPACK's blocked Cholesky and triangular inverse
-# (no gradient needed) instead of the unblocked compiled loops: the measured crossover
-# (docs/controllers.md, "The GP: measured choices"). With the gradient the compiled kernel
-# is used at every size.
-_COMPILED_FACTOR_MAX_WINDOW = 60
 
 
 @numba.njit(cache=True)
@@ -85,36 +87,10 @@ def _evaluate_kernel(X, Y_fit, log_theta, sn2, jitter, cached_linv, with_gradien
                 p += 1
         lr = linv[r]
         if not use_cached:
-            # Cholesky K = L L^T, K = K_signal + (sn2 + jitter) I
-            noise = sn2[r] + jitter
-            for j in range(n):
-                s = k_signal[j, j] + noise
-                for k in range(j):
-                    s -= chol[j, k] * chol[j, k]
-                if not s > 0.0:
-                    return lml, grad, half_trace_w, alpha, linv, linv_finite, False
-                pivot = math.sqrt(s)
-                chol[j, j] = pivot
-                for i in range(j + 1, n):
-                    s = k_signal[i, j]
-                    for k in range(j):
-                        s -= chol[i, k] * chol[j, k]
-                    chol[i, j] = s / pivot
-            # L^-1, lower triangular
-            for j in range(n):
-                lr[j, j] = 1.0 / chol[j, j]
-                for i in range(j + 1, n):
-                    s = 0.0
-                    for k in range(j, i):
-                        s += chol[i, k] * lr[k, j]
-                    lr[i, j] = -s / chol[i, i]
-                for i in range(j):
-                    lr[i, j] = 0.0
-            total = 0.0
-            for a in range(n):
-                for b in range(a + 1):
-                    total += lr[a, b]
-            if not np.isfinite(total):
+            status = _factor_inverse(k_signal, sn2[r] + jitter, chol, lr)
+            if status == 1:
+                return lml, grad, half_trace_w, alpha, linv, linv_finite, False
+            if status == 2:
                 linv_finite[r] = False
                 lr[:, :] = np.nan
         # alpha = K^-1 y = L^-T (L^-1 y), two triangular products: more accurate than forming
@@ -202,3 +178,138 @@ def _predict_kernel(X_star, X, log_theta, linv, alpha):  # pragma: no cover - co
             mean[r, i] = mu
             var[r, i] = max(math.exp(log_sf2) - explained, 0.0)
     return mean, var
+
+
+@numba.njit(cache=True)
+def _factor_inverse(k, noise, chol, lr):  # pragma: no cover - compiled
+    """The inverse lower Cholesky factor ``lr`` (n, n) of ``k + noise I`` (k's lower triangle
+    read), ``chol`` (n, n) a work array: 0 done, 1 a pivot not above `_PIVOT_FLOOR` times its
+    diagonal entry or NaN (``lr`` undefined), 2 the inverse is not finite. Fixed-order loops
+    (no LAPACK / BLAS)."""
+    n = k.shape[0]
+    for j in range(n):
+        diagonal = k[j, j] + noise
+        s = diagonal
+        for p in range(j):
+            s -= chol[j, p] * chol[j, p]
+        if not s > _PIVOT_FLOOR * diagonal:
+            return 1
+        pivot = math.sqrt(s)
+        chol[j, j] = pivot
+        for i in range(j + 1, n):
+            s = k[i, j]
+            for p in range(j):
+                s -= chol[i, p] * chol[j, p]
+            chol[i, j] = s / pivot
+    for j in range(n):  # L^-1, lower triangular
+        lr[j, j] = 1.0 / chol[j, j]
+        for i in range(j + 1, n):
+            s = 0.0
+            for p in range(j, i):
+                s += chol[i, p] * lr[p, j]
+            lr[i, j] = -s / chol[i, i]
+        for i in range(j):
+            lr[i, j] = 0.0
+    total = 0.0
+    for a in range(n):
+        for b in range(a + 1):
+            total += lr[a, b]
+    return 0 if np.isfinite(total) else 2
+
+
+@numba.njit(cache=True)
+def _factor_rows(K, extra):  # pragma: no cover - compiled
+    """``(linv (o, n, n), status (o,))``: `_factor_inverse` of each K[o] + extra[o] I."""
+    n_out, n, _ = K.shape
+    linv = np.empty((n_out, n, n))
+    status = np.empty(n_out, dtype=np.int64)
+    chol = np.empty((n, n))
+    for o in range(n_out):
+        status[o] = _factor_inverse(K[o], extra[o], chol, linv[o])
+    return linv, status
+
+
+@numba.njit(cache=True)
+def _kernel_matrices(X1, X2, log_theta):  # pragma: no cover - compiled
+    """(o, n1, n2) k(X1[a], X2[b]) per row of log_theta, in `_evaluate_kernel`'s order of
+    operations (the same bits)."""
+    n_out = log_theta.shape[0]
+    n1, d = X1.shape
+    out = np.empty((n_out, n1, X2.shape[0]))
+    for a in range(n1):
+        out[:, a, :] = _kernel_column(X1[a], X2, log_theta)
+    return out
+
+
+@numba.njit(cache=True)
+def _kernel_column(x_new, X_old, log_theta):  # pragma: no cover - compiled
+    """(o, n) k(x_new, X_old[b]) per row of log_theta, in `_evaluate_kernel`'s order of
+    operations (the same bits as the full kernel matrix's last row)."""
+    n_out = log_theta.shape[0]
+    n, d = X_old.shape
+    out = np.empty((n_out, n))
+    inv_l2 = np.empty(d)
+    for r in range(n_out):
+        for j in range(d):
+            inv_l2[j] = math.exp(-2.0 * log_theta[r, 2 + j])
+        log_sf2 = log_theta[r, 0]
+        for b in range(n):
+            s = 0.0
+            for j in range(d):
+                diff = x_new[j] - X_old[b, j]
+                s += inv_l2[j] * (-0.5 * diff * diff)
+            out[r, b] = math.exp(s + log_sf2)
+    return out
+
+
+@numba.njit(cache=True)
+def _append_kernel(linv, k_new, kappa, min_schur):  # pragma: no cover - compiled
+    """``(grown (o, n+1, n+1), ok)``: the inverse factor after appending a sample with kernel
+    column k_new (o, n) and prior diagonal kappa (o,); ok False if a Schur complement is not
+    finite or not above min_schur (o,). c = Linv k, delta = sqrt(kappa - |c|^2), new last
+    row [-(Linv^T c) / delta, 1 / delta]."""
+    n_out, n, _ = linv.shape
+    grown = np.zeros((n_out, n + 1, n + 1))
+    c = np.empty(n)
+    for o in range(n_out):
+        for a in range(n):
+            s = 0.0
+            for b in range(a + 1):
+                s += linv[o, a, b] * k_new[o, b]
+            c[a] = s
+        schur = kappa[o]
+        for a in range(n):
+            schur -= c[a] * c[a]
+        if not (np.isfinite(schur) and schur > min_schur[o]):
+            return grown, False
+        delta = math.sqrt(schur)
+        for a in range(n):
+            for b in range(a + 1):
+                grown[o, a, b] = linv[o, a, b]
+        for a in range(n):
+            s = 0.0
+            for b in range(a, n):
+                s += linv[o, b, a] * c[b]
+            grown[o, n, a] = -s / delta
+        grown[o, n, n] = 1.0 / delta
+    return grown, True
+
+
+@numba.njit(cache=True)
+def _solve_kernel(linv, Y_fit):  # pragma: no cover - compiled
+    """alpha = K^-1 y = Linv^T (Linv y) per row (o, n), in `_evaluate_kernel`'s order."""
+    n_out, n, _ = linv.shape
+    alpha = np.empty((n_out, n))
+    whitened = np.empty(n)
+    for r in range(n_out):
+        for a in range(n):
+            s = 0.0
+            for b in range(a + 1):
+                s += linv[r, a, b] * Y_fit[r, b]
+            whitened[a] = s
+        for a in range(n):
+            s = 0.0
+            for k in range(a, n):
+                s += linv[r, k, a] * whitened[k]
+            alpha[r, a] = s
+    return alpha

@@ -24,18 +24,17 @@ from hydroarm.config import field_error
 from hydroarm.control.gp._batched import (
     _evaluate,
     _Evaluation,
-    _neg_half_sq_diff_t,
     _predict_with_factor,
     _rows,
-    _signal_kernels,
     _solve_with_factor,
     _Window,
 )
 from hydroarm.control.gp._checks import _check_matrix, _check_thetas, _check_vector, _is_int
 from hydroarm.control.gp._cholesky import _append_sample, _cholesky_inverse, _drop_oldest
-from hydroarm.control.gp._compiled import _COMPILED_FACTOR_MAX_WINDOW, _NO_FACTOR, _evaluate_kernel
+from hydroarm.control.gp._compiled import _NO_FACTOR, _evaluate_kernel, _kernel_column, _kernel_matrices
 from hydroarm.control.gp.config import GPConfig
 from hydroarm.control.gp.events import FAULTS, GPStats
+from hydroarm.model.fixed_order import exp
 
 __all__ = ["SlidingWindowGP"]
 
@@ -229,12 +228,12 @@ class SlidingWindowGP:
         self.stats.n_incremental_updates += 1
 
     def _append_to_factor(self, linv: np.ndarray, x_scaled: np.ndarray):
-        X_old = self._X[:-1]
-        k_new = _signal_kernels(_neg_half_sq_diff_t(x_scaled[None], X_old), 1, X_old.shape[0], self._log_theta)
-        noise = np.exp(self._log_theta[:, 1]) + self.config.jitter + self._extra_diag
-        kappa = np.exp(self._log_theta[:, 0]) + noise
+        X_old = np.ascontiguousarray(self._X[:-1])
+        k_new = _kernel_column(np.ascontiguousarray(x_scaled, dtype=np.float64), X_old, self._log_theta)
+        noise = exp(self._log_theta[:, 1]) + self.config.jitter + self._extra_diag
+        kappa = exp(self._log_theta[:, 0]) + noise
         # The exact Schur complement is >= the diagonal noise; much less means round-off drift.
-        return _append_sample(linv, k_new[:, 0, :], kappa, 0.5 * noise)
+        return _append_sample(linv, k_new, kappa, 0.5 * noise)
 
     def _current_window(self) -> _Window:
         """Cached window data; targets standardised per output if normalize_y
@@ -265,7 +264,7 @@ class SlidingWindowGP:
         if cached is None:
             self.stats.n_full_factorizations += n_repeats
         return _evaluate(
-            window, Y_fit, log_theta, np.exp(log_theta[:, 1]), cfg.jitter, cfg.max_jitter_retries, True, cached
+            window, Y_fit, log_theta, exp(log_theta[:, 1]), cfg.jitter, cfg.max_jitter_retries, True, cached
         )
 
     def _count_factorization_events(self, evaluation: _Evaluation, relevant: np.ndarray | None = None) -> None:
@@ -279,19 +278,19 @@ class SlidingWindowGP:
         if self._linv is not None:
             return
         n = window.n
-        sn2 = np.exp(self._log_theta[:, 1])
-        compiled = (None,) * 7
-        if n <= _COMPILED_FACTOR_MAX_WINDOW:
-            compiled = _evaluate_kernel(
-                np.ascontiguousarray(window.X), window.Y_fit, self._log_theta, sn2, float(self.config.jitter),
-                _NO_FACTOR, False,
-            )  # fmt: skip
+        sn2 = exp(self._log_theta[:, 1])
+        compiled = _evaluate_kernel(
+            np.ascontiguousarray(window.X), window.Y_fit, self._log_theta, sn2, float(self.config.jitter),
+            _NO_FACTOR, False,
+        )  # fmt: skip
         if compiled[6]:  # every Cholesky succeeded: the factor (and alpha) as the NumPy path below
             linv, extra_diag, ok, n_jittered = compiled[4], np.zeros(self.n_outputs), compiled[5], 0
             alpha = compiled[3]
         else:
-            K_signal = _signal_kernels(window.neg_half_sq_diff_t, n, n, self._log_theta)
-            K = K_signal + (sn2 + self.config.jitter)[:, None, None] * window.eye
+            X = np.ascontiguousarray(window.X)
+            K = _kernel_matrices(X, X, self._log_theta)
+            diagonal = np.arange(n)
+            K[:, diagonal, diagonal] += (sn2 + self.config.jitter)[:, None]
             linv, extra_diag, ok, n_jittered = _cholesky_inverse(K, self.config.max_jitter_retries)
             alpha = None
         self.stats.n_full_factorizations += 1
@@ -457,10 +456,11 @@ class SlidingWindowGP:
             X_star = _check_matrix("x_star", x_star, n_cols=self.n_inputs)
         X_star = X_star * self._inv_input_scale
         log_theta = self._log_theta
-        sn2 = np.exp(log_theta[:, 1:2]) if include_noise else 0.0
+        sn2 = exp(log_theta[:, 1])[:, None] if include_noise else 0.0
+        sf2 = exp(log_theta[:, 0])[:, None]
         if self.n_samples == 0:
             mean = np.zeros((self.n_outputs, X_star.shape[0]))
-            var = np.broadcast_to(np.exp(log_theta[:, :1]) + sn2, mean.shape).copy()
+            var = np.broadcast_to(sf2 + sn2, mean.shape).copy()
         else:
             window = self._current_window()
             self._ensure_factor(window)
@@ -472,7 +472,7 @@ class SlidingWindowGP:
             else:  # prior for outputs without a factor
                 self._record_faults(priors=int(self.n_outputs - ok.sum()))
                 mean = np.zeros((self.n_outputs, X_star.shape[0]))
-                var = np.tile(np.exp(log_theta[:, :1]), (1, X_star.shape[0]))
+                var = np.tile(sf2, (1, X_star.shape[0]))
                 if ok.any():
                     mean[ok], var[ok] = _predict_with_factor(
                         window, X_star, log_theta[ok], self._linv[ok], self._alpha[ok]

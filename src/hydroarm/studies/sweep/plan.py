@@ -107,6 +107,8 @@ def arm_digest(arm: Arm) -> str:
         "position_limit": None if arm.position_limit is None else arm.position_limit.tolist(),
         "frames": [[f.name, int(f.parentJoint), f.placement.homogeneous.tolist()] for f in model.frames],
     }
+    if np.any(model.armature != 0.0):  # only then: digests of arms made before armature stay as they were
+        content["armature"] = model.armature.tolist()
     return hashlib.sha256(json.dumps(content, sort_keys=True).encode()).hexdigest()[:16]
 
 

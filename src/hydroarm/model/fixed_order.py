@@ -1,0 +1,95 @@
+"""Small dense algebra in a fixed order of operations: the same inputs give the same bits on
+any x86-64 machine.
+
+NumPy's ``@``, ``np.dot``, ``np.linalg`` and numba's ``np.dot`` go through BLAS / LAPACK, whose
+kernels (OpenBLAS picks one per CPU: Haswell, SkylakeX, Sandybridge, ...) sum in different
+orders; NumPy's ``np.exp`` and ``einsum`` pick SIMD variants per CPU. In a closed loop that
+amplifies last-bit differences (a learner's accept / reject test, a chaotic plant) the results
+then depend on the machine (issue 29, docs/data/reproducibility.md). The functions here are
+plain loops compiled by numba without ``fastmath`` (no reassociation, no contraction into FMA:
+LLVM keeps the source order), summing in index order; ``math.exp`` is one libm call per
+element. Sizes are those of an arm (n <= ~20): BLAS gains nothing there.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+__all__ = ["exp", "matvec", "matmul", "cholesky_solve"]
+
+
+@numba.njit(cache=True)
+def exp(x):  # pragma: no cover - compiled
+    """Elementwise exp of a 1-D array by scalar libm calls (NumPy's SIMD exp differs per CPU)."""
+    out = np.empty(x.shape[0])
+    for i in range(x.shape[0]):
+        out[i] = math.exp(x[i])
+    return out
+
+
+@numba.njit(cache=True)
+def matvec(a, x):  # pragma: no cover - compiled
+    """``a @ x`` for a (m, n), x (n,): each entry summed in column order."""
+    m, n = a.shape
+    out = np.empty(m)
+    for i in range(m):
+        s = 0.0
+        for j in range(n):
+            s += a[i, j] * x[j]
+        out[i] = s
+    return out
+
+
+@numba.njit(cache=True)
+def matmul(a, b):  # pragma: no cover - compiled
+    """``a @ b`` for a (m, k), b (k, n): each entry summed in k order."""
+    m, k = a.shape
+    n = b.shape[1]
+    out = np.empty((m, n))
+    for i in range(m):
+        for j in range(n):
+            s = 0.0
+            for p in range(k):
+                s += a[i, p] * b[p, j]
+            out[i, j] = s
+    return out
+
+
+@numba.njit(cache=True)
+def cholesky_solve(a, b):  # pragma: no cover - compiled
+    """``(x, ok)``: x = a^-1 b for a symmetric positive definite (n, n) and b (n,) or (n, k),
+    by the Cholesky factor a = L L^T (lower triangle of a read) and two triangular solves.
+    ``ok`` False (x undefined) if a pivot is not > 0."""
+    n = a.shape[0]
+    rhs = b.reshape(n, -1)
+    k = rhs.shape[1]
+    chol = np.zeros((n, n))
+    for j in range(n):
+        s = a[j, j]
+        for p in range(j):
+            s -= chol[j, p] * chol[j, p]
+        if not s > 0.0:
+            return np.full(b.shape, np.nan), False
+        pivot = math.sqrt(s)
+        chol[j, j] = pivot
+        for i in range(j + 1, n):
+            s = a[i, j]
+            for p in range(j):
+                s -= chol[i, p] * chol[j, p]
+            chol[i, j] = s / pivot
+    x = np.empty((n, k))
+    for c in range(k):
+        for i in range(n):  # L z = b
+            s = rhs[i, c]
+            for p in range(i):
+                s -= chol[i, p] * x[p, c]
+            x[i, c] = s / chol[i, i]
+        for i in range(n - 1, -1, -1):  # L^T x = z
+            s = x[i, c]
+            for p in range(i + 1, n):
+                s -= chol[p, i] * x[p, c]
+            x[i, c] = s / chol[i, i]
+    return x.reshape(b.shape), True

@@ -1,0 +1,85 @@
+"""hydroarm.model.fixed_order: the small dense algebra in a fixed order of operations.
+
+Bitwise against plain-Python loops in the documented order (Python floats are IEEE doubles
+with the same rounding: equal bits prove the order, no reassociation and no FMA), and against
+SciPy / NumPy for the values. The GP's incremental factor update and solve (compiled) against
+the same closed forms.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import scipy.linalg
+
+from hydroarm.model import fixed_order
+
+
+def _python_matvec(a, x):
+    out = []
+    for row in a.tolist():
+        s = 0.0
+        for aij, xj in zip(row, x.tolist()):
+            s += aij * xj
+        out.append(s)
+    return np.array(out)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_matvec_and_matmul_sum_in_index_order(seed):
+    rng = np.random.default_rng(seed)
+    a = rng.normal(size=(7, 21)) * np.exp(rng.normal(scale=5.0, size=(7, 21)))  # wide range: order shows
+    x = rng.normal(size=21)
+    b = rng.normal(size=(21, 4))
+    np.testing.assert_array_equal(fixed_order.matvec(a, x), _python_matvec(a, x))
+    expected = np.stack([_python_matvec(a, b[:, j].copy()) for j in range(4)], axis=1)
+    np.testing.assert_array_equal(fixed_order.matmul(a, np.ascontiguousarray(b)), expected)
+    np.testing.assert_allclose(fixed_order.matmul(a, b), a @ b, rtol=1e-12, atol=1e-12 * np.abs(a @ b).max())
+
+
+def test_exp_is_libm_exp_elementwise():
+    x = np.linspace(-700.0, 700.0, 10001)
+    np.testing.assert_array_equal(fixed_order.exp(x), np.array([math.exp(v) for v in x.tolist()]))
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_cholesky_solve_against_scipy(seed):
+    rng = np.random.default_rng(seed)
+    a = rng.normal(size=(6, 6))
+    spd = a @ a.T + 0.1 * np.eye(6)
+    b = rng.normal(size=6)
+    B = rng.normal(size=(6, 3))
+    factor = scipy.linalg.cho_factor(spd, lower=True)
+    x, ok = fixed_order.cholesky_solve(spd, b)
+    assert ok
+    np.testing.assert_allclose(x, scipy.linalg.cho_solve(factor, b), rtol=1e-10)
+    X, ok = fixed_order.cholesky_solve(spd, B)
+    assert ok
+    np.testing.assert_allclose(X, scipy.linalg.cho_solve(factor, B), rtol=1e-10)
+    _, ok = fixed_order.cholesky_solve(-spd, b)  # not positive definite
+    assert not ok
+
+
+def test_gp_incremental_factor_is_the_full_factor():
+    """The O(N^2) append (compiled) gives the factor of the grown window: against SciPy's Cholesky."""
+    from hydroarm.control.gp._cholesky import _append_sample, _cholesky_inverse
+    from hydroarm.control.gp._compiled import _kernel_matrices, _solve_kernel
+
+    rng = np.random.default_rng(3)
+    X = rng.normal(size=(9, 4))
+    log_theta = np.log(rng.uniform(0.5, 2.0, size=(2, 6)))
+    K = _kernel_matrices(X, X, log_theta)
+    noise = np.exp(log_theta[:, 1])
+    K[:, range(9), range(9)] += noise[:, None]
+    linv, _, ok, _ = _cholesky_inverse(K[:, :8, :8].copy(), 0)
+    assert ok.all()
+    grown = _append_sample(linv, K[:, 8, :8].copy(), K[:, 8, 8].copy(), 0.5 * noise)
+    for o in range(2):
+        expected = scipy.linalg.solve_triangular(np.linalg.cholesky(K[o]), np.eye(9), lower=True)
+        np.testing.assert_allclose(grown[o], expected, rtol=1e-9, atol=1e-9 * np.abs(expected).max())
+    y = rng.normal(size=(2, 9))
+    alpha = _solve_kernel(grown, y)
+    for o in range(2):
+        np.testing.assert_allclose(alpha[o], np.linalg.solve(K[o], y[o]), rtol=1e-8)
