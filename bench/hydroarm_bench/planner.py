@@ -16,6 +16,7 @@ solver against DAQP side by side.
 from __future__ import annotations
 
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -26,6 +27,12 @@ NAME = "PI-IDMPC"
 SOLVERS = ("structured", "daqp")
 TARGETS_MS = {"median": 0.3, "p99": 1.0, "max": 5.0}
 DURATION_S = 10.0
+ARMS = {
+    "ur5": "ur5",
+    "alpha5": "alpha5",
+    "iiwa14": str(Path(__file__).resolve().parents[2] / "examples" / "urdf" / "iiwa14.hydro.toml"),
+}
+"""The other arms of the full suite's step rows (one 10 s run each per solver)."""
 
 
 def _planner_controller(controller):
@@ -35,60 +42,123 @@ def _planner_controller(controller):
     return controller
 
 
-def _one_run(solver: str, seed: int, duration: float = DURATION_S):
-    """(step seconds (compute + observe), replanned (bool per step), experiment's controller)."""
-    experiment = paper_experiment(NAME, duration, {"pi_idmpc.planner_solver": solver})
+PHASES = ("rollout", "linearise", "qp")
+"""The replan's parts timed apart: the IDMPC's closed loop on the model (``_rollout``), the
+linearisations along the plan (``linearised_rows``: RNEA derivatives, the water along the plan,
+the rows) and the QP solves (``_solve_qp``)."""
+
+
+def _timed(owner, name: str, clock: dict, counts: dict, key: str) -> None:
+    """Replace ``owner.name`` by a wrapper adding its seconds to ``clock[key]`` and 1 to ``counts[key]``."""
+    inner = getattr(owner, name)
+
+    def wrapper(*args, **kwargs):
+        start = time.perf_counter_ns()
+        try:
+            return inner(*args, **kwargs)
+        finally:
+            clock[key] += (time.perf_counter_ns() - start) * 1e-9
+            counts[key] += 1
+
+    setattr(owner, name, wrapper)
+
+
+def _one_run(solver: str, seed: int, duration: float = DURATION_S, overrides: dict | None = None):
+    """(step seconds (compute + observe), replanned (bool per step), phase seconds per step
+    ({phase: (steps,)}), phase calls per step, the experiment's PI-IDMPC)."""
+    experiment = paper_experiment(NAME, duration, {"pi_idmpc.planner_solver": solver, **(overrides or {})})
     pi = _planner_controller(experiment.controller)
-    replanned: list[bool] = []
-    attempts = [0]
-    inner_replan = pi._replan
-
-    def counted_replan(*args):
-        attempts[0] += 1
-        return inner_replan(*args)
-
-    pi._replan = counted_replan
+    clock = dict.fromkeys(("replan", *PHASES), 0.0)
+    counts = dict.fromkeys(("replan", *PHASES), 0)
+    _timed(pi, "_replan", clock, counts, "replan")
+    _timed(pi, "_rollout", clock, counts, "rollout")
+    _timed(pi.planner, "linearised_rows", clock, counts, "linearise")
+    _timed(pi.planner, "_solve_qp", clock, counts, "qp")
+    phases = {key: [] for key in clock}
+    calls = {key: [] for key in counts}
 
     def hook(_controller, _t, _y, _out):
-        replanned.append(attempts[0] > 0)
-        attempts[0] = 0
+        for key in clock:
+            phases[key].append(clock[key])
+            calls[key].append(counts[key])
+            clock[key], counts[key] = 0.0, 0
 
     timed = TimedController(experiment.controller, hook)
     experiment.controller = timed
     traj = experiment.run(seed)
     steps = len(timed.observe_s)
     total = np.asarray(traj.timings["total"][:steps], dtype=float) + np.asarray(timed.observe_s)
-    return total, np.asarray(replanned[:steps], dtype=bool), pi
+    phases = {key: np.asarray(value[:steps]) for key, value in phases.items()}
+    calls = {key: np.asarray(value[:steps]) for key, value in calls.items()}
+    return total, calls["replan"] > 0, phases, calls, pi
+
+
+def _replan_breakdown(total, replanned, phases, calls) -> dict:
+    """Where a replan step's time goes: per phase its time per replan step (stats) and share of
+    the replan steps' summed time, and its calls per replan step (mean, max)."""
+    spent = total[replanned].sum()
+    out = {}
+    for key in PHASES:
+        seconds, count = phases[key][replanned], calls[key][replanned]
+        out[key] = {
+            **stats_ms(seconds),
+            "share": float(seconds.sum() / spent) if spent > 0 else None,
+            "calls_mean": float(count.mean()) if count.size else None,
+            "calls_max": int(count.max()) if count.size else None,
+        }
+    rest = total[replanned] - sum(phases[key][replanned] for key in PHASES)
+    out["rest"] = {**stats_ms(rest), "share": float(rest.sum() / spent) if spent > 0 else None}
+    return out
 
 
 def bench_planner_step(quick: bool) -> dict:
     """The flagship candidate's step statistics per planner solver (module docstring)."""
     runs = 2 if quick else 11  # 11 x 999 observed steps: >= 10^4
-    warm, _, _ = _one_run("structured", 0, 0.3)
+    warm = _one_run("structured", 0, 0.3)[0]
     out = {"controller": NAME, "runs": runs, "duration_s": DURATION_S, "warmup_first_step_ms": 1e3 * float(warm[0])}
     for solver in SOLVERS:
         _one_run(solver, 0, 0.3)  # this solver's own caches
-        steps, replans = [], []
-        fallbacks = 0
-        for seed in range(runs):
-            total, replanned, pi = _one_run(solver, seed)
-            steps.append(total)
-            replans.append(replanned)
-            fallbacks += pi.planner.fallbacks
-        total = np.concatenate(steps)
-        replanned = np.concatenate(replans)
+        results = [_one_run(solver, seed) for seed in range(runs)]
+        total = np.concatenate([r[0] for r in results])
+        replanned = np.concatenate([r[1] for r in results])
+        phases = {key: np.concatenate([r[2][key] for r in results]) for key in results[0][2]}
+        calls = {key: np.concatenate([r[3][key] for r in results]) for key in results[0][3]}
         row = {
             "step": stats_ms(total),
             "replan_steps": stats_ms(total[replanned]),
             "other_steps": stats_ms(total[~replanned]),
             "replans": int(replanned.sum()),
-            "daqp_fallbacks": int(fallbacks),
+            "daqp_fallbacks": int(sum(r[4].planner.fallbacks for r in results)),
+            "replan_breakdown": _replan_breakdown(total, replanned, phases, calls),
         }
         row["meets"] = {key: row["step"][key] <= limit for key, limit in TARGETS_MS.items()}
         out[solver] = row
     out["targets_ms"] = dict(TARGETS_MS)
     fast, dense = out["structured"]["replan_steps"], out["daqp"]["replan_steps"]
     out["replan_ratio_daqp_over_structured"] = {key: dense[key] / fast[key] for key in ("median", "p99", "max")}
+    fast, dense = out["structured"]["step"], out["daqp"]["step"]
+    out["step_ratio_daqp_over_structured"] = {key: dense[key] / fast[key] for key in ("median", "p99", "max")}
+    if not quick:
+        out["arms"] = bench_planner_arms()
+    return out
+
+
+def bench_planner_arms() -> dict:
+    """PI-IDMPC's whole step on the other arms (:data:`ARMS`), one 10 s run per solver each
+    (after a 0.3 s warm-up run): ``{arm: {solver: {"step", "replan_steps", "replans", "meets"}}}``."""
+    out: dict = {}
+    for name, arm in ARMS.items():
+        out[name] = {}
+        for solver in SOLVERS:
+            _one_run(solver, 0, 0.3, {"arm": arm})
+            total, replanned, _, _, _ = _one_run(solver, 0, DURATION_S, {"arm": arm})
+            step = stats_ms(total)
+            out[name][solver] = {
+                "step": step,
+                "replan_steps": stats_ms(total[replanned]),
+                "replans": int(replanned.sum()),
+                "meets": {key: step[key] <= limit for key, limit in TARGETS_MS.items()},
+            }
     return out
 
 
@@ -159,6 +229,42 @@ def bench_planner(quick: bool) -> dict:
     return {"step": bench_planner_step(quick), "solver": bench_plan_solver(quick)}
 
 
+def _render_breakdown(breakdown: dict) -> list[str]:
+    """bench.md lines: where the structured solver's replan steps spend their time."""
+    lines = [
+        "Where a replan step's time goes (structured solver), ms per replan step:\n",
+        "| part | median | p99 | max | share | calls per replan (mean / max) |",
+        "|---|---|---|---|---|---|",
+    ]
+    for key, row in breakdown.items():
+        if row["n"] == 0:
+            continue
+        calls = f"{row['calls_mean']:.1f} / {row['calls_max']}" if "calls_mean" in row else ""
+        times = f"{row['median']:.2f} | {row['p99']:.2f} | {row['max']:.2f}"
+        lines.append(f"| {key} | {times} | {100 * row['share']:.0f} % | {calls} |")
+    return [*lines, ""]
+
+
+def _render_arms(arms: dict) -> list[str]:
+    """bench.md lines: the step on the other arms."""
+    if not arms:
+        return []
+    lines = [
+        "The other arms, one 10 s run each, ms (whole step; replan steps):\n",
+        "| arm | solver | steps | median | p99 | max | replans | replan median / max |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for arm, rows in arms.items():
+        for solver, row in rows.items():
+            s, r = row["step"], row["replan_steps"]
+            replan = f"{r['median']:.2f} / {r['max']:.2f}" if r["n"] else "-"
+            lines.append(
+                f"| {arm} | {solver} | {s['n']} | {s['median']:.3f} | {s['p99']:.3f} | {s['max']:.3f} | "
+                f"{row['replans']} | {replan} |"
+            )
+    return [*lines, ""]
+
+
 def render_planner(section: dict) -> str:
     """The section of bench.md."""
     step, solver = section["step"], section["solver"]
@@ -180,7 +286,11 @@ def render_planner(section: dict) -> str:
         "",
         f"Targets: median <= {TARGETS_MS['median']} ms, p99 <= {TARGETS_MS['p99']} ms, max <= {TARGETS_MS['max']} ms "
         f"(met with the structured solver: {step['structured']['meets']}). First step of the warm-up run: "
-        f"{step['warmup_first_step_ms']:.1f} ms.\n",
+        f"{step['warmup_first_step_ms']:.1f} ms. DAQP / structured, whole step: "
+        + ", ".join(f"{key} {value:.2f}x" for key, value in step["step_ratio_daqp_over_structured"].items())
+        + ".\n",
+        *_render_breakdown(step["structured"]["replan_breakdown"]),
+        *_render_arms(step.get("arms", {})),
         f"The planner's {solver['problems']} QPs of one run ({solver['size']['variables']} moves, "
         f"{solver['size']['rows']} torque rows), ms per solve:\n",
         "| solver | median | p99 | max |",
