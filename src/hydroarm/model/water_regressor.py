@@ -113,6 +113,17 @@ class WaterRegressor:
         )
         return mass, force - bias
 
+    def compiled_terms(self, theta: np.ndarray):
+        """``(strips, still)``: the compiled strips with theta's coefficients (clipped at zero)
+        written in and the still water, for a compiled caller of
+        :func:`~hydroarm.model.strips.water_terms` (the arguments :meth:`terms` gives it); valid
+        until the next call of :meth:`terms`, :meth:`terms_along` or this."""
+        c = self.n_cylinders
+        theta = np.maximum(np.asarray(theta, dtype=float), 0.0)
+        table = self._table
+        table[:, DRAG], table[:, MASS], table[:, BUOYANCY] = theta[:c], theta[c : 2 * c], theta[2 * c :]
+        return self._terms_strips, self._still
+
     def terms_along(self, theta: np.ndarray, q: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """:meth:`terms` at every state of a plan, q, v (N, n): ``(M_A (N, n, n), f (N, n))`` in one
         call of the compiled kernel (:func:`terms_along_kernel`; the same numbers as N calls)."""
