@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import os
 import time
+from datetime import UTC, datetime
 from pathlib import Path
 
 from hydroarm_bench.control_steps import bench_control_steps
@@ -16,7 +17,7 @@ from hydroarm_bench.planner import bench_planner, render_planner
 from hydroarm_bench.plant import bench_plant
 from hydroarm_bench.profiling import profile_closed_loop
 from hydroarm_bench.replay import bench_replay, render_replay
-from hydroarm_bench.report import assemble, json_default, target_status
+from hydroarm_bench.report import _machine, assemble, json_default, target_status
 from hydroarm_bench.scaling import bench_scaling
 from hydroarm_bench.stats import limit_threads
 from hydroarm_bench.uvms import bench_uvms, render_uvms
@@ -86,6 +87,8 @@ def run_section(out_dir: Path, name: str, quick: bool = False) -> dict:
             limiter.unregister()
     report = {
         "quick": quick,
+        "date": datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC"),
+        "machine": _machine(load_start),
         "blas_threads": blas_threads,
         "blas_threads_set_by": how,
         "load_average": [load_start, os.getloadavg()],
