@@ -1,6 +1,6 @@
-"""PI-IDMPC's rollout, compiled: the IDMPC's closed loop run on the dry model plus the water model
-(:meth:`~hydroarm.control.pi_idmpc.PhysicsInformedIDMPC._rollout`), the first linearisation point
-of a plan and the scale of its plausibility check.
+"""PI-IDMPC's planner kernels. The rollout, compiled: the IDMPC's closed loop run on the dry model
+plus the water model (:meth:`~hydroarm.control.pi_idmpc.PhysicsInformedIDMPC._rollout`), the
+first linearisation point of a plan and the scale of its plausibility check.
 
 One step of the rollout from (q, v) (n,) each, given Pinocchio's CRBA (upper triangle) and
 nonlinear effects at that state and the arm's joint Jacobian and its time variation (6, n):
@@ -12,6 +12,9 @@ nonlinear effects at that state and the arm's joint Jacobian and its time variat
 3. the torque allocation of :func:`~hydroarm.control.idmpc_limits.allocate`
    (:func:`allocate_fixed`), the acceleration bounded by ``max(|a|, 100)``;
 4. the double integrator's step.
+
+:func:`water_along_plan`: the model's force at a plan's states from its terms there (the
+planner's torque rows, :meth:`~hydroarm.control.pi_idmpc.PhysicsInformedIDMPC._along_plan`).
 
 Each function sums in a fixed order and solves by a Cholesky factor (no BLAS / LAPACK, whose
 kernels round per CPU: issue 29's rule for paths a closed loop amplifies), compiled without
