@@ -65,7 +65,8 @@ def _timed(owner, name: str, clock: dict, counts: dict, key: str) -> None:
 
 def _one_run(solver: str, seed: int, duration: float = DURATION_S, overrides: dict | None = None):
     """(step seconds (compute + observe), replanned (bool per step), phase seconds per step
-    ({phase: (steps,)}), phase calls per step, the experiment's PI-IDMPC)."""
+    ({phase: (steps,)}, and ``cpu``: the step in CPU time), phase calls per step, the
+    experiment's PI-IDMPC)."""
     experiment = paper_experiment(NAME, duration, {"pi_idmpc.planner_solver": solver, **(overrides or {})})
     pi = _planner_controller(experiment.controller)
     clock = dict.fromkeys(("replan", *PHASES), 0.0)
@@ -90,6 +91,7 @@ def _one_run(solver: str, seed: int, duration: float = DURATION_S, overrides: di
     total = np.asarray(traj.timings["total"][:steps], dtype=float) + np.asarray(timed.observe_s)
     phases = {key: np.asarray(value[:steps]) for key, value in phases.items()}
     calls = {key: np.asarray(value[:steps]) for key, value in calls.items()}
+    phases["cpu"] = np.asarray(timed.cpu_s[:steps])  # the step's compute + observe in CPU time
     return total, calls["replan"] > 0, phases, calls, pi
 
 
@@ -130,6 +132,8 @@ def bench_planner_step(quick: bool) -> dict:
             "replans": int(replanned.sum()),
             "daqp_fallbacks": int(sum(r[4].planner.fallbacks for r in results)),
             "replan_breakdown": _replan_breakdown(total, replanned, phases, calls),
+            "step_cpu": stats_ms(phases["cpu"]),
+            "replan_steps_cpu": stats_ms(phases["cpu"][replanned]),
         }
         row["meets"] = {key: row["step"][key] <= limit for key, limit in TARGETS_MS.items()}
         out[solver] = row
@@ -151,11 +155,12 @@ def bench_planner_arms() -> dict:
         out[name] = {}
         for solver in SOLVERS:
             _one_run(solver, 0, 0.3, {"arm": arm})
-            total, replanned, _, _, _ = _one_run(solver, 0, DURATION_S, {"arm": arm})
+            total, replanned, phases, _, _ = _one_run(solver, 0, DURATION_S, {"arm": arm})
             step = stats_ms(total)
             out[name][solver] = {
                 "step": step,
                 "replan_steps": stats_ms(total[replanned]),
+                "step_cpu": stats_ms(phases["cpu"]),
                 "replans": int(replanned.sum()),
                 "meets": {key: step[key] <= limit for key, limit in TARGETS_MS.items()},
             }
@@ -245,22 +250,36 @@ def _render_breakdown(breakdown: dict) -> list[str]:
     return [*lines, ""]
 
 
+def _render_cpu(step: dict) -> list[str]:
+    """bench.md lines: the step in CPU time (what the wall time's tail owes to the machine's load)."""
+    lines = ["The same steps in this thread's CPU time (the load's preemptions left out), ms:\n"]
+    lines += ["| planner solver | median | p99 | max | replan steps median / p99 / max |", "|---|---|---|---|---|"]
+    for name in SOLVERS:
+        s, r = step[name].get("step_cpu"), step[name].get("replan_steps_cpu")
+        if s is None or s["n"] == 0:
+            return []
+        replan = f"{r['median']:.2f} / {r['p99']:.2f} / {r['max']:.2f}" if r["n"] else "-"
+        lines.append(f"| {name} | {s['median']:.3f} | {s['p99']:.3f} | {s['max']:.3f} | {replan} |")
+    return [*lines, ""]
+
+
 def _render_arms(arms: dict) -> list[str]:
     """bench.md lines: the step on the other arms."""
     if not arms:
         return []
     lines = [
         "The other arms, one 10 s run each, ms (whole step; replan steps):\n",
-        "| arm | solver | steps | median | p99 | max | replans | replan median / max |",
-        "|---|---|---|---|---|---|---|---|",
+        "| arm | solver | steps | median | p99 | max | replans | replan median / max | CPU time median / p99 / max |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
     for arm, rows in arms.items():
         for solver, row in rows.items():
             s, r = row["step"], row["replan_steps"]
             replan = f"{r['median']:.2f} / {r['max']:.2f}" if r["n"] else "-"
+            c = row["step_cpu"]
             lines.append(
                 f"| {arm} | {solver} | {s['n']} | {s['median']:.3f} | {s['p99']:.3f} | {s['max']:.3f} | "
-                f"{row['replans']} | {replan} |"
+                f"{row['replans']} | {replan} | {c['median']:.3f} / {c['p99']:.3f} / {c['max']:.3f} |"
             )
     return [*lines, ""]
 
@@ -289,6 +308,7 @@ def render_planner(section: dict) -> str:
         f"{step['warmup_first_step_ms']:.1f} ms. DAQP / structured, whole step: "
         + ", ".join(f"{key} {value:.2f}x" for key, value in step["step_ratio_daqp_over_structured"].items())
         + ".\n",
+        *_render_cpu(step),
         *_render_breakdown(step["structured"]["replan_breakdown"]),
         *_render_arms(step.get("arms", {})),
         f"The planner's {solver['problems']} QPs of one run ({solver['size']['variables']} moves, "
