@@ -47,7 +47,7 @@ def test_quick_reproduction_writes_everything(quick_run):
         assert (quick_run / name).is_file(), name
         assert (quick_run / name).stat().st_size > 0, name
     runs = sorted((quick_run / "runs").glob("*.npz"))
-    # the paper's 3 controllers and the 10 extra rows (hydroarm's best, the paper's 3 behind the
+    # the paper's 3 controllers and the 10 extra rows (hydroarm's flagship, the paper's 3 behind the
     # Kalman filter, IDMPC alone and with the 4 observers, PI-IDMPC), clean and noisy x 2 seeds,
     # and the dry-arm bound (clean + 2 noisy), and 3 more clean runs (4 replicas in --quick) of
     # GP-MPC, GP-MPC+KF and GP-IDMPC+KF from perturbed starts
@@ -55,7 +55,7 @@ def test_quick_reproduction_writes_everything(quick_run):
 
 
 def test_tables_carry_hydroarms_best_beside_the_paper_rows(quick_run):
-    """The paper's rows are unchanged in name and order; hydroarm's best and the paper's
+    """The paper's rows are unchanged in name and order; hydroarm's flagship and the paper's
     controllers behind the same Kalman filter come after them, and the report says how it compares."""
     metrics = json.loads((quick_run / "metrics.json").read_text())
     for number, case in ((1, "clean"), (2, "noisy")):
@@ -70,7 +70,7 @@ def test_tables_carry_hydroarms_best_beside_the_paper_rows(quick_run):
                 for row in (f"{name} (ours, mean of 2 seeds)", f"{name} (ours, std over seeds)", f"{name} (paper)")
             ]
         assert rows[: len(paper_rows)] == paper_rows
-        assert "hydroarm's best: GP-IDMPC, Kalman filter" in rows
+        assert "hydroarm's flagship: GP-IDMPC, Kalman filter" in rows
         assert {"SMC + Kalman filter", "MPC + Kalman filter", "GP-MPC + Kalman filter"} <= set(rows)
         best = metrics[case]["GP-IDMPC+KF"]
         assert len(best["Ep"]) == 6 and not best["diverged"]

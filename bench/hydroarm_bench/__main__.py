@@ -1,7 +1,7 @@
 """``python -m hydroarm_bench --out DIR [--quick] [--only SECTION]`` (with ``bench/`` on ``PYTHONPATH``).
 
-``--only`` runs one section of :data:`hydroarm_bench.suite.SECTIONS` alone and writes
-``DIR/bench_<section>.json`` (never bench.json: that is the whole suite's).
+``--only SECTION`` runs one section of :data:`hydroarm_bench.suite.SECTIONS` alone and writes
+``DIR/bench-<section>.json`` and ``.md`` (never bench.json: that is the whole suite's).
 
 BLAS is limited to one thread before NumPy is imported (environment variables) and again
 with threadpoolctl inside the suite. Prints the targets met and any problem of the
@@ -29,12 +29,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, required=True, help="directory for bench.json and bench.md")
     parser.add_argument("--quick", action="store_true", help="fewer samples and peer problems (CI)")
     parser.add_argument(
-        "--only", choices=sorted(SECTIONS), help="run one section alone: writes DIR/bench_<section>.json only"
+        "--only", choices=sorted(SECTIONS), help="run one section alone: writes DIR/bench-<section>.json and .md only"
     )
     args = parser.parse_args(argv)
     if args.only:
-        section = run_section(args.only, args.out, quick=args.quick)
-        print(json.dumps({"out": str(args.out / f"bench_{args.only}.json"), args.only: section}, indent=2))
+        section = run_section(args.out, args.only, quick=args.quick)
+        print(json.dumps({"out": str(args.out / f"bench-{args.only}.json"), args.only: section[args.only]}, indent=2))
         return 0
     report = run_benchmarks(args.out, quick=args.quick)
     problems = validate_report(report)

@@ -26,29 +26,39 @@ def paper_experiment(controller: str, duration: float = 10.0, overrides: dict[st
 
 class TimedController:
     """Wraps a controller so that ``observe`` is timed too (compute times itself);
-    ``on_compute(controller, t, y, out)`` is called after every ``compute``."""
+    ``on_compute(controller, t, y, out)`` is called after every ``compute``. ``cpu_s``: each
+    step's compute + observe in this thread's CPU time (``time.thread_time_ns``: the time the
+    step ran, without the time other processes held the core; on a loaded machine the wall
+    time's tail is mostly the latter)."""
 
     def __init__(self, controller, on_compute=None) -> None:
         self.inner = controller
         self.name = controller.name
         self.control_period = controller.control_period
         self.observe_s: list[float] = []
+        self.cpu_s: list[float] = []
         self.on_compute = on_compute
 
     def reset(self) -> None:
         self.inner.reset()
         self.observe_s.clear()
+        self.cpu_s.clear()
 
     def compute(self, t, y, reference):
+        cpu = time.thread_time_ns()
         out = self.inner.compute(t, y, reference)
+        self.cpu_s.append((time.thread_time_ns() - cpu) * 1e-9)
         if self.on_compute is not None:
             self.on_compute(self.inner, t, y, out)
         return out
 
     def observe(self, t, y, u, y_next) -> None:
+        cpu = time.thread_time_ns()
         start = time.perf_counter_ns()
         self.inner.observe(t, y, u, y_next)
         self.observe_s.append((time.perf_counter_ns() - start) * 1e-9)
+        if self.cpu_s:
+            self.cpu_s[-1] += (time.thread_time_ns() - cpu) * 1e-9
 
 
 def closed_loop(name: str, duration: float, seed: int = 0, on_compute=None):

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import os
 import time
+from datetime import UTC, datetime
 from pathlib import Path
 
 from hydroarm_bench.arm_fast import bench_arm_fast, render_arm_fast
@@ -14,36 +15,15 @@ from hydroarm_bench.envs import bench_envs, render_envs
 from hydroarm_bench.gp_peers import bench_gp_peers, record_gp_stream
 from hydroarm_bench.markdown import render_markdown
 from hydroarm_bench.mpc_peers import bench_mpc_peers
+from hydroarm_bench.planner import bench_planner, render_planner
 from hydroarm_bench.plant import bench_plant
 from hydroarm_bench.profiling import profile_closed_loop
 from hydroarm_bench.replay import bench_replay, render_replay
-from hydroarm_bench.report import assemble, json_default, target_status
+from hydroarm_bench.report import _machine, assemble, json_default, target_status
 from hydroarm_bench.scaling import bench_scaling
 from hydroarm_bench.stats import limit_threads
 from hydroarm_bench.uvms import bench_uvms, render_uvms
 from hydroarm_bench.viewer import bench_viewer, render_viewer
-
-SECTIONS = {"arm_fast": bench_arm_fast, "batched_env": bench_batched_env, "uvms": bench_uvms}
-"""The sections that run alone (``python -m hydroarm_bench --only NAME``): each takes ``quick``."""
-
-
-def run_section(name: str, out_dir: Path, quick: bool = False) -> dict:
-    """Run the section ``name`` of :data:`SECTIONS` alone, one core for BLAS as the suite; write
-    ``out_dir/bench_<name>.json`` and return the section."""
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    limiter, blas_threads, how = limit_threads()
-    load_start = os.getloadavg()
-    try:
-        section = SECTIONS[name](quick)
-    finally:
-        if limiter is not None:
-            limiter.unregister()
-    document = {"section": name, "quick": quick, "blas_threads": blas_threads, "blas_threads_set_by": how,
-                "load_average_start": load_start, "load_average_end": os.getloadavg(), name: section}  # fmt: skip
-    document = json.loads(json.dumps(document, default=json_default))
-    (out_dir / f"bench_{name}.json").write_text(json.dumps(document, indent=2) + "\n")
-    return document[name]
 
 
 def run_benchmarks(out_dir: Path, quick: bool = False) -> dict:
@@ -67,6 +47,7 @@ def run_benchmarks(out_dir: Path, quick: bool = False) -> dict:
         viewer = bench_viewer(quick)
         envs = bench_envs(quick)
         replay = bench_replay(quick)
+        planner = bench_planner(quick)
     finally:
         if limiter is not None:
             limiter.unregister()
@@ -78,6 +59,7 @@ def run_benchmarks(out_dir: Path, quick: bool = False) -> dict:
     report["viewer"] = viewer
     report["envs"] = envs
     report["replay"] = replay
+    report["planner"] = planner
     report["target_status"] = target_status(report)  # again, with the vehicle and viewer sections
     report["suite_wall_s"] = time.perf_counter() - started
     report = json.loads(json.dumps(report, default=json_default))  # plain JSON types only
@@ -90,5 +72,42 @@ def run_benchmarks(out_dir: Path, quick: bool = False) -> dict:
         + render_viewer(report["viewer"])
         + render_envs(envs)
         + render_replay(report["replay"])
+        + render_planner(report["planner"])
     )
+    return report
+
+
+SECTIONS = {
+    "arm_fast": (bench_arm_fast, render_arm_fast),
+    "batched_env": (bench_batched_env, render_batched_env),
+    "planner": (bench_planner, render_planner),
+    "uvms": (bench_uvms, render_uvms),
+}
+"""The sections ``--only`` runs alone (their own files, bench.json untouched)."""
+
+
+def run_section(out_dir: Path, name: str, quick: bool = False) -> dict:
+    """Run one section of :data:`SECTIONS`; write ``out_dir/bench-NAME.json`` and ``.md``."""
+    bench, render = SECTIONS[name]
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    limiter, blas_threads, how = limit_threads()
+    load_start = os.getloadavg()
+    try:
+        section = bench(quick)
+    finally:
+        if limiter is not None:
+            limiter.unregister()
+    report = {
+        "quick": quick,
+        "date": datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC"),
+        "machine": _machine(load_start),
+        "blas_threads": blas_threads,
+        "blas_threads_set_by": how,
+        "load_average": [load_start, os.getloadavg()],
+        name: section,
+    }
+    report = json.loads(json.dumps(report, default=json_default))
+    (out_dir / f"bench-{name}.json").write_text(json.dumps(report, indent=2) + "\n")
+    (out_dir / f"bench-{name}.md").write_text(render(report[name]))
     return report

@@ -228,7 +228,7 @@ def controllers(as_json: Annotated[bool, typer.Option("--json", help="Machine-re
                       row["description"])  # fmt: skip
     Console().print(table)
     for alias, target in ALIASES.items():
-        console.print(f"alias [bold]{alias}[/] = {target} (hydroarm's best controller)")
+        console.print(f"alias [bold]{alias}[/] = {target} (hydroarm's flagship: docs/controllers.md)")
 
 
 @app.command("export-urdf")
@@ -265,7 +265,9 @@ def bench(
     quick: Annotated[bool, typer.Option("--quick", help="A few hundred samples (CI).")] = False,
     only: Annotated[
         str | None,
-        typer.Option("--only", help="One section alone (arm_fast, batched_env, uvms): writes bench_<section>.json."),
+        typer.Option(
+            "--only", help="One section alone (arm_fast, batched_env, planner, uvms): bench-<section>.json and .md."
+        ),
     ] = None,
 ) -> None:
     """Benchmark the control steps, the plant, peers (do-mpc, cvxpy, scikit-learn, GPyTorch) and scaling.
@@ -298,6 +300,6 @@ def bench(
     if code != 0:
         _fail(f"the benchmark suite exited with code {code}", code=code if code > 0 else 128 - code)  # -N: signal N
     if only:
-        console.print(f"wrote {out / f'bench_{only}.json'}")
+        console.print(f"wrote {out / f'bench-{only}.json'} and .md")
     else:
         console.print(f"wrote {out / 'bench.json'} and {out / 'bench.md'}")

@@ -369,8 +369,15 @@ class InverseDynamicsMPC:
         ``remember``: keep this step's horizon problem for :meth:`constrained_acceleration` (the
         torque rows of this step); False for a look-ahead at another state or time (e.g. PI-IDMPC's
         rollout of this MPC along a plan), which leaves the step's problem as it was."""
-        n, period = self.n, self.control_period
         q_r, v_r, a_r = sample_times(reference, t + self._offsets)  # (N + 1, n) each
+        return self.acceleration_from_samples(y, q_r, v_r, a_r, remember=remember)
+
+    def acceleration_from_samples(
+        self, y: np.ndarray, q_r: np.ndarray, v_r: np.ndarray, a_r: np.ndarray, *, remember: bool = True
+    ) -> np.ndarray:
+        """:meth:`planned_acceleration` with the reference already sampled at ``t + k T``,
+        k = 0..N: ``q_r, v_r, a_r`` (N + 1, n) each (a look-ahead samples many steps in one call)."""
+        n, period = self.n, self.control_period
         e0 = np.stack([y[:n] - q_r[0], y[n:] - v_r[0]], axis=1)
         c = np.empty((self.config.horizon, n, 2))
         c[:, :, 0] = q_r[1:] - q_r[:-1] - period * v_r[:-1] - 0.5 * period * period * a_r[:-1]

@@ -44,6 +44,11 @@ import numba
 import numpy as np
 import pinocchio as pin
 
+from hydroarm.control.plan_qp import DUAL_TOL, PRIMAL_TOL, joint_factors, solve_plan_qp, warm_set
+
+QP_SOLVERS = ("daqp", "structured")
+"""The solvers of :class:`HorizonQP`: DAQP (dense) or :mod:`hydroarm.control.plan_qp` (its structure)."""
+
 
 def allocate(mass: np.ndarray, bias: np.ndarray, acceleration: np.ndarray, limit: np.ndarray):
     """Torques within ``limit`` that keep the planned ``acceleration`` on every joint they can.
@@ -153,10 +158,16 @@ class HorizonQP:
     """The constrained horizon problem of ``limits = "qp"`` (module docstring).
 
     ``hessian`` (N n, N n), ``grad_e0`` (N n, 2 n), ``grad_c`` (N n, 2 N n) as flat maps;
-    ``torque_limit`` (n,) N m; ``sqp_iterations`` relinearisations after the frozen solve.
+    ``torque_limit`` (n,) N m; ``sqp_iterations`` relinearisations after the frozen solve;
+    ``solver`` (:data:`QP_SOLVERS`): DAQP, or the compiled dual active set on the problem's
+    structure (:func:`~hydroarm.control.plan_qp.solve_plan_qp`, the same solution to rounding).
     """
 
-    def __init__(self, arm, period, horizon, q_pos, q_vel, r_acc, p_mats, torque_limit, sqp_iterations):
+    def __init__(
+        self, arm, period, horizon, q_pos, q_vel, r_acc, p_mats, torque_limit, sqp_iterations, solver="daqp"
+    ):  # fmt: skip
+        if solver not in QP_SOLVERS:
+            raise ValueError(f"solver = {solver!r}: must be one of {', '.join(QP_SOLVERS)}")
         self.arm = arm
         self.n = n = arm.n_joints
         self.period = float(period)
@@ -164,6 +175,8 @@ class HorizonQP:
         self.sqp_iterations = sqp_iterations
         hessian, grad_e0, grad_c = condensed_problem(period, horizon, q_pos, q_vel, r_acc, p_mats)
         self.hessian = hessian
+        self.solver = solver
+        self._factors = joint_factors(hessian, n) if solver == "structured" else None
         self.grad_e0 = grad_e0.reshape(horizon * n, 2 * n)
         self.grad_c = grad_c.reshape(horizon * n, 2 * horizon * n)
         self.limit = np.tile(np.asarray(torque_limit, dtype=float), horizon)
@@ -174,11 +187,38 @@ class HorizonQP:
         self._d_v = np.empty((horizon, n, n))
         self._mass = np.empty((horizon, n, n))
         self.last_iterations = 0  # SQP steps the last solve took (0: the frozen rows' solution)
+        self.fallbacks = 0  # structured solves handed to DAQP (iteration limit)
         self.disturbance_model = None  # optional (q, v, a) (N, n) each -> (w (N, n), M_A (N, n, n))
         # load the compiled kernels now, not in the first saturated step
         zeros = np.zeros((horizon, n))
         predicted_plan(np.zeros((n, 2)), np.zeros((horizon, n, 2)), zeros, zeros, zeros, zeros, self.period)
         fill_linearised_rows(self._d_q, self._d_v, self._mass, self.period, self._rows)
+        if self._factors is not None:
+            size = horizon * n
+            solve_plan_qp(
+                self._factors, np.zeros(size), np.eye(size), np.ones(size), -np.ones(size),
+                np.zeros(size, dtype=np.int64), PRIMAL_TOL, DUAL_TOL, 1,
+            )  # fmt: skip
+
+    def _solve_qp(self, gradient, rows, upper, lower, lam=None):
+        """``(moves (N n,), lam (N n,), ok)`` of one QP by the configured solver, warm-started
+        from the multipliers ``lam`` of the last solve (None: cold). The structured solver hands a
+        problem it does not settle within ``N n`` iterations (as many as rows) to DAQP: measured on
+        the iiwa14 (245 rows, up to 240 active), its cost per iteration grows with the working set and
+        the longest solves took 3x DAQP's; on the paper arm no solve takes more than 112."""
+        if self._factors is not None:
+            size = gradient.shape[0]
+            moves, new_lam, flag, _ = solve_plan_qp(
+                self._factors, gradient, rows, upper, lower, warm_set(lam, size), PRIMAL_TOL, DUAL_TOL, size
+            )
+            if int(flag) == 1 and np.all(np.isfinite(moves)) and np.all(np.isfinite(new_lam)):
+                return moves, new_lam, True
+            self.fallbacks += 1  # not settled, or a working set too close to dependent rows
+        if lam is None:
+            moves, _, flag, info = daqp.solve(self.hessian, gradient, rows, upper, lower, self._sense)
+        else:
+            moves, _, flag, info = daqp.solve(self.hessian, gradient, rows, upper, lower, self._sense, dual_start=lam)
+        return np.asarray(moves), np.asarray(info["lam"]), int(flag) == 1
 
     def gradient(self, e0: np.ndarray, c: np.ndarray) -> np.ndarray:
         """``F_e vec(e0) + F_c vec(c)`` (N n,) for the errors e0 (n, 2) and defects c (N, n, 2)."""
@@ -212,14 +252,17 @@ class HorizonQP:
         shift = self._rows @ moves.ravel() - base
         return self._rows, self.limit + shift, -self.limit + shift
 
-    def solve(self, e0, c, q_r, v_r, a_r, mass, bias, w_hat, initial_moves=None) -> np.ndarray | None:
+    def solve(self, e0, c, q_r, v_r, a_r, mass, bias, w_hat, initial_moves=None, initial_lam=None) -> np.ndarray | None:
         """The first acceleration (n,) rad/s^2 of the constrained horizon problem, or None.
 
         ``e0`` (n, 2), ``c`` (N, n, 2), ``q_r, v_r`` (>= N, n), ``a_r`` (N, n): the outer
         problem; ``mass`` (n, n), ``bias`` = h - w_hat (n,) at the current state; ``w_hat`` (n,).
         ``initial_moves`` (N, n): a plan to linearise about first (a warm start: the frozen
-        solve is skipped), or None. The whole plan's moves (N, n) are left in ``last_moves``,
-        whether a torque row is active in ``last_active``."""
+        solve is skipped), or None. ``initial_lam`` (N n,): the working set to start the first
+        solve from (the signs of a last plan's multipliers, shifted; the structured solver only:
+        DAQP's path starts cold as it always did). The whole plan's moves (N n) are left in
+        ``last_moves``, its multipliers in ``last_lam``, whether a torque row is active in
+        ``last_active``."""
         gradient = self.gradient(e0, c)
         self.last_iterations = 0
         if initial_moves is None:
@@ -228,19 +271,20 @@ class HorizonQP:
             rows, upper, lower = self.linearised_rows(
                 np.asarray(initial_moves, dtype=float), e0, c, q_r, v_r, a_r, w_hat
             )
-        moves, _, flag, info = daqp.solve(self.hessian, gradient, rows, upper, lower, self._sense)
-        if int(flag) != 1:
+        moves, lam, ok = self._solve_qp(
+            gradient, rows, upper, lower, initial_lam if self._factors is not None else None
+        )
+        if not ok:
             return None
         for _ in range(self.sqp_iterations):
             plan = np.asarray(moves).reshape(self.horizon, self.n)
             rows, upper, lower = self.linearised_rows(plan, e0, c, q_r, v_r, a_r, w_hat)
-            new, _, flag, new_info = daqp.solve(
-                self.hessian, gradient, rows, upper, lower, self._sense, dual_start=info["lam"]
-            )
-            if int(flag) != 1:
+            new, new_lam, ok = self._solve_qp(gradient, rows, upper, lower, lam)
+            if not ok:
                 break
-            moves, info = new, new_info
+            moves, lam = new, new_lam
             self.last_iterations += 1
         self.last_moves = np.asarray(moves).reshape(self.horizon, self.n)
-        self.last_active = bool(np.any(np.asarray(info["lam"]) != 0.0))
+        self.last_lam = lam
+        self.last_active = bool(np.any(lam != 0.0))
         return a_r[0] + np.asarray(moves[: self.n])

@@ -50,6 +50,7 @@ from hydroarm.control.idmpc import IDMPCConfig, InverseDynamicsMPC
 from hydroarm.control.idmpc_limits import HorizonQP, allocate, predicted_plan
 from hydroarm.control.interface import ControlOutput, Reference, sample_times
 from hydroarm.control.observers import DisturbanceObserver
+from hydroarm.control.plan_rollout import rollout_step, water_along_plan
 from hydroarm.control.water_model import PhysicsInformedModel, WaterModelConfig
 from hydroarm.model import fixed_order
 from hydroarm.model.arm import Arm
@@ -78,6 +79,11 @@ class PIIDMPCConfig(FrozenModel):
     )
     planner_iterations: int = pydantic.Field(
         3, ge=0, le=10, description="the planner's SQP steps along the plan per replan, 0 <= x <= 10"
+    )
+    planner_solver: Literal["structured", "daqp"] = pydantic.Field(
+        "structured",
+        description="the planner's QP solver: structured (compiled, per-joint factors, hydroarm.control.plan_qp) "
+        "or daqp (dense); the same plan to rounding",
     )
     planner_deviation: float = pydantic.Field(
         500.0,
@@ -140,6 +146,7 @@ class PhysicsInformedIDMPC:
                 self.mpc.P,
                 self.torque_limit,
                 pcfg.planner_iterations,
+                solver=pcfg.planner_solver,
             )
             self.planner.disturbance_model = self._along_plan
             self._plan_offsets = np.arange(pcfg.planner_horizon + 1) * self.control_period
@@ -180,15 +187,11 @@ class PhysicsInformedIDMPC:
         """``(w (N, n), M_A (N, n, n))`` at the planned states and accelerations (N, n) each:
         the model's force (+ the remainder's estimate), clipped to the torque limits, and its
         added-mass inertia."""
-        horizon, n = q.shape
-        w = np.empty((horizon, n))
-        added = np.empty((horizon, n, n))
-        for k in range(horizon):
-            added[k], rest = self.model.terms(q[k], v[k])
-            w[k] = rest - fixed_order.matvec(added[k], np.ascontiguousarray(a[k])) + self._rest
+        added, rest = self.model.terms_along(q, v)  # one compiled pass over the plan
         # a plan far from feasible (light joints, long horizons) reaches speeds where |v| v drag
         # explodes; a force beyond the torque limit cannot be compensated anyway: hold it there
-        return np.clip(w, -self.torque_limit, self.torque_limit), added
+        w = water_along_plan(added, rest, np.ascontiguousarray(a, dtype=float), self._rest, self.torque_limit)
+        return w, added
 
     # --- the planner ------------------------------------------------------------------
     def _replan(self, t, y, reference, mass, bias, w_free) -> bool:
@@ -204,12 +207,14 @@ class PhysicsInformedIDMPC:
         # point, and the scale of the plausibility check on every plan (PLAN_TRUST)
         rollout = self._rollout(t, y, reference, a_r)
         bound = PLAN_TRUST[0] * np.abs(rollout + a_r[:-1]).max(axis=0) + PLAN_TRUST[1]
-        initial = rollout
-        if self._plan is not None:  # warm start: the last plan's moves, shifted by the steps followed
-            moves = self._plan[3]
+        initial, initial_lam = rollout, None
+        if self._plan is not None:  # warm start: the last plan's moves and working set, shifted by the steps followed
+            moves, lam = self._plan[3], self._plan_lam
             initial = np.zeros_like(moves)
             initial[: moves.shape[0] - self._plan_step] = moves[self._plan_step :]
-        if self.planner.solve(e0, c, q_r, v_r, a_r[:-1], mass, bias, w_free, initial) is None:
+            initial_lam = np.zeros_like(lam)
+            initial_lam[: lam.shape[0] - self._plan_step * n] = lam[self._plan_step * n :]
+        if self.planner.solve(e0, c, q_r, v_r, a_r[:-1], mass, bias, w_free, initial, initial_lam) is None:
             self._plan = None
             return False
         moves = self.planner.last_moves
@@ -226,29 +231,38 @@ class PhysicsInformedIDMPC:
             self.rejected += 1
             return False
         self._plan = (q_p, v_p, a_p, moves.copy())
+        self._plan_lam = np.asarray(self.planner.last_lam, dtype=float).copy()
         self._plan_step = 0
         self.plans += 1
         return True
 
     def _rollout(self, t, y, reference, a_r) -> np.ndarray:
         """The moves (N, n) of the IDMPC with the torque allocation, run N steps on the double
-        integrator from y with the dry model plus the water model (a plan within the limits)."""
+        integrator from y with the dry model plus the water model (a plan within the limits):
+        Pinocchio's terms per step, the rest compiled (:func:`~hydroarm.control.plan_rollout.rollout_step`)."""
         n, period, horizon = self.n, self.control_period, self.planner.horizon
-        model, data = self.arm.model, self.planner.data
+        model, data, mpc = self.arm.model, self.planner.data, self.mpc
+        regressor = self.model.regressor
+        water_data = regressor.data
+        strips, still = regressor.compiled_terms(self.model.theta)
         q, v = y[:n].copy(), y[n:].copy()
         moves = np.empty((horizon, n))
+        # the IDMPC's reference at (t + k T) + i T for every rollout step k, in one call (the same times),
+        # and its defects (as acceleration_from_samples forms them)
+        times = (t + np.arange(horizon) * period)[:, None] + mpc._offsets[None, :]
+        q_s, v_s, a_s = (x.reshape(times.shape + (n,)) for x in sample_times(reference, times.ravel()))
+        c = np.empty((horizon, times.shape[1] - 1, n, 2))
+        c[..., 0] = q_s[:, 1:] - q_s[:, :-1] - period * v_s[:, :-1] - 0.5 * period * period * a_s[:, :-1]
+        c[..., 1] = v_s[:, 1:] - v_s[:, :-1] - period * a_s[:, :-1]
+        a_ref = np.ascontiguousarray(a_r)
         for k in range(horizon):
-            x = np.concatenate([q, v])
-            a = self.mpc.planned_acceleration(t + k * period, x, reference, remember=False)  # the step's QP kept
-            added, rest = self.model.terms(q, v)
-            mass = pin.crba(model, data, q)
-            mass = np.triu(mass) + np.triu(mass, 1).T + added
-            bias = pin.nonLinearEffects(model, data, q, v) - rest - self._rest  # the drag unclipped: it damps
-            bound = np.maximum(np.abs(a), 100.0)
-            # explicit steps of a light joint in strong drag overshoot: bound what the dynamics give
-            a = np.clip(allocate(mass, bias, a, self.torque_limit)[1], -bound, bound)
-            moves[k] = a - a_r[k]
-            q, v = q + period * v + 0.5 * period * period * a, v + period * a
+            pin.computeJointJacobiansTimeVariation(model, water_data, q, v)
+            mass_upper = pin.crba(model, data, q)
+            nle = pin.nonLinearEffects(model, data, q, v)
+            q, v, moves[k] = rollout_step(
+                q, v, q_s[k, 0], v_s[k, 0], a_s[k, 0], c[k], mpc.P, mpc.K, mpc._g, period, a_ref[k], strips, still,
+                water_data.J.reshape(6, n), water_data.dJ.reshape(6, n), mass_upper, nle, self._rest, self.torque_limit,
+            )  # fmt: skip
         return moves
 
     def _follow_plan(self, q: np.ndarray, v: np.ndarray) -> np.ndarray:

@@ -194,9 +194,11 @@ PAPER_CONTROLLERS: tuple[str, ...] = ("SMC", "MPC", "GP-MPC")
 
 
 ALIASES: dict[str, str] = {"flagship": "GP-IDMPC"}
-"""Stable names for registered controllers: ``flagship`` always means hydroarm's best controller
-(measured: docs/controllers.md, "Learning against the classic observers"), so scripts and papers
-that name it keep working as it improves. :func:`canonical_name` resolves them."""
+"""Stable names for registered controllers: ``flagship`` means the controller hydroarm recommends,
+the most accurate one that keeps its control period (docs/controllers.md, "Which controller to
+pick": GP-IDMPC; PI-IDMPC tracks better in the ideal loop but its replanning steps still miss the
+period, bench.json ``planner``), so scripts and papers that name it keep working as it improves.
+:func:`canonical_name` resolves them."""
 
 
 def _key(name: str) -> str:

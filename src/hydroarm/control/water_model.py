@@ -134,6 +134,10 @@ class PhysicsInformedModel:
         """``(M_A (n, n) kg m^2, f (n,) N m)``: the predicted water force is ``f - M_A a``."""
         return self.regressor.terms(self.theta, q, v)
 
+    def terms_along(self, q: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`terms` at the N states of a plan, q, v (N, n): ``(M_A (N, n, n), f (N, n))``."""
+        return self.regressor.terms_along(self.theta, q, v)
+
     def variance(self, q: np.ndarray, v: np.ndarray, a: np.ndarray) -> np.ndarray:
         """The predicted force's variance (n,) (N m)^2 under the belief on theta."""
         phi = self.regressor.basis(q, v, a)

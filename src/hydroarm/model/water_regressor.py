@@ -113,6 +113,35 @@ class WaterRegressor:
         )
         return mass, force - bias
 
+    def compiled_terms(self, theta: np.ndarray):
+        """``(strips, still)``: the compiled strips with theta's coefficients (clipped at zero)
+        written in and the still water, for a compiled caller of
+        :func:`~hydroarm.model.strips.water_terms` (the arguments :meth:`terms` gives it); valid
+        until the next call of :meth:`terms`, :meth:`terms_along` or this."""
+        c = self.n_cylinders
+        theta = np.maximum(np.asarray(theta, dtype=float), 0.0)
+        table = self._table
+        table[:, DRAG], table[:, MASS], table[:, BUOYANCY] = theta[:c], theta[c : 2 * c], theta[2 * c :]
+        return self._terms_strips, self._still
+
+    def terms_along(self, theta: np.ndarray, q: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`terms` at every state of a plan, q, v (N, n): ``(M_A (N, n, n), f (N, n))`` in one
+        call of the compiled kernel (:func:`terms_along_kernel`; the same numbers as N calls)."""
+        c = self.n_cylinders
+        horizon, n = q.shape
+        q = np.ascontiguousarray(q, dtype=float)
+        v = np.ascontiguousarray(v, dtype=float)
+        theta = np.maximum(np.asarray(theta, dtype=float), 0.0)
+        table = self._table
+        table[:, DRAG], table[:, MASS], table[:, BUOYANCY] = theta[:c], theta[c : 2 * c], theta[2 * c :]
+        model, data = self.arm.model, self.data
+        jac = np.empty((horizon, 6, n))
+        djac = np.empty((horizon, 6, n))
+        for k in range(horizon):
+            pin.computeJointJacobiansTimeVariation(model, data, q[k], v[k])
+            jac[k], djac[k] = data.J.reshape(6, n), data.dJ.reshape(6, n)
+        return terms_along_kernel(self._terms_strips, q, v, self._still, jac, djac)
+
     def predict(self, theta: np.ndarray, q: np.ndarray, v: np.ndarray, a: np.ndarray) -> np.ndarray:
         """``Phi(q, v, a) theta`` (n,) N m (:meth:`terms`: coefficients clipped at zero); equals
         :meth:`basis` @ theta for theta >= 0."""
@@ -174,6 +203,21 @@ class WaterRegressor:
             "cm": theta[c : 2 * c] / (w.rho * self.areas),
             "volume": volume,
         }
+
+
+@numba.njit(cache=True)
+def terms_along_kernel(strips, q, v, water_velocity, jac, djac):  # pragma: no cover - compiled
+    """``(M_A (N, n, n), f - h_A (N, n))``: :func:`~hydroarm.model.strips.water_terms` at each of
+    the N states q, v (N, n) with their Jacobians jac, djac (N, 6, n), in one compiled loop."""
+    horizon, n = v.shape
+    mass = np.empty((horizon, n, n))
+    rest = np.empty((horizon, n))
+    for k in range(horizon):
+        added, bias, force, _ = water_terms(strips, q[k], v[k], water_velocity, jac[k], djac[k])
+        mass[k] = added
+        for i in range(n):
+            rest[k, i] = force[i] - bias[i]
+    return mass, rest
 
 
 @numba.njit(cache=True)

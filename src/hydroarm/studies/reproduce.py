@@ -18,7 +18,7 @@ settings, and writes into ``out_dir``:
   the paper's: the controllers compared on that arm alone; :mod:`hydroarm.studies.report`).
 
 Beside the paper's rows (SMC, MPC, GP-MPC on the raw measurement, exactly as the paper's
-study), the tables carry hydroarm's own best controller (:data:`BEST`, behind its Kalman
+study), the tables carry hydroarm's flagship (:data:`BEST`, behind its Kalman
 filter) and the paper's controllers behind the same filter (``SMC+KF``, ...), so that every
 comparison with it uses the same estimator; ``ablation_idmpc.md`` varies its choices.
 
@@ -138,7 +138,7 @@ DRY = {"water.drag": False, "water.added_mass": False, "water.buoyancy": False, 
 
 
 def idmpc_ablation_cases() -> list[tuple[str, str, str, dict]]:
-    """(group, label, controller, overrides) of the ablation of hydroarm's best controller."""
+    """(group, label, controller, overrides) of the ablation of hydroarm's flagship."""
     cases: list[tuple[str, str, str, dict]] = [
         ("GP", "off (IDMPC)", "IDMPC", {}),
         ("GP", "on (GP-IDMPC)", "GP-IDMPC", {}),

@@ -332,7 +332,7 @@ def _main_table_rows(block: dict, case: str, paper_arm: bool) -> tuple[list[str]
     bound = block["MPC_dry_arm_bound"]["Ep"]
     rows.append(["MPC on the arm without water (bound)"] + [_fmt(x) for x in bound] + [_fmt(np.mean(bound))])
     for name in EXTRA_ROWS:
-        label = "hydroarm's best: GP-IDMPC, Kalman filter" if name == BEST else f"{name[:-3]} + Kalman filter"
+        label = "hydroarm's flagship: GP-IDMPC, Kalman filter" if name == BEST else f"{name[:-3]} + Kalman filter"
         rows.append([label] + _held_cells(block[name]))
     for name in ROWS:
         rows.append([f"{name} (ours, t > 2 s)"] + _held_cells(block[name], "Ep_steady"))
@@ -414,7 +414,7 @@ def _write_ablation_tables(metrics: dict, out: Path) -> None:
     if rows:
         _write_table(
             out / "ablation_idmpc",
-            f"Ablation of hydroarm's best ({BEST}; clean, seed 0; one choice changed at a time)"
+            f"Ablation of hydroarm's flagship ({BEST}; clean, seed 0; one choice changed at a time)"
             + _ablation_spread_note(metrics["ablation_idmpc"]),
             header,
             rows,

@@ -28,7 +28,7 @@ PAPER_GAIN = {"clean": 34.05, "noisy": 52.27}
 """The paper's "average control accuracy" gain of GP-MPC over MPC: the mean of the per-joint gains (%)."""
 
 BEST = "GP-IDMPC+KF"
-"""hydroarm's best controller row: GP-IDMPC behind its (default) Kalman filter."""
+"""hydroarm's flagship row (the alias ``flagship``): GP-IDMPC behind its (default) Kalman filter."""
 
 EXTRA_ROWS: dict[str, tuple[str, dict]] = {
     BEST: ("GP-IDMPC", {"estimator.kind": "auto"}),

@@ -1,0 +1,324 @@
+"""The horizon QP of the torque limits, solved on its structure: a compiled dual active set.
+
+The problem of :class:`~hydroarm.control.idmpc_limits.HorizonQP` (the IDMPC's ``limits = "qp"``
+and PI-IDMPC's planner), in the stacked moves U (N n,), step-major (``U[k n + j]``)::
+
+    min 1/2 U' H U + g' U    s.t.  lower <= R U <= upper
+
+has two structures a dense solver (DAQP) does not see:
+
+- H is constant (it depends on the weights only) and block diagonal per joint: ``H_j`` (N, N),
+  so its Cholesky factors ``H_j = L_j L_j'`` are computed once (:func:`joint_factors`), not at
+  every solve;
+- R (the torque rows) is block lower triangular in time (row block k touches the moves of steps
+  0..k only), so ``R U`` costs half a dense product.
+
+With ``x = L' U`` (per joint) the problem is the least-distance problem
+``min 1/2 ||x + d||^2, lower <= M x <= upper`` with ``d = L^-1 g``, ``M = R L^-T``, solved by the
+dual active set of DAQP (Arnstrom, Bemporad, Axehill 2022): ``x = -d - M_A' lambda_A`` for the
+working set A; ``lambda_A`` from the Cholesky factor of ``M_A M_A'``, appended one row per added
+constraint, and downdated by Givens rotations when one is removed; the most violated constraint joins while the
+multipliers have their signs (``lambda >= 0`` at an upper bound, ``<= 0`` at a lower), else a
+step to the first sign change removes that one. A row of M is formed only when its constraint
+joins. The tolerances are DAQP's defaults (a constraint violated by at most ``primal_tol`` N m
+does not join; a multiplier within ``dual_tol`` of zero keeps its sign), so both solvers stop at
+the same working set and agree to rounding (tests/test_plan_qp.py: 1e-9 against DAQP on the
+planner's problems and random ones, and SciPy as an independent oracle).
+
+Every kernel is a fixed-order loop (numba, no BLAS): the same bits on every machine.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+PRIMAL_TOL = 1e-6
+"""A constraint violated by at most this (N m, the rows' unit) does not join (DAQP's default)."""
+DUAL_TOL = 1e-12
+"""A multiplier within this of zero keeps its sign (DAQP's default)."""
+SOLVED, ITERATION_LIMIT = 1, -4
+"""Exit flags, as DAQP's: 1 optimal, -4 iteration limit."""
+
+
+@numba.njit(cache=True)
+def joint_factors(hessian, n):  # pragma: no cover - compiled
+    """The Cholesky factors ``L_j`` (n, N, N), lower, of the per-joint blocks of ``hessian``
+    (N n, N n), step-major (joint j's block: rows and columns ``k n + j``). A block that is not
+    positive definite raises."""
+    horizon = hessian.shape[0] // n
+    factors = np.zeros((n, horizon, horizon))
+    for j in range(n):
+        factor = factors[j]
+        for r in range(horizon):
+            for c in range(r + 1):
+                total = hessian[r * n + j, c * n + j]
+                for i in range(c):
+                    total -= factor[r, i] * factor[c, i]
+                if r == c:
+                    if total <= 0.0:
+                        raise ValueError("a joint's block of the Hessian is not positive definite")
+                    factor[r, r] = math.sqrt(total)
+                else:
+                    factor[r, c] = total / factor[c, c]
+    return factors
+
+
+@numba.njit(cache=True)
+def _forward(factor, rhs, out):  # pragma: no cover - compiled
+    """``out = factor^-1 rhs`` (lower triangular factor (N, N))."""
+    size = rhs.shape[0]
+    for r in range(size):
+        total = rhs[r]
+        for i in range(r):
+            total -= factor[r, i] * out[i]
+        out[r] = total / factor[r, r]
+
+
+@numba.njit(cache=True)
+def _moves(factors, x, moves):  # pragma: no cover - compiled
+    """``U = L^-T x`` per joint: x (n, N) whitened, moves (N n,) step-major."""
+    n, horizon = x.shape[0], x.shape[1]
+    for j in range(n):
+        factor = factors[j]
+        for r in range(horizon - 1, -1, -1):
+            total = x[j, r]
+            for i in range(r + 1, horizon):
+                total -= factor[i, r] * moves[i * n + j]
+            moves[r * n + j] = total / factor[r, r]
+
+
+@numba.njit(cache=True)
+def _row(factors, rows, r, out, work_in, work_out):  # pragma: no cover - compiled
+    """Row r of ``M = R L^-T``, whitened, into out (n, N): per joint ``L_j^-1 R[r, joint j]'``."""
+    n, horizon = factors.shape[0], factors.shape[1]
+    last = r // n  # row block k touches the moves of steps 0..k
+    for j in range(n):
+        for k in range(horizon):
+            work_in[k] = rows[r, k * n + j] if k <= last else 0.0
+        _forward(factors[j], work_in, work_out)
+        for k in range(horizon):
+            out[j, k] = work_out[k]
+
+
+@numba.njit(cache=True)
+def _refactor(gram, size, chol):  # pragma: no cover - compiled
+    """The Cholesky factor of ``gram[:size, :size]`` into chol."""
+    for r in range(size):
+        for c in range(r + 1):
+            total = gram[r, c]
+            for i in range(c):
+                total -= chol[r, i] * chol[c, i]
+            if r == c:
+                chol[r, r] = math.sqrt(max(total, 1e-300))
+            else:
+                chol[r, c] = total / chol[c, c]
+
+
+@numba.njit(cache=True)
+def _drop_row(chol, size, p):  # pragma: no cover - compiled
+    """The Cholesky factor of ``M_A M_A'`` without row p of M_A, in place (``size`` - 1 rows):
+    row p removed, the superdiagonal it leaves zeroed by Givens rotations of adjacent columns
+    (O(size^2), not a new factorisation)."""
+    for i in range(p, size - 1):
+        for c in range(i + 2):
+            chol[i, c] = chol[i + 1, c]
+    for j in range(p, size - 1):
+        a, b = chol[j, j], chol[j, j + 1]
+        radius = math.sqrt(a * a + b * b)
+        cos, sin = a / radius, b / radius
+        for i in range(j, size - 1):
+            x, y = chol[i, j], chol[i, j + 1]
+            chol[i, j] = cos * x + sin * y
+            chol[i, j + 1] = -sin * x + cos * y
+        chol[j, j + 1] = 0.0
+
+
+@numba.njit(cache=True)
+def _whiten(factors, gradient, d, work_in, work_out):  # pragma: no cover - compiled
+    """d (n, N): each joint's gradient through its factor's forward substitution (:func:`_forward`)."""
+    n, horizon = d.shape
+    for j in range(n):
+        for k in range(horizon):
+            work_in[k] = gradient[k * n + j]
+        _forward(factors[j], work_in, work_out)
+        for k in range(horizon):
+            d[j, k] = work_out[k]
+
+
+@numba.njit(cache=True)
+def _gram_row(m_rows, count, gram):  # pragma: no cover - compiled
+    """Row and column ``count`` of the working set's Gram matrix M_A M_A' (in place)."""
+    n, horizon = m_rows.shape[1], m_rows.shape[2]
+    for p in range(count + 1):
+        total = 0.0
+        for j in range(n):
+            for k in range(horizon):
+                total += m_rows[count, j, k] * m_rows[p, j, k]
+        gram[count, p] = total
+        gram[p, count] = total
+
+
+@numba.njit(cache=True)
+def _append_cholesky(gram, chol, count):  # pragma: no cover - compiled
+    """Row ``count`` of the Cholesky factor of the Gram matrix, the rows above it unchanged."""
+    for p in range(count):
+        total = gram[count, p]
+        for i in range(p):
+            total -= chol[count, i] * chol[p, i]
+        chol[count, p] = total / chol[p, p]
+    total = gram[count, count]
+    for i in range(count):
+        total -= chol[count, i] * chol[count, i]
+    chol[count, count] = math.sqrt(max(total, 1e-300))
+
+
+@numba.njit(cache=True)
+def _unconstrained_multipliers(
+    active, sign, upper, lower, m_rows, d, chol, count, target, tmp, star
+):  # pragma: no cover
+    """``star`` = lambda* = -(M_A M_A')^-1 (b_A + M_A d) of the working set (in place)."""
+    n, horizon = d.shape
+    for p in range(count):
+        r = active[p]
+        total = upper[r] if sign[r] > 0 else lower[r]
+        for j in range(n):
+            for k in range(horizon):
+                total += m_rows[p, j, k] * d[j, k]
+        target[p] = -total
+    for p in range(count):
+        total = target[p]
+        for i in range(p):
+            total -= chol[p, i] * tmp[i]
+        tmp[p] = total / chol[p, p]
+    for p in range(count - 1, -1, -1):
+        total = tmp[p]
+        for i in range(p + 1, count):
+            total -= chol[i, p] * star[i]
+        star[p] = total / chol[p, p]
+
+
+@numba.njit(cache=True)
+def _primal_and_most_violated(
+    factors, rows, upper, lower, sign, m_rows, lam, d, count, primal_tol, x, moves, slack
+):  # pragma: no cover - compiled
+    """The primal point of the working set's multipliers (x = -d - M_A' lam, the moves U = L^-T x,
+    the rows R U into ``slack``) and the most violated row off the working set (-1: none beyond
+    ``primal_tol``)."""
+    n, horizon = d.shape
+    for j in range(n):
+        for k in range(horizon):
+            total = -d[j, k]
+            for p in range(count):
+                total -= m_rows[p, j, k] * lam[p]
+            x[j, k] = total
+    _moves(factors, x, moves)
+    worst = -1
+    violation = primal_tol
+    for r in range(moves.shape[0]):
+        last = (r // n + 1) * n
+        total = 0.0
+        for i in range(last):
+            total += rows[r, i] * moves[i]
+        slack[r] = total
+        if sign[r] != 0:
+            continue
+        if total - upper[r] > violation:
+            violation, worst = total - upper[r], r
+        elif lower[r] - total > violation:
+            violation, worst = lower[r] - total, r
+    return worst
+
+
+@numba.njit(cache=True)
+def solve_plan_qp(
+    factors, gradient, rows, upper, lower, warm, primal_tol, dual_tol, max_iterations
+):  # pragma: no cover - compiled
+    """``(moves (N n,), lam (N n,), flag, iterations)`` of the horizon QP (module docstring).
+
+    ``factors`` (n, N, N) from :func:`joint_factors`; ``gradient`` g (N n,); ``rows`` R (N n, N n),
+    block lower triangular in steps; ``upper``, ``lower`` (N n,); ``warm`` (N n,) int: the working
+    set to start from (+1 at the upper bound, -1 at the lower, 0 free: e.g. the signs of a last
+    solve's ``lam``). ``lam``: the multipliers of the rows (> 0 at an upper bound, < 0 at a lower),
+    as DAQP's ``info["lam"]``; ``flag``: :data:`SOLVED` or :data:`ITERATION_LIMIT`."""
+    n, horizon = factors.shape[0], factors.shape[1]
+    size = n * horizon
+    d = np.empty((n, horizon))
+    work_in = np.empty(horizon)
+    work_out = np.empty(horizon)
+    _whiten(factors, gradient, d, work_in, work_out)
+    active = np.empty(size, dtype=np.int64)  # the working set, in order of joining
+    sign = np.zeros(size, dtype=np.int64)  # +1 / -1 / 0 per row
+    m_rows = np.empty((size, n, horizon))  # whitened rows of the working set
+    gram = np.empty((size, size))
+    chol = np.empty((size, size))
+    lam = np.zeros(size)  # multipliers of the working set, by position
+    target = np.empty(size)
+    star = np.empty(size)
+    tmp = np.empty(size)
+    x = np.empty((n, horizon))
+    moves = np.empty(size)
+    slack = np.empty(size)
+    count = 0
+    for r in range(size):  # the warm working set
+        if warm[r] != 0:
+            active[count] = r
+            sign[r] = 1 if warm[r] > 0 else -1
+            _row(factors, rows, r, m_rows[count], work_in, work_out)
+            _gram_row(m_rows, count, gram)
+            count += 1
+    _refactor(gram, count, chol)
+    iterations = 0
+    flag = ITERATION_LIMIT
+    while iterations < max_iterations:
+        iterations += 1
+        _unconstrained_multipliers(active, sign, upper, lower, m_rows, d, chol, count, target, tmp, star)
+        blocking = -1
+        alpha = 1.0
+        for p in range(count):  # the first multiplier to change sign on the way to lambda*
+            s = sign[active[p]]
+            if s * star[p] < -dual_tol:
+                step = lam[p] / (lam[p] - star[p])
+                if blocking < 0 or step < alpha:
+                    alpha, blocking = step, p
+        if blocking >= 0:
+            for p in range(count):
+                lam[p] += alpha * (star[p] - lam[p])
+            sign[active[blocking]] = 0
+            for p in range(blocking, count - 1):  # drop it from the working set, keep the order
+                active[p] = active[p + 1]
+                lam[p] = lam[p + 1]
+                m_rows[p] = m_rows[p + 1]
+            _drop_row(chol, count, blocking)
+            count -= 1
+            continue
+        for p in range(count):
+            lam[p] = star[p]
+        worst = _primal_and_most_violated(
+            factors, rows, upper, lower, sign, m_rows, lam, d, count, primal_tol, x, moves, slack
+        )
+        if worst < 0:
+            flag = SOLVED
+            break
+        # the most violated row joins: append its row of the Cholesky factor of M_A M_A'
+        active[count] = worst
+        sign[worst] = 1 if slack[worst] > upper[worst] else -1
+        _row(factors, rows, worst, m_rows[count], work_in, work_out)
+        _gram_row(m_rows, count, gram)
+        _append_cholesky(gram, chol, count)
+        lam[count] = 0.0
+        count += 1
+    multipliers = np.zeros(size)
+    for p in range(count):
+        multipliers[active[p]] = lam[p]
+    return moves, multipliers, flag, iterations
+
+
+def warm_set(lam: np.ndarray | None, size: int) -> np.ndarray:
+    """The working set (size,) int64 of :func:`solve_plan_qp` from a last solve's multipliers
+    (their signs), or empty (None)."""
+    if lam is None:
+        return np.zeros(size, dtype=np.int64)
+    return np.sign(np.nan_to_num(np.asarray(lam, dtype=float))).astype(np.int64)
