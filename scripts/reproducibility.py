@@ -13,9 +13,10 @@ at most the runs' ranges (max - min of each file's replicas or seeds, added: for
 about 4.1 standard deviations of one run, where the difference of the means has 0.71; for 8, 5.7
 against 0.5). The table gives the difference in standard errors too. Every other row must agree
 to 1e-9 relative. The ablation tables are split by controller (``ablation/GROUP/CONTROLLER``):
-their MPC and IDMPC runs are judged to 1e-9 like any plain row; their GP runs (GP-MPC,
-GP-IDMPC) are single runs of the same chaotic loops, not replicated, and marked ``chaotic`` (they
-do not hold, and ``--check`` reports them without failing on them: only a replicated row can).
+their MPC and IDMPC runs are judged to 1e-9 like any plain row; their GP cells (GP-MPC,
+GP-IDMPC), replicated by the reproduction like the main GP rows, within their runs' ranges, cell by
+cell (the worst cell is the row's). A GP cell of an older summary without replicas is marked
+``chaotic`` when it differs (reported, not failed on: only a replicated cell can hold).
 
 Writes ``OUT.json`` (per variant and row: numbers compared, numbers that differ, the largest
 relative difference, and for a distribution row the largest difference in standard errors and in
@@ -200,9 +201,9 @@ def main() -> None:
         "the E_p it prints (its mean per joint and of the joints), as a fraction of the runs' ranges (max -",
         "min of each file's replicas or seeds, added) and in standard errors of the difference (SE). A row",
         f"holds if it agrees to {RELATIVE:g} relative, or (a distribution row) within the runs' ranges;",
-        "**FAILS** marks one that does not. The ablations are split by controller; their GP runs are single",
-        "runs (not replicated) of loops that turn a last-bit difference into another run, marked so when",
-        "they differ. Derived numbers (which row wins, gains) are compared, not judged.",
+        "**FAILS** marks one that does not. The ablations are split by controller; their GP cells are",
+        "replicated like the main GP rows and judged cell by cell (the worst cell shown). Derived numbers",
+        "(which row wins, gains) are compared, not judged.",
         "",
     ]
     labels = list(result["variants"])

@@ -233,6 +233,21 @@ def _primal_and_most_violated(
 
 
 @numba.njit(cache=True)
+def _load_working_set(factors, rows, warm, active, sign, m_rows, gram, work_in, work_out):  # pragma: no cover
+    """The warm working set's rows (``warm``: +1 upper, -1 lower, 0 free) into ``active``,
+    ``sign``, ``m_rows`` and the Gram matrix; their count."""
+    count = 0
+    for r in range(warm.shape[0]):
+        if warm[r] != 0:
+            active[count] = r
+            sign[r] = 1 if warm[r] > 0 else -1
+            _row(factors, rows, r, m_rows[count], work_in, work_out)
+            _gram_row(m_rows, count, gram)
+            count += 1
+    return count
+
+
+@numba.njit(cache=True)
 def solve_plan_qp(
     factors, gradient, rows, upper, lower, warm, primal_tol, dual_tol, max_iterations
 ):  # pragma: no cover - compiled
@@ -261,14 +276,7 @@ def solve_plan_qp(
     x = np.empty((n, horizon))
     moves = np.empty(size)
     slack = np.empty(size)
-    count = 0
-    for r in range(size):  # the warm working set
-        if warm[r] != 0:
-            active[count] = r
-            sign[r] = 1 if warm[r] > 0 else -1
-            _row(factors, rows, r, m_rows[count], work_in, work_out)
-            _gram_row(m_rows, count, gram)
-            count += 1
+    count = _load_working_set(factors, rows, warm, active, sign, m_rows, gram, work_in, work_out)
     _refactor(gram, count, chol)
     iterations = 0
     flag = ITERATION_LIMIT
