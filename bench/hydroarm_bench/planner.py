@@ -304,7 +304,9 @@ def render_planner(section: dict) -> str:
     lines += [
         "",
         f"Targets: median <= {TARGETS_MS['median']} ms, p99 <= {TARGETS_MS['p99']} ms, max <= {TARGETS_MS['max']} ms "
-        f"(met with the structured solver: {step['structured']['meets']}). First step of the warm-up run: "
+        "(with the structured solver: "
+        + ", ".join(f"{key} {'met' if met else 'missed'}" for key, met in step["structured"]["meets"].items())
+        + "). First step of the warm-up run: "
         f"{step['warmup_first_step_ms']:.1f} ms. DAQP / structured, whole step: "
         + ", ".join(f"{key} {value:.2f}x" for key, value in step["step_ratio_daqp_over_structured"].items())
         + ".\n",
