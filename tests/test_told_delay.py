@@ -114,8 +114,8 @@ def test_pi_idmpc_s_remainder_follows_the_told_delay():
 def test_pi_idmpc_one_period_late_diverges_with_the_ideal_loop_s_bandwidth_and_not_with_the_told_one(told, diverges):
     """PI-IDMPC on the paper task, the ideal sensor one period late, 1.5 s: with the bandwidth
     designed for no delay it diverges at 0.24 s (with its remainder a TDE or at L*: the
-    bandwidth decides here; docs/robustness.md, section 6). Its planner on DAQP: the structured
-    plan solver (the default) happens to hold this world with the ideal loop's bandwidth, at 2.3x
+    bandwidth decides here; docs/robustness.md, section 6). Its planner on DAQP (the default,
+    pinned here): the structured plan solver happens to hold this world with the ideal loop's bandwidth, at 2.3x
     the told bandwidth's E_p over 10 s (0.0646 against 0.0277, measured at the merge)."""
     config = with_overrides(
         ExperimentConfig(duration=1.5),

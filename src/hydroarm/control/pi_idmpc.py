@@ -81,9 +81,10 @@ class PIIDMPCConfig(FrozenModel):
         3, ge=0, le=10, description="the planner's SQP steps along the plan per replan, 0 <= x <= 10"
     )
     planner_solver: Literal["structured", "daqp"] = pydantic.Field(
-        "structured",
-        description="the planner's QP solver: structured (compiled, per-joint factors, hydroarm.control.plan_qp) "
-        "or daqp (dense); the same plan to rounding",
+        "daqp",
+        description="the planner's QP solver: daqp (dense; the default: its runs hold across BLAS kernels) or "
+        "structured (compiled, per-joint factors, hydroarm.control.plan_qp: 32x faster a solve, the same plan to "
+        "rounding, but its active-set decisions turn a kernel's last bit into another noisy run)",
     )
     planner_deviation: float = pydantic.Field(
         500.0,
