@@ -50,8 +50,8 @@ def test_quick_reproduction_writes_everything(quick_run):
     # the paper's 3 controllers and the 10 extra rows (hydroarm's flagship, the paper's 3 behind the
     # Kalman filter, IDMPC alone and with the 4 observers, PI-IDMPC), clean and noisy x 2 seeds,
     # and the dry-arm bound (clean + 2 noisy), and 3 more clean runs (4 replicas in --quick) of
-    # GP-MPC, GP-MPC+KF and GP-IDMPC+KF from perturbed starts
-    assert len(runs) == (3 + 10) * (1 + 2) + 1 + 2 + 3 * 3
+    # GP-MPC, GP-MPC+KF, GP-IDMPC+KF and PI-IDMPC+KF from perturbed starts
+    assert len(runs) == (3 + 10) * (1 + 2) + 1 + 2 + 3 * 4
 
 
 def test_tables_carry_hydroarms_best_beside_the_paper_rows(quick_run):

@@ -262,7 +262,8 @@ def reproducible_digits(metrics: dict) -> list[str]:
         "LAPACK or CPU-dispatched NumPy function), but the rest of the loop (the MPC's products, the",
         "estimator) still rounds by the CPU's BLAS kernel, at about 1e-11 relative in these rows. The",
         "sliding-window GP's rows turn such a last-bit difference into another run (each step accepts or",
-        "rejects a hyperparameter step on a comparison of two likelihoods): they are reported as a",
+        "rejects a hyperparameter step on a comparison of two likelihoods), and so does PI-IDMPC's planner",
+        "(its plans' active sets follow its learned model): these rows are reported as a",
         "distribution and printed with the digits it leaves.",
         "",
     ]
