@@ -13,9 +13,9 @@ from hydroarm.control.filter_design import (
     TRACKING_INDEX_LIMIT,
     FilterDesign,
     derived_acceleration_variance,
-    double_integrator,
     tracking_index,
 )
+from hydroarm.control.linear import double_integrator
 from hydroarm.sim.experiment import ExperimentConfig, build_experiment, with_overrides
 
 PERIOD = 0.01

@@ -40,7 +40,7 @@ def _numpy_rollout(controller, t, y, reference, a_r):
     """The rollout as it was written in NumPy (one IDMPC step, the water's terms, CRBA mirrored,
     allocate, the double integrator's step), the reference of the compiled one."""
     n, period, horizon = controller.n, controller.control_period, controller.planner.horizon
-    model, data = controller.arm.model, controller.planner.data
+    model, data = controller.arm.model, controller.planner.nominal.data
     q, v = y[:n].copy(), y[n:].copy()
     moves = np.empty((horizon, n))
     lower = np.tri(n, k=-1, dtype=bool)

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from hydroarm.control.linear import double_integrator
 from hydroarm.model.arm import Arm
 from hydroarm.model.water import Water, added_mass_matrix
 
@@ -45,8 +46,7 @@ def told_delay_radius(period: float, gain: np.ndarray, delay: int, plant_gain: f
     """The spectral radius (-) of one joint's loop (module docstring): the LQR gain K (2,)
     (``gain``) acting on the state predicted ``delay`` periods ahead on the model, the plant
     realising ``plant_gain`` times the commanded acceleration, T = ``period`` (s)."""
-    a_mat = np.array([[1.0, period], [0.0, 1.0]])
-    b_vec = np.array([0.5 * period * period, period])
+    a_mat, b_vec = double_integrator(period)
     if delay == 0:
         return float(np.max(np.abs(np.linalg.eigvals(a_mat - plant_gain * np.outer(b_vec, gain)))))
     size = 2 + delay  # [x_k, u_{k-1}, ..., u_{k-d}]

@@ -34,7 +34,7 @@ The real loop (issue 23, :mod:`hydroarm.model.sensing`):
   the position noise plus the quantisation's ``resolution^2 / 12``; the velocity is estimated,
   the sensor's differenced velocity is not used. The Riccati equation and gain
   ``L = Sigma C^T (C Sigma C^T + R)^-1`` (2 x 1) are the general ones
-  (:func:`riccati_covariance`).
+  (:func:`~hydroarm.control.linear.filter_covariance`).
 * **loop delay** (``sensor.delay + actuator.delay`` = d periods; ``estimator.delay``): the
   measurement at step k is of x_{k - d_s} and the command of step k acts from step k + d_a. The
   filter runs d_s periods behind, each predict driven by the command that was acting then, and
@@ -65,11 +65,10 @@ from hydroarm.control.filter_design import (
     VARIANCE_FLOOR,
     FilterDesign,
     derived_acceleration_variance,
-    double_integrator,
-    riccati_covariance,
     steady_state_covariance,
 )
 from hydroarm.control.interface import Controller, ControlOutput, Reference
+from hydroarm.control.linear import double_integrator, double_integrator_step, filter_covariance
 from hydroarm.model.nominal import NominalModel
 from hydroarm.model.sensing import Actuator, ActuatorConfig, SensorConfig
 
@@ -250,7 +249,7 @@ class JointKalmanFilter:
                 measurement = np.eye(2)
                 noise = np.diag([max(design.position_variance, VARIANCE_FLOOR),
                                  max(design.velocity_variance, VARIANCE_FLOOR)])  # fmt: skip
-            self.covariance = riccati_covariance(period, measurement, noise, self.acceleration_variance)
+            self.covariance = filter_covariance(period, measurement, noise, self.acceleration_variance)
             self.gain = (
                 self.covariance @ measurement.T @ np.linalg.inv(measurement @ self.covariance @ measurement.T + noise)
             )
@@ -283,8 +282,7 @@ class JointKalmanFilter:
             self._prior = self._a @ self._posterior @ self._a.T + self._process
             self._posterior = None
         period = self.period
-        self._q = self._q + period * self._v + 0.5 * period * period * acceleration
-        self._v = self._v + period * acceleration
+        self._q, self._v = double_integrator_step(self._q, self._v, acceleration, period)
 
     def update(self, y: np.ndarray) -> np.ndarray:
         """Correct with the measurement ``y = [q, v]`` (2n,; v unused when ``position_only``);
@@ -441,8 +439,7 @@ class FilteredController:
                 acceleration = flight[k - missing]
             if k < past and past - k <= len(self._corrections):
                 acceleration = acceleration + self._corrections[k - past]
-            q = q + period * v + 0.5 * period * period * acceleration
-            v = v + period * acceleration
+            q, v = double_integrator_step(q, v, acceleration, period)
         return np.concatenate([q, v])
 
     @property

@@ -1,7 +1,9 @@
 """The design of the per-joint Kalman filter (:mod:`hydroarm.control.estimator`): what it is
 designed for (:class:`FilterDesign`), its default process noise derived from the sensor
 (:func:`derived_acceleration_variance`, Kalata's tracking index), the zero-order-hold double
-integrator it predicts on and the steady-state covariance of its Riccati equation.
+integrator it predicts on and the steady-state covariance of its Riccati equation (both from
+:mod:`hydroarm.control.linear`: :func:`~hydroarm.control.linear.double_integrator`,
+:func:`~hydroarm.control.linear.filter_covariance`).
 
 Defaults that follow the sensor (issue 32; docs/robustness.md, section 6):
 
@@ -20,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hydroarm.config import ConfigError
+from hydroarm.control.linear import filter_covariance
 
 
 @dataclass(frozen=True)
@@ -90,45 +92,15 @@ def derived_acceleration_variance(position_only: bool, position_variance: float,
     return float(min(MEASURED_VELOCITY_ACCELERATION_VARIANCE, capped))
 
 
-def riccati_covariance(
-    period: float, measurement: np.ndarray, noise: np.ndarray, acceleration_variance: float,
-    tolerance: float = 1e-13, max_iterations: int = 1_000_000,
-) -> np.ndarray:  # fmt: skip
-    """The steady-state prior covariance Sigma (2, 2) for the measurement matrix C
-    (``measurement``, (m, 2)) and noise covariance R (``noise``, (m, m)), by fixed-point
-    iteration of ``Sigma = A (Sigma - Sigma C^T (C Sigma C^T + R)^-1 C Sigma) A^T + Q_w``.
-    Raises :class:`ConfigError` if it does not converge."""
-    a_mat, b_vec = double_integrator(period)
-    process = acceleration_variance * np.outer(b_vec, b_vec)
-    c_mat = np.atleast_2d(measurement)
-    sigma = process.copy()
-    for _ in range(max_iterations):
-        gain = sigma @ c_mat.T @ np.linalg.inv(c_mat @ sigma @ c_mat.T + noise)
-        posterior = (np.eye(2) - gain @ c_mat) @ sigma
-        updated = a_mat @ posterior @ a_mat.T + process
-        if np.all(np.abs(updated - sigma) <= tolerance * np.abs(updated)):
-            return 0.5 * (updated + updated.T)
-        sigma = updated
-    raise ConfigError(
-        f"estimator: the Kalman covariance did not converge in {max_iterations} iterations "
-        f"(R = {np.asarray(noise).tolist()!r}, acceleration_variance = {acceleration_variance!r})"
-    )
-
-
-def double_integrator(period: float) -> tuple[np.ndarray, np.ndarray]:
-    """``(A (2, 2), B (2,))`` of the exact zero-order-hold double integrator with period T (s)."""
-    return np.array([[1.0, period], [0.0, 1.0]]), np.array([0.5 * period * period, period])
-
-
 def steady_state_covariance(
     period: float, measurement_variance: float, acceleration_variance: float,
     tolerance: float = 1e-14, max_iterations: int = 1_000_000,
 ) -> np.ndarray:  # fmt: skip
     """The steady-state prior covariance Sigma (2, 2) of the filter (module docstring) measuring
-    q and v with noise ``measurement_variance`` each: :func:`riccati_covariance` with C = I
+    q and v with noise ``measurement_variance`` each: :func:`~hydroarm.control.linear.filter_covariance` with C = I
     (the same arithmetic: products with the identity are exact).
 
     Raises :class:`ConfigError` if it does not converge (it does for any positive variances:
     the pair (A, I) is observable and (A, B) controllable)."""
     noise = measurement_variance * np.eye(2)
-    return riccati_covariance(period, np.eye(2), noise, acceleration_variance, tolerance, max_iterations)
+    return filter_covariance(period, np.eye(2), noise, acceleration_variance, tolerance, max_iterations)

@@ -75,15 +75,14 @@ from typing import Annotated, Literal
 
 import numba
 import numpy as np
-import pinocchio as pin
 import pydantic
-import scipy.linalg
 
 from hydroarm.config import FrozenModel, per_joint
 from hydroarm.control.delay_design import INERTIA_MARGIN, ROBUST_RADIUS, wet_inertia_ratio, worst_told_delay_radius
 from hydroarm.control.gp import GPConfig, SlidingWindowGP
 from hydroarm.control.idmpc_limits import HorizonQP, allocate  # noqa: F401 (allocate: public here too)
 from hydroarm.control.interface import DEFAULT_CONTROL_PERIOD, ControlOutput, Reference, require_period, sample_times
+from hydroarm.control.linear import double_integrator, reference_defects, solve_dare
 from hydroarm.model.arm import Arm
 from hydroarm.model.nominal import NominalModel
 
@@ -162,13 +161,13 @@ def gp_input_size(features: str, n_joints: int) -> int:
 
 def joint_lqr(period: float, q_position: float, q_velocity: float, r_acceleration: float):
     """``(P (2, 2), K (2,), G (2,))`` of one joint's double integrator: the DARE solution
-    (scipy), the LQR gain ``K = (R + B'PB)^-1 B'PA`` and ``G = (R + B'PB)^-1 B'``."""
-    a_mat = np.array([[1.0, period], [0.0, 1.0]])
-    b_mat = np.array([[0.5 * period * period], [period]])
+    (scipy's, :func:`~hydroarm.control.linear.solve_dare` with ``method="scipy"``), the LQR gain
+    ``K = (R + B'PB)^-1 B'PA`` and ``G = (R + B'PB)^-1 B'``."""
+    a_mat, b_vec = double_integrator(period)
+    b_mat = b_vec[:, None]
     q_mat = np.diag([q_position, q_velocity])
     r_mat = np.array([[r_acceleration]])
-    p_mat = scipy.linalg.solve_discrete_are(a_mat, b_mat, q_mat, r_mat)
-    p_mat = 0.5 * (p_mat + p_mat.T)
+    p_mat, _, _ = solve_dare(a_mat, b_mat, q_mat, r_mat, method="scipy")
     scale = 1.0 / (r_acceleration + float(b_mat[:, 0] @ p_mat @ b_mat[:, 0]))
     gain = scale * (b_mat[:, 0] @ p_mat @ a_mat)
     return p_mat, gain, scale * b_mat[:, 0]
@@ -182,7 +181,7 @@ not told of (:func:`delay_margin_weight`)."""
 def delayed_radius(period: float, gain: np.ndarray, extra: int) -> float:
     """The spectral radius (-) of one joint's loop ``u_k = -K x_k`` on the sampled double integrator
     when the move acts ``extra`` periods late (a delay nothing predicts across); ``gain`` K (2,)."""
-    a_mat, b_vec = np.array([[1.0, period], [0.0, 1.0]]), np.array([0.5 * period * period, period])
+    a_mat, b_vec = double_integrator(period)
     size = 2 + extra
     loop = np.zeros((size, size))
     loop[:2, :2] = a_mat
@@ -379,9 +378,7 @@ class InverseDynamicsMPC:
         k = 0..N: ``q_r, v_r, a_r`` (N + 1, n) each (a look-ahead samples many steps in one call)."""
         n, period = self.n, self.control_period
         e0 = np.stack([y[:n] - q_r[0], y[n:] - v_r[0]], axis=1)
-        c = np.empty((self.config.horizon, n, 2))
-        c[:, :, 0] = q_r[1:] - q_r[:-1] - period * v_r[:-1] - 0.5 * period * period * a_r[:-1]
-        c[:, :, 1] = v_r[1:] - v_r[:-1] - period * a_r[:-1]
+        c = reference_defects(q_r, v_r, a_r, period)  # (N, n, 2)
         if remember:
             self._last_problem = (e0, c, a_r[:-1], q_r, v_r)
         return a_r[0] + unconstrained_move(e0, c, self.P, self.K, self._g, period)
@@ -410,12 +407,10 @@ class InverseDynamicsMPC:
     ) -> tuple[np.ndarray, np.ndarray]:
         """``(M, bias)``: the dry model's mass matrix (n, n) at q, plus ``added_mass`` if given,
         and ``h(q, v) - w_hat`` (n,) N m."""
-        model, data = self.arm.model, self.nominal.data
-        mass = pin.crba(model, data, q)
-        mass = np.triu(mass) + np.triu(mass, 1).T
+        mass = self.nominal.mass_matrix(q)
         if added_mass is not None:
             mass = mass + added_mass
-        return mass, pin.nonLinearEffects(model, data, q, v) - w_hat
+        return mass, self.nominal.nonlinear_effects(q, v) - w_hat
 
     def limited_torque(self, mass: np.ndarray, bias: np.ndarray, acceleration: np.ndarray, w_hat: np.ndarray):
         """:meth:`torque_map` on given :meth:`dynamics_terms`."""

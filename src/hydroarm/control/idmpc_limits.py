@@ -42,9 +42,10 @@ from __future__ import annotations
 import daqp
 import numba
 import numpy as np
-import pinocchio as pin
 
+from hydroarm.control.linear import double_integrator
 from hydroarm.control.plan_qp import DUAL_TOL, PRIMAL_TOL, joint_factors, solve_plan_qp, warm_set
+from hydroarm.model.nominal import NominalModel
 
 QP_SOLVERS = ("daqp", "structured")
 """The solvers of :class:`HorizonQP`: DAQP (dense) or :mod:`hydroarm.control.plan_qp` (its structure)."""
@@ -84,8 +85,7 @@ def condensed_problem(period, horizon, q_pos, q_vel, r_acc, p_mats):
     Returns ``H`` (N n, N n), ``F_e`` (N n, n, 2) and ``F_c`` (N n, N, n, 2): the gradient's
     maps from the errors e0 (n, 2) and the defects c (N, n, 2)."""
     n = q_pos.shape[0]
-    a_mat = np.array([[1.0, period], [0.0, 1.0]])
-    b_vec = np.array([0.5 * period * period, period])
+    a_mat, b_vec = double_integrator(period)
     size = horizon * n
     hessian = np.zeros((size, size))
     grad_e0 = np.zeros((size, n, 2))
@@ -180,7 +180,7 @@ class HorizonQP:
         self.grad_e0 = grad_e0.reshape(horizon * n, 2 * n)
         self.grad_c = grad_c.reshape(horizon * n, 2 * horizon * n)
         self.limit = np.tile(np.asarray(torque_limit, dtype=float), horizon)
-        self.data = arm.create_data()
+        self.nominal = NominalModel(arm, inner_step=None)  # own workspace
         self._sense = np.zeros(horizon * n, dtype=np.int32)
         self._rows = np.zeros((horizon * n, horizon * n))
         self._d_q = np.empty((horizon, n, n))
@@ -234,14 +234,14 @@ class HorizonQP:
     def linearised_rows(self, moves, e0, c, q_r, v_r, a_r, w_hat):
         """``(rows, upper, lower)`` of the inverse dynamics linearised along the plan of ``moves``
         (N, n) (module docstring); ``rows`` is a buffer reused by the next call."""
-        model, data, period = self.arm.model, self.data, self.period
+        period = self.period
         q, v, a = predicted_plan(e0, c, moves, q_r, v_r, a_r, period)
         base = np.empty(self.horizon * self.n)
         n = self.n
         for k in range(self.horizon):
-            d_q, d_v, mass = pin.computeRNEADerivatives(model, data, q[k], v[k], a[k])
+            tau, d_q, d_v, mass = self.nominal.inverse_dynamics_derivatives(q[k], v[k], a[k])
             self._d_q[k], self._d_v[k], self._mass[k] = d_q, d_v, mass
-            base[k * n : (k + 1) * n] = data.tau
+            base[k * n : (k + 1) * n] = tau
         if self.disturbance_model is not None:  # the disturbance at the planned states, step by step
             w_plan, added_mass = self.disturbance_model(q, v, a)
             base -= w_plan.ravel()

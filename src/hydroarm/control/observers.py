@@ -40,12 +40,12 @@ import time
 from typing import Literal
 
 import numpy as np
-import pinocchio as pin
 import pydantic
 
 from hydroarm.config import FrozenModel
 from hydroarm.control.interface import ControlOutput, Reference, TorqueFeedforward, require_port
 from hydroarm.model.arm import Arm
+from hydroarm.model.nominal import NominalModel
 
 ObserverKind = Literal["none", "tde", "ndob"]
 
@@ -92,7 +92,7 @@ class DisturbanceObserver:
         self.period = float(control_period)
         self.config = config
         self.gain = 1.0 if config.kind == "tde" else float(config.gain)
-        self.data = arm.create_data()
+        self.nominal = NominalModel(arm, inner_step=None)  # own workspace
         self.reset()
 
     def reset(self) -> None:
@@ -103,13 +103,9 @@ class DisturbanceObserver:
 
     def residual(self, y: np.ndarray, u: np.ndarray, y_next: np.ndarray) -> np.ndarray:
         """``r = M(q) (v_next - v) / T + h(q, v) - u`` (n,) N m of the transition ``y -> y_next``
-        (2n,) under ``u`` (n,), with M and h at y."""
-        n, model, data = self.n, self.arm.model, self.data
-        q, v = y[:n], y[n:]
-        mass = pin.crba(model, data, q)
-        mass = np.triu(mass) + np.triu(mass, 1).T
-        bias = pin.nonLinearEffects(model, data, q, v)
-        return mass @ (y_next[n:] - v) / self.period + bias - u
+        (2n,) under ``u`` (n,), with M and h at y (:meth:`~hydroarm.model.nominal.NominalModel.tde_residual`,
+        with NumPy's product as the observers always had it)."""
+        return self.nominal.tde_residual(y, u, y_next, self.period, product="blas")
 
     def update(self, y: np.ndarray, u: np.ndarray, y_next: np.ndarray, saturated: bool = False) -> None:
         """Take the transition ``y -> y_next`` under the applied ``u``; ``saturated``: a torque of

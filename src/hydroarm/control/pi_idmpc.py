@@ -42,13 +42,13 @@ from pathlib import Path
 from typing import Literal
 
 import numpy as np
-import pinocchio as pin
 import pydantic
 
 from hydroarm.config import FrozenModel, per_joint
 from hydroarm.control.idmpc import IDMPCConfig, InverseDynamicsMPC
 from hydroarm.control.idmpc_limits import HorizonQP, allocate, predicted_plan
 from hydroarm.control.interface import ControlOutput, Reference, sample_times
+from hydroarm.control.linear import reference_defects
 from hydroarm.control.observers import DisturbanceObserver
 from hydroarm.control.plan_rollout import rollout_step, water_along_plan
 from hydroarm.control.water_model import PhysicsInformedModel, WaterModelConfig
@@ -201,9 +201,7 @@ class PhysicsInformedIDMPC:
         n, period = self.n, self.control_period
         q_r, v_r, a_r = sample_times(reference, t + self._plan_offsets)
         e0 = np.stack([y[:n] - q_r[0], y[n:] - v_r[0]], axis=1)
-        c = np.empty((self.planner.horizon, n, 2))
-        c[:, :, 0] = q_r[1:] - q_r[:-1] - period * v_r[:-1] - 0.5 * period * period * a_r[:-1]
-        c[:, :, 1] = v_r[1:] - v_r[:-1] - period * a_r[:-1]
+        c = reference_defects(q_r, v_r, a_r, period)  # (N, n, 2)
         # the IDMPC's own closed loop on the model, within the limits: the first plan's linearisation
         # point, and the scale of the plausibility check on every plan (PLAN_TRUST)
         rollout = self._rollout(t, y, reference, a_r)
@@ -242,9 +240,8 @@ class PhysicsInformedIDMPC:
         integrator from y with the dry model plus the water model (a plan within the limits):
         Pinocchio's terms per step, the rest compiled (:func:`~hydroarm.control.plan_rollout.rollout_step`)."""
         n, period, horizon = self.n, self.control_period, self.planner.horizon
-        model, data, mpc = self.arm.model, self.planner.data, self.mpc
+        nominal, mpc = self.planner.nominal, self.mpc
         regressor = self.model.regressor
-        water_data = regressor.data
         strips, still = regressor.compiled_terms(self.model.theta)
         q, v = y[:n].copy(), y[n:].copy()
         moves = np.empty((horizon, n))
@@ -252,17 +249,15 @@ class PhysicsInformedIDMPC:
         # and its defects (as acceleration_from_samples forms them)
         times = (t + np.arange(horizon) * period)[:, None] + mpc._offsets[None, :]
         q_s, v_s, a_s = (x.reshape(times.shape + (n,)) for x in sample_times(reference, times.ravel()))
-        c = np.empty((horizon, times.shape[1] - 1, n, 2))
-        c[..., 0] = q_s[:, 1:] - q_s[:, :-1] - period * v_s[:, :-1] - 0.5 * period * period * a_s[:, :-1]
-        c[..., 1] = v_s[:, 1:] - v_s[:, :-1] - period * a_s[:, :-1]
+        c = reference_defects(q_s, v_s, a_s, period)  # (N, N_mpc, n, 2)
         a_ref = np.ascontiguousarray(a_r)
         for k in range(horizon):
-            pin.computeJointJacobiansTimeVariation(model, water_data, q, v)
-            mass_upper = pin.crba(model, data, q)
-            nle = pin.nonLinearEffects(model, data, q, v)
+            jac, djac = regressor.joint_jacobians(q, v)
+            mass_upper = nominal.mass_matrix_upper(q)
+            nle = nominal.nonlinear_effects(q, v)
             q, v, moves[k] = rollout_step(
                 q, v, q_s[k, 0], v_s[k, 0], a_s[k, 0], c[k], mpc.P, mpc.K, mpc._g, period, a_ref[k], strips, still,
-                water_data.J.reshape(6, n), water_data.dJ.reshape(6, n), mass_upper, nle, self._rest, self.torque_limit,
+                jac, djac, mass_upper, nle, self._rest, self.torque_limit,
             )  # fmt: skip
         return moves
 

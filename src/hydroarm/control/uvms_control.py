@@ -26,12 +26,12 @@ from __future__ import annotations
 import time
 
 import numpy as np
-import pinocchio as pin
 
 from hydroarm.control.gp import GPConfig, SlidingWindowGP
 from hydroarm.control.interface import DEFAULT_CONTROL_PERIOD, Controller, ControlOutput, Reference, require_period
 from hydroarm.control.vehicle_control import VehicleControlConfig, make_vehicle_controller, restoring_wrench
 from hydroarm.model.uvms import UVMS
+from hydroarm.model.vehicle import body_rotation
 
 
 class UVMSController:
@@ -125,7 +125,7 @@ class UVMSController:
         """What the vehicle-only model misses over the step (body wrench, N and N m)."""
         vehicle, nq = self.uvms.vehicle, self.uvms.nq
         nu, nu_next = x[nq : nq + 6], x_next[nq : nq + 6]
-        rot = pin.Quaternion(x[6], *x[3:6]).toRotationMatrix()
+        rot = body_rotation(x)
         thrust = vehicle.clip_thrust(u[self.n_arm :])
         damping = (vehicle.linear_damping + vehicle.quadratic_damping * np.abs(nu)) * nu
         model = vehicle.allocation @ thrust + restoring_wrench(vehicle, rot) - damping

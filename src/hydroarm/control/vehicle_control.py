@@ -21,7 +21,6 @@ Both see the vehicle's pose and twist only (blind to the arm); the coupling-awar
 from __future__ import annotations
 
 import numpy as np
-import pinocchio as pin
 import pydantic
 import scipy.linalg
 
@@ -29,7 +28,7 @@ from hydroarm.config import FrozenModel
 from hydroarm.control.interface import DEFAULT_CONTROL_PERIOD
 from hydroarm.control.mpc.condense import condense
 from hydroarm.control.qp import DaqpBoxSolver
-from hydroarm.model.vehicle import Vehicle
+from hydroarm.model.vehicle import Vehicle, body_rotation, rotation_log
 
 Six = list[float]
 
@@ -76,9 +75,9 @@ class ThrusterAllocation:
 
 def pose_error(q_vehicle: np.ndarray, target: np.ndarray) -> np.ndarray:
     """Body-frame error (6,) from the vehicle pose (7: p, quaternion x y z w) to ``target`` (7)."""
-    rot = pin.Quaternion(q_vehicle[6], *q_vehicle[3:6]).toRotationMatrix()
-    rot_ref = pin.Quaternion(target[6], *target[3:6]).toRotationMatrix()
-    return np.concatenate([rot.T @ (target[:3] - q_vehicle[:3]), pin.log3(rot.T @ rot_ref)])
+    rot = body_rotation(q_vehicle)
+    rot_ref = body_rotation(target)
+    return np.concatenate([rot.T @ (target[:3] - q_vehicle[:3]), rotation_log(rot.T @ rot_ref)])
 
 
 def restoring_wrench(vehicle: Vehicle, rot: np.ndarray, rho: float = 1000.0, gravity: float = 9.81) -> np.ndarray:
@@ -124,7 +123,7 @@ class VehiclePID:
     def compute(self, q_vehicle: np.ndarray, nu: np.ndarray, target: np.ndarray, d_hat: np.ndarray | None = None):
         """``(thrust (n,), wrench (6,), saturated)``."""
         c = self.config
-        rot = pin.Quaternion(q_vehicle[6], *q_vehicle[3:6]).toRotationMatrix()
+        rot = body_rotation(q_vehicle)
         error = pose_error(q_vehicle, target)
         command = np.clip(np.asarray(c.position_gain) * error, -np.asarray(c.max_speed), np.asarray(c.max_speed))
         velocity_error = command - nu
@@ -172,7 +171,7 @@ class VehicleMPC(VehiclePID):
 
     def compute(self, q_vehicle: np.ndarray, nu: np.ndarray, target: np.ndarray, d_hat: np.ndarray | None = None):
         c = self.config
-        rot = pin.Quaternion(q_vehicle[6], *q_vehicle[3:6]).toRotationMatrix()
+        rot = body_rotation(q_vehicle)
         error = pose_error(q_vehicle, target)
         feed = -restoring_wrench(self.vehicle, rot) - (0.0 if d_hat is None else d_hat)
         integral = self._integrate(error, np.zeros(6), feed)

@@ -42,7 +42,6 @@ from pathlib import Path
 from typing import Literal
 
 import numpy as np
-import pinocchio as pin
 import pydantic
 from scipy.interpolate import make_smoothing_spline
 
@@ -50,6 +49,7 @@ from hydroarm.config import ConfigError, FrozenModel
 from hydroarm.control.observers import ObserverConfig
 from hydroarm.model import fixed_order as fixed
 from hydroarm.model.arm import Arm
+from hydroarm.model.nominal import NominalModel
 from hydroarm.model.water import Water
 from hydroarm.model.water_regressor import WaterRegressor
 
@@ -110,7 +110,7 @@ class PhysicsInformedModel:
         self.config = config if config is not None else WaterModelConfig()
         self.regressor = WaterRegressor(arm, water)
         self.n = arm.n_joints
-        self.data = arm.create_data()
+        self.nominal = NominalModel(arm, inner_step=None)  # own workspace
         textbook = self.regressor.parameters(self.regressor.water.model_copy(update={"cd": 1.0, "cm": 1.0}))
         self.textbook = textbook
         self._prior_mean = textbook.copy() if self.config.prior == "textbook" else np.zeros_like(textbook)
@@ -149,12 +149,9 @@ class PhysicsInformedModel:
 
     # --- learning -----------------------------------------------------------------
     def residual(self, y: np.ndarray, u: np.ndarray, y_next: np.ndarray, period: float) -> np.ndarray:
-        """The TDE residual ``M(q) (v_next - v) / T + h(q, v) - u`` (n,) N m of a transition."""
-        n, model, data = self.n, self.arm.model, self.data
-        q, v = y[:n], y[n:]
-        mass = pin.crba(model, data, q)
-        mass = np.ascontiguousarray(np.triu(mass) + np.triu(mass, 1).T)
-        return fixed.matvec(mass, y_next[n:] - v) / period + pin.nonLinearEffects(model, data, q, v) - u
+        """The TDE residual ``M(q) (v_next - v) / T + h(q, v) - u`` (n,) N m of a transition
+        (:meth:`~hydroarm.model.nominal.NominalModel.tde_residual`, fixed-order product)."""
+        return self.nominal.tde_residual(y, u, y_next, period)
 
     def transition_features(self, y: np.ndarray, y_next: np.ndarray, period: float):
         """``(q_mid, v_mid, a)``: the midpoint state and the mean acceleration of a transition."""
@@ -308,13 +305,13 @@ def fit_water(
                 out[order, :, joint] = spline.derivative(order)(middle[keep]) if order else spline(middle[keep])
         return out[0], out[1], out[2]
 
-    arm, data = model.arm, model.data
+    nominal = model.nominal
     basis, target, basis_z = [], [], []
     states = splined(q)
     reference = splined(np.asarray(instruments, dtype=float)) if instruments is not None else None
     for k, u_k in enumerate(u[:-1][keep]):
         qk, vk, ak = states[0][k], states[1][k], states[2][k]
-        target.append(pin.rnea(arm.model, data, qk, vk, ak) - u_k)  # M(q) q'' + h(q, q') - u
+        target.append(nominal.inverse_dynamics(qk, vk, ak) - u_k)  # M(q) q'' + h(q, q') - u
         basis.append(model.regressor.basis(qk, vk, ak))
         if reference is not None:
             basis_z.append(model.regressor.basis(reference[0][k], reference[1][k], reference[2][k]))

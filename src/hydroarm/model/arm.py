@@ -27,6 +27,7 @@ import pinocchio as pin
 import pydantic
 
 from hydroarm.config import ConfigError, FrozenModel, field_error, per_joint
+from hydroarm.model import fixed_order
 
 REFERENCE_WATER_DENSITY = 1000.0
 """kg/m^3: the density at which arm files state ``buoyancy_kg`` (Table A1's)."""
@@ -292,7 +293,7 @@ class Arm:
         """Joint-space inertia M(q), shape (n, n), symmetric (CRBA)."""
         data = self._data(data)
         mass = pin.crba(self.model, data, _vec(q, self.n_joints, "q"))
-        return np.triu(mass) + np.triu(mass, 1).T
+        return fixed_order.symmetrize(mass)
 
     def coriolis_matrix(self, q: np.ndarray, v: np.ndarray, *, data: pin.Data | None = None) -> np.ndarray:
         """C(q, v), shape (n, n), with M' - 2C skew-symmetric."""
@@ -337,7 +338,7 @@ class Arm:
         """
         data = self._data(data)
         pin.computeABADerivatives(self.model, data, q, v, tau)
-        minv = np.triu(data.Minv) + np.triu(data.Minv, 1).T
+        minv = fixed_order.symmetrize(data.Minv)
         return data.ddq.copy(), data.ddq_dq.copy(), data.ddq_dv.copy(), minv
 
     def inverse_dynamics_derivatives(
@@ -346,7 +347,7 @@ class Arm:
         """Analytical derivatives of RNEA: ``(dtau_dq, dtau_dv, M)``, each (n, n)."""
         data = self._data(data)
         pin.computeRNEADerivatives(self.model, data, q, v, a)
-        mass = np.triu(data.M) + np.triu(data.M, 1).T
+        mass = fixed_order.symmetrize(data.M)
         return data.dtau_dq.copy(), data.dtau_dv.copy(), mass
 
     def kinetic_energy(self, q: np.ndarray, v: np.ndarray, *, data: pin.Data | None = None) -> float:

@@ -18,7 +18,14 @@ import math
 import numba
 import numpy as np
 
-__all__ = ["exp", "matvec", "matmul", "cholesky_solve"]
+__all__ = ["exp", "matvec", "matmul", "cholesky_solve", "symmetrize"]
+
+
+def symmetrize(upper: np.ndarray) -> np.ndarray:
+    """The symmetric matrix (n, n) whose upper triangle is ``upper``'s (its strict lower triangle
+    is not read): what Pinocchio's CRBA and ABA derivatives leave in the workspace (M, M^-1).
+    Exact (each entry plus an exact zero), so it belongs here with the fixed-order algebra."""
+    return np.triu(upper) + np.triu(upper, 1).T
 
 
 @numba.njit(cache=True)

@@ -2,14 +2,20 @@
 
 One object serves every controller: the dry rigid body ``M(q) q'' + C(q, v) v + G(q) = tau``
 of an :class:`~hydroarm.model.arm.Arm`, no water, no current. It owns its Pinocchio
-workspace (one per controller), and offers
+workspace (one per controller), and it is the controllers' only way to the rigid-body
+algorithms: no module of :mod:`hydroarm.control` imports Pinocchio (tests/test_single_home.py).
+It offers
 
 * the dry dynamics at one instant (CRBA, RNEA, ABA and their analytical derivatives);
 * :meth:`NominalModel.predict`: the state after a period under a held torque (classic RK4,
   ``ceil(dt / inner_step)`` steps, or one step of dt when ``inner_step`` is None), and
   :meth:`NominalModel.step` with the plant's interface;
-* :meth:`NominalModel.residual`: the one-step residual ``M(q) (v_measured - v_nominal) / T``,
-  the generalised force (N m) the dry model missed over a step (what the GP learns);
+* the one-step residual, the generalised force (N m) the dry model missed over a measured step
+  ``y -> y_next`` under the torque u, written once (:meth:`NominalModel.missed_force`,
+  ``M(q) dv / T``) in its two forms: :meth:`NominalModel.residual`, ``M(q) (v_next -
+  v_nominal) / T`` against the RK4 prediction (what the GPs learn), and
+  :meth:`NominalModel.tde_residual`, ``M(q) (v_next - v) / T + h(q, v) - u`` (the time-delay
+  estimate: the disturbance observers' and the physics-informed water model's target);
 * :meth:`NominalModel.linearise`: the discrete prediction model of an MPC, ``(A, B, x_next)``
   of the explicit Euler step ``x + T [v, q'']`` or of the second-order Taylor step
   ``q+ = q + T v + T^2/2 q''``, ``v+ = v + T q''`` (exact for a constant acceleration over the
@@ -31,6 +37,9 @@ from hydroarm.model.integrator import StepInfo, inner_steps, rk4_second_order_st
 
 DISCRETISATIONS = ("euler", "taylor2")
 
+PRODUCTS = ("fixed", "blas")
+"""The matrix-vector products of :meth:`NominalModel.missed_force`."""
+
 
 class NominalModel:
     """The dry model of ``arm`` with its own workspace (see the module docstring).
@@ -50,8 +59,12 @@ class NominalModel:
     # --- the dry dynamics at one instant ----------------------------------------------
     def mass_matrix(self, q: np.ndarray) -> np.ndarray:
         """M(q) (kg m^2), shape (n, n), symmetric (CRBA)."""
-        mass = pin.crba(self.arm.model, self.data, q)
-        return np.triu(mass) + np.triu(mass, 1).T
+        return fixed_order.symmetrize(pin.crba(self.arm.model, self.data, q))
+
+    def mass_matrix_upper(self, q: np.ndarray) -> np.ndarray:
+        """M(q) (n, n) as CRBA leaves it, only its upper triangle filled: a view into the
+        workspace, valid until its next CRBA (for compiled callers that read the upper triangle)."""
+        return pin.crba(self.arm.model, self.data, q)
 
     def nonlinear_effects(self, q: np.ndarray, v: np.ndarray) -> np.ndarray:
         """C(q, v) v + G(q) (N m), shape (n,)."""
@@ -68,6 +81,13 @@ class NominalModel:
     def forward_dynamics_derivatives(self, q: np.ndarray, v: np.ndarray, tau: np.ndarray):
         """``(q'', dq''/dq, dq''/dv, M^-1)``: ABA and its analytical derivatives, (n,) and (n, n) x 3."""
         return self.arm.forward_dynamics_derivatives(q, v, tau, data=self.data)
+
+    def inverse_dynamics_derivatives(self, q: np.ndarray, v: np.ndarray, a: np.ndarray):
+        """``(tau (n,), dtau/dq (n, n), dtau/dv (n, n), M (n, n))``: RNEA and its analytical
+        derivatives as Pinocchio's ``computeRNEADerivatives`` gives them (views into the workspace,
+        valid until its next call; copy what is kept)."""
+        d_q, d_v, mass = pin.computeRNEADerivatives(self.arm.model, self.data, q, v, a)
+        return self.data.tau, d_q, d_v, mass
 
     # --- prediction ------------------------------------------------------------------
     def predict(self, x: np.ndarray, tau: np.ndarray, dt: float) -> np.ndarray:
@@ -105,14 +125,41 @@ class NominalModel:
         """The plant's interface: ``(predict(x, tau, dt), StepInfo)`` with zero disturbance."""
         return self.predict(x, tau, dt), StepInfo(disturbance=self._zero.copy(), disturbance_start=self._zero.copy())
 
+    # --- the one-step residual -----------------------------------------------------------
+    def missed_force(self, q: np.ndarray, dv: np.ndarray, dt: float, product: str = "fixed") -> np.ndarray:
+        """``M(q) dv / dt`` (n,) N m: the force that the velocity change ``dv`` (n,) rad/s over
+        ``dt`` (s) takes beyond a prediction; the core of both residuals (module docstring).
+
+        ``product`` (:data:`PRODUCTS`): ``"fixed"`` (default) the fixed-order product
+        (:func:`~hydroarm.model.fixed_order.matvec`: the same bits on any machine, for a learner
+        that amplifies last bits), ``"blas"`` NumPy's ``@`` (the disturbance observers', kept so
+        their numbers stay as published)."""
+        if product not in PRODUCTS:
+            raise ValueError(f"product = {product!r}: must be one of {', '.join(PRODUCTS)}")
+        mass = self.mass_matrix(q)
+        if product == "blas":
+            return mass @ dv / dt
+        return fixed_order.matvec(mass, dv) / dt
+
     def residual(self, y: np.ndarray, tau: np.ndarray, y_next: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
         """``(w (n,) N m, x_nominal (2n,))``: the one-step residual ``M(q) (v_next - v_nominal) / dt``
         of the measured step ``y -> y_next`` under ``tau`` over ``dt`` (s), and the nominal
-        prediction ``x_nominal = predict(y, tau, dt)``."""
+        prediction ``x_nominal = predict(y, tau, dt)`` (fixed-order product: the GP learns from
+        it, and amplifies last bits)."""
         n = self.n
         nominal = self.predict(y, tau, dt)
-        # fixed-order product (not BLAS's dgemv): the GP learns from it, and amplifies last bits
-        return fixed_order.matvec(self.mass_matrix(y[:n]), y_next[n:] - nominal[n:]) / dt, nominal
+        return self.missed_force(y[:n], y_next[n:] - nominal[n:], dt), nominal
+
+    def tde_residual(
+        self, y: np.ndarray, u: np.ndarray, y_next: np.ndarray, dt: float, product: str = "fixed"
+    ) -> np.ndarray:
+        """The time-delay estimate's residual ``M(q) (v_next - v) / dt + h(q, v) - u`` (n,) N m of
+        the measured step ``y -> y_next`` (2n,) under ``u`` (n,) N m over ``dt`` (s), M and h at
+        y: the one-step residual against the explicit Euler prediction. ``product``: as in
+        :meth:`missed_force`."""
+        n = self.n
+        q, v = y[:n], y[n:]
+        return self.missed_force(q, y_next[n:] - v, dt, product) + self.nonlinear_effects(q, v) - u
 
     # --- linearisation ------------------------------------------------------------------
     def linearise(

@@ -364,6 +364,18 @@ def load_vehicle(source: str | Path = "bluerov2-heavy") -> Vehicle:
 # --- the forces on the root (compiled) ----------------------------------------------------
 
 
+def body_rotation(pose: np.ndarray) -> np.ndarray:
+    """R (3, 3), body to world, of a pose ``[p (3), quaternion x y z w (4)]`` (its first 7
+    entries are read): Pinocchio's quaternion (normalised by it). The controllers' way to the
+    pose algebra (they do not import Pinocchio)."""
+    return pin.Quaternion(pose[6], *pose[3:6]).toRotationMatrix()
+
+
+def rotation_log(rotation: np.ndarray) -> np.ndarray:
+    """The rotation vector (3,) rad of ``rotation`` (3, 3): SO(3)'s logarithm (Pinocchio's ``log3``)."""
+    return pin.log3(rotation)
+
+
 @numba.njit(cache=True)
 def quaternion_matrix(x, y, z, w):  # pragma: no cover - compiled
     """Rotation matrix of the unit quaternion (x, y, z, w) (Pinocchio's order)."""

@@ -100,18 +100,23 @@ class WaterRegressor:
         (added-mass inertia apart, ``f`` = drag + buoyancy - h_A), in one pass of the strip kernel;
         every coefficient is clipped at zero first (a drag, added mass or volume is never
         negative; the kernel skips a cylinder whose coefficient is not positive)."""
-        n, c = self.n, self.n_cylinders
+        c = self.n_cylinders
         q = np.ascontiguousarray(q, dtype=float)
         v = np.ascontiguousarray(v, dtype=float)
         theta = np.maximum(np.asarray(theta, dtype=float), 0.0)
         table = self._table
         table[:, DRAG], table[:, MASS], table[:, BUOYANCY] = theta[:c], theta[c : 2 * c], theta[2 * c :]
+        jac, djac = self.joint_jacobians(q, v)
+        mass, bias, force, _ = water_terms(self._terms_strips, q, v, self._still, jac, djac)
+        return mass, force - bias
+
+    def joint_jacobians(self, q: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(J (6, n), dJ (6, n))``: every joint's Jacobian and its time derivative at q, v (n,)
+        (Pinocchio's ``computeJointJacobiansTimeVariation``, stacked as the strip kernels take
+        them): views into this regressor's workspace, valid until its next call."""
         data = self.data
         pin.computeJointJacobiansTimeVariation(self.arm.model, data, q, v)
-        mass, bias, force, _ = water_terms(
-            self._terms_strips, q, v, self._still, data.J.reshape(6, n), data.dJ.reshape(6, n)
-        )
-        return mass, force - bias
+        return data.J.reshape(6, self.n), data.dJ.reshape(6, self.n)
 
     def compiled_terms(self, theta: np.ndarray):
         """``(strips, still)``: the compiled strips with theta's coefficients (clipped at zero)
@@ -134,12 +139,10 @@ class WaterRegressor:
         theta = np.maximum(np.asarray(theta, dtype=float), 0.0)
         table = self._table
         table[:, DRAG], table[:, MASS], table[:, BUOYANCY] = theta[:c], theta[c : 2 * c], theta[2 * c :]
-        model, data = self.arm.model, self.data
         jac = np.empty((horizon, 6, n))
         djac = np.empty((horizon, 6, n))
         for k in range(horizon):
-            pin.computeJointJacobiansTimeVariation(model, data, q[k], v[k])
-            jac[k], djac[k] = data.J.reshape(6, n), data.dJ.reshape(6, n)
+            jac[k], djac[k] = self.joint_jacobians(q[k], v[k])
         return terms_along_kernel(self._terms_strips, q, v, self._still, jac, djac)
 
     def predict(self, theta: np.ndarray, q: np.ndarray, v: np.ndarray, a: np.ndarray) -> np.ndarray:
@@ -153,14 +156,10 @@ class WaterRegressor:
         columns ``[drag_1..C, added_mass_1..C, buoyancy_1..C]`` (N m per unit coefficient), in
         one compiled pass (:func:`basis_kernel`; :meth:`basis_reference` is its twin through
         the plant's own kernel, cylinder by cylinder)."""
-        n = self.n
         q = np.ascontiguousarray(q, dtype=float)
         v = np.ascontiguousarray(v, dtype=float)
-        data = self.data
-        pin.computeJointJacobiansTimeVariation(self.arm.model, data, q, v)
-        return basis_kernel(
-            self._unit_strips, q, v, np.ascontiguousarray(a, dtype=float), data.J.reshape(6, n), data.dJ.reshape(6, n)
-        )
+        jac, djac = self.joint_jacobians(q, v)
+        return basis_kernel(self._unit_strips, q, v, np.ascontiguousarray(a, dtype=float), jac, djac)
 
     def basis_reference(self, q: np.ndarray, v: np.ndarray, a: np.ndarray) -> np.ndarray:
         """:meth:`basis` through :func:`~hydroarm.model.strips.water_terms`, one cylinder
@@ -169,9 +168,7 @@ class WaterRegressor:
         q = np.ascontiguousarray(q, dtype=float)
         v = np.ascontiguousarray(v, dtype=float)
         a = np.asarray(a, dtype=float)
-        data = self.data
-        pin.computeJointJacobiansTimeVariation(self.arm.model, data, q, v)
-        jac, djac = data.J.reshape(6, n), data.dJ.reshape(6, n)
+        jac, djac = self.joint_jacobians(q, v)
         phi = np.empty((n, 3 * c))
         for k, single in enumerate(self._per_cylinder):
             mass, bias, drag_force, _ = water_terms(single.switched(True, True, False, False), q, v, self._still,

@@ -1,7 +1,7 @@
 """Linear time-varying MPC about the reference (paper Section 3.2, eqs. 13-18; paper reading, section 5).
 
 Modules: :mod:`~hydroarm.control.mpc.config` (:class:`MPCConfig`),
-:mod:`~hydroarm.control.mpc.riccati` (the terminal weight),
+:mod:`~hydroarm.control.linear` (the terminal weight),
 :mod:`~hydroarm.control.mpc.condense` (the condensed QP),
 :mod:`~hydroarm.control.mpc.controller` (:class:`LinearMPC`); the box-QP backends are in
 :mod:`hydroarm.control.qp`. The names below are re-exported here.
@@ -66,10 +66,10 @@ Sign convention: ``K = (R + B' P B)^-1 B' P A`` and the LQR move is ``du = -K e`
 Units: SI (rad, rad/s, N m, s).
 """
 
+from hydroarm.control.linear import RiccatiSolution, lqr_gain, riccati_solution, solve_riccati
 from hydroarm.control.mpc.condense import CondensedQP, condense, condense_numpy
 from hydroarm.control.mpc.config import MPCConfig
 from hydroarm.control.mpc.controller import CLIP_TOLERANCE, LinearMPC, qp_failure_event
-from hydroarm.control.mpc.riccati import RiccatiSolution, lqr_gain, riccati_solution, solve_riccati
 from hydroarm.control.qp import (
     QP_STATUSES,
     SOLVERS,

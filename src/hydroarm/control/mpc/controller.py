@@ -2,7 +2,7 @@
 
 One step of :meth:`LinearMPC.compute`: slide the window of linearisations along the
 reference (:meth:`~hydroarm.model.nominal.NominalModel.linearise_into`), the terminal
-weight P at the horizon end (:func:`~hydroarm.control.mpc.riccati.riccati_solution`), the
+weight P at the horizon end (:func:`~hydroarm.control.linear.riccati_solution`), the
 condensed QP (:func:`~hydroarm.control.mpc.condense.condense`) and its torque box, the solve
 (a :class:`~hydroarm.control.qp.BoxQPSolver`, or Clarabel with the terminal set), the
 fallbacks, the last-guard clip. The package docstring (:mod:`hydroarm.control.mpc`)
@@ -17,9 +17,9 @@ import numpy as np
 
 from hydroarm.config import ConfigError, per_joint
 from hydroarm.control.interface import DEFAULT_CONTROL_PERIOD, ControlOutput, Reference, require_period
+from hydroarm.control.linear import lqr_gain, riccati_solution
 from hydroarm.control.mpc.condense import CondensedQP, condense
 from hydroarm.control.mpc.config import MPCConfig
-from hydroarm.control.mpc.riccati import lqr_gain, riccati_solution
 from hydroarm.control.qp import QPResult, make_box_qp_solver, solve_terminal_qp
 from hydroarm.model.arm import Arm
 from hydroarm.model.nominal import NominalModel

@@ -1,0 +1,269 @@
+"""The control algebra of the linear (time-varying) models, written once: the sampled double
+integrator, the reference's one-step defects on it, the discrete algebraic Riccati equation
+(DARE) of the regulators and of the Kalman filter, and the LQR gain.
+
+Every controller and the filter take these from here (a test keeps it so:
+tests/test_single_home.py). Shapes are given per function; units SI (s, rad, rad/s, rad/s^2).
+
+The sampled double integrator (zero-order hold, exact for a constant acceleration over the
+period T): ``x+ = A x + B a`` with ``x = [q, v]``, ``A = [[1, T], [0, 1]]``,
+``B = [T^2/2, T]`` (:func:`double_integrator`); the one-step defect of a sampled reference,
+``c_k = x_r,k+1 - A x_r,k - B a_r,k`` (:func:`reference_defects`), is zero for a reference of
+constant acceleration.
+
+The regulator's DARE ``P = A'PA - A'PB (R + B'PB)^-1 B'PA + Q`` (paper eqs. 16-17) has two
+solvers here, and each user keeps the one its numbers were made with (:func:`solve_dare`,
+``method``):
+
+* ``"doubling"``: the structure-preserving doubling algorithm (:func:`_doubling`: quadratically
+  convergent, history-free, compiled by numba and cached on disk after the first call in a fresh
+  environment), with ``scipy.linalg.solve_discrete_are`` as the fallback when it has not
+  converged. Used by the linear MPC's terminal weight (:mod:`hydroarm.control.mpc`: a 2n x 2n
+  DARE at every new horizon end, where the compiled doubling is the fast one).
+* ``"scipy"``: ``scipy.linalg.solve_discrete_are`` alone (the Schur method). Used by the ID-MPCs'
+  per-joint 2 x 2 DARE (:func:`hydroarm.control.idmpc.joint_lqr`: solved at construction and in
+  the bandwidth searches of :mod:`hydroarm.control.delay_design`).
+
+The filter's DARE (its dual, for the steady-state prior covariance) is solved by fixed-point
+iteration (:func:`filter_covariance`): the per-joint Kalman filter's design
+(:mod:`hydroarm.control.filter_design`), whose defaults were measured with it.
+
+Sign convention: ``K = (R + B' P B)^-1 B' P A`` and the LQR move is ``du = -K e``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numba
+import numpy as np
+import scipy.linalg
+
+from hydroarm.config import ConfigError
+
+
+@dataclass(frozen=True)
+class RiccatiSolution:
+    """``P`` (nx, nx) of the DARE, its LQR gain ``K`` (nu, nx) (du = -K e), how it was found."""
+
+    P: np.ndarray
+    K: np.ndarray
+    iterations: int
+    method: str
+
+
+@numba.njit(cache=True)
+def _solve_two(w, b1, b2):  # pragma: no cover - compiled
+    """Overwrite b1, b2 (nx, nx) with w^-1 b1, w^-1 b2; Gaussian elimination, partial pivoting.
+
+    ``w`` (nx, nx) is destroyed. Hand-written so that numba need not compile
+    ``np.linalg.solve`` (seconds of JIT time) for a 12 x 12 system.
+    """
+    n = w.shape[0]
+    m = b1.shape[1]
+    for col in range(n):
+        piv = col
+        for r in range(col + 1, n):
+            if abs(w[r, col]) > abs(w[piv, col]):
+                piv = r
+        if piv != col:
+            for c in range(n):
+                w[col, c], w[piv, c] = w[piv, c], w[col, c]
+            for c in range(m):
+                b1[col, c], b1[piv, c] = b1[piv, c], b1[col, c]
+                b2[col, c], b2[piv, c] = b2[piv, c], b2[col, c]
+        for r in range(col + 1, n):
+            f = w[r, col] / w[col, col]
+            for c in range(col + 1, n):
+                w[r, c] -= f * w[col, c]
+            for c in range(m):
+                b1[r, c] -= f * b1[col, c]
+                b2[r, c] -= f * b2[col, c]
+    for col in range(n - 1, -1, -1):
+        for c in range(m):
+            s1 = b1[col, c]
+            s2 = b2[col, c]
+            for k in range(col + 1, n):
+                s1 -= w[col, k] * b1[k, c]
+                s2 -= w[col, k] * b2[k, c]
+            b1[col, c] = s1 / w[col, col]
+            b2[col, c] = s2 / w[col, col]
+
+
+@numba.njit(cache=True)
+def _doubling(a_mat, g_mat, h_mat, tolerance, max_iterations):  # pragma: no cover - compiled
+    """Structure-preserving doubling (SDA) for ``X = A'XA - A'XB (R + B'XB)^-1 B'XA + Q``.
+
+    ``A_0 = A``, ``G_0 = B R^-1 B'``, ``H_0 = Q``; with ``W = I + G_k H_k``:
+    ``A_{k+1} = A_k W^-1 A_k``, ``G_{k+1} = G_k + A_k W^-1 G_k A_k'``,
+    ``H_{k+1} = H_k + A_k' H_k W^-1 A_k`` -> X quadratically (H_k equals 2^k
+    Riccati iterations from X = 0). Stops when the largest entry of the
+    update is below ``tolerance`` times the largest entry of H.
+    Returns ``(X (nx, nx), iterations, converged)``.
+    """
+    nx = a_mat.shape[0]
+    ak = a_mat.copy()
+    gk = g_mat.copy()
+    hk = h_mat.copy()
+    w_a = np.empty((nx, nx))
+    w_g = np.empty((nx, nx))
+    for it in range(1, max_iterations + 1):
+        w = np.dot(gk, hk)
+        for i in range(nx):
+            w[i, i] += 1.0
+        w_a[:, :] = ak
+        w_g[:, :] = gk
+        _solve_two(w, w_a, w_g)
+        a_t = np.ascontiguousarray(ak.T)
+        step = np.dot(np.dot(a_t, hk), w_a)
+        g_step = np.dot(np.dot(ak, w_g), a_t)
+        ak = np.dot(ak, w_a)
+        step_max = 0.0
+        h_max = 0.0
+        for i in range(nx):
+            for j in range(nx):
+                s = 0.5 * (step[i, j] + step[j, i])
+                hk[i, j] += s
+                gk[i, j] += 0.5 * (g_step[i, j] + g_step[j, i])
+                step_max = max(step_max, abs(s))
+                h_max = max(h_max, abs(hk[i, j]))
+        if not np.isfinite(h_max):
+            return hk, it, False
+        if step_max <= tolerance * h_max:
+            return hk, it, True
+    return hk, max_iterations, False
+
+
+def lqr_gain(A: np.ndarray, B: np.ndarray, R: np.ndarray, P: np.ndarray) -> np.ndarray:
+    """``K = (R + B' P B)^-1 B' P A`` (nu, nx): the LQR move is ``du = -K e``."""
+    bt_p = B.T @ P
+    return np.linalg.solve(R + bt_p @ B, bt_p @ A)
+
+
+DARE_METHODS = ("doubling", "scipy")
+"""The regulator DARE's solvers (module docstring): the compiled doubling with scipy's fallback,
+or scipy's alone."""
+
+
+def solve_dare(
+    A: np.ndarray,
+    B: np.ndarray,
+    Q: np.ndarray,
+    R: np.ndarray,
+    method: str = "doubling",
+    tolerance: float = 1e-12,
+    max_iterations: int = 60,
+) -> tuple[np.ndarray, int, str]:
+    """``(P (nx, nx), iterations, method_used)``: the stabilising solution of the DARE
+    ``P = A'PA - A'PB (R + B'PB)^-1 B'PA + Q``, symmetric.
+
+    ``method`` (:data:`DARE_METHODS`): ``"doubling"`` runs :func:`_doubling` until the relative
+    change of P is below ``tolerance`` and falls back to ``scipy.linalg.solve_discrete_are`` when
+    it has not converged within ``max_iterations`` (``method_used`` then ``"scipy"``);
+    ``"scipy"`` calls scipy directly (``iterations`` 0). Which caller uses which: the module
+    docstring. Shapes: A (nx, nx), B (nx, nu), Q (nx, nx) >= 0, R (nu, nu) > 0 or its diagonal
+    (nu,). Needs (A, B) stabilisable and (A, Q^1/2) detectable.
+    """
+    if method not in DARE_METHODS:
+        raise ValueError(f"method = {method!r}: must be one of {', '.join(DARE_METHODS)}")
+    A = np.ascontiguousarray(A, dtype=float)
+    B = np.asarray(B, dtype=float)
+    Q = np.ascontiguousarray(Q, dtype=float)
+    R = np.asarray(R, dtype=float)
+    iterations = 0
+    if method == "doubling":
+        if R.ndim == 1:
+            g_mat = (B / R) @ B.T
+            R = np.diag(R)
+        else:
+            g_mat = B @ np.linalg.solve(R, B.T)
+        P, iterations, converged = _doubling(A, np.ascontiguousarray(g_mat), Q, float(tolerance), int(max_iterations))
+        if converged:
+            return P, int(iterations), "doubling"
+    elif R.ndim == 1:
+        R = np.diag(R)
+    P = scipy.linalg.solve_discrete_are(A, B, Q, R)
+    return 0.5 * (P + P.T), int(iterations), "scipy"
+
+
+def riccati_solution(
+    A: np.ndarray,
+    B: np.ndarray,
+    Q: np.ndarray,
+    R: np.ndarray,
+    tolerance: float = 1e-12,
+    max_iterations: int = 60,
+) -> tuple[np.ndarray, int, str]:
+    """``(P, iterations, method)``: :func:`solve_riccati` without the gain (the doubling, scipy's
+    fallback; :func:`solve_dare`). ``R`` may be given by its diagonal (nu,)."""
+    return solve_dare(A, B, Q, R, "doubling", tolerance, max_iterations)
+
+
+def solve_riccati(
+    A: np.ndarray,
+    B: np.ndarray,
+    Q: np.ndarray,
+    R: np.ndarray,
+    tolerance: float = 1e-12,
+    max_iterations: int = 60,
+) -> RiccatiSolution:
+    """Stabilising solution of the DARE ``P = A'PA - A'PB (R + B'PB)^-1 B'PA + Q`` and K.
+
+    Structure-preserving doubling (:func:`_doubling`, compiled by numba), stopping when
+    the relative change of P is below ``tolerance``; ``scipy.linalg.solve_discrete_are``
+    is the fallback when the doubling has not converged within ``max_iterations``
+    (``method`` says which was used: ``"doubling"`` or ``"scipy"``; :func:`solve_dare`). Needs (A, B)
+    stabilisable and (A, Q^1/2) detectable. Shapes: A (nx, nx), B (nx, nu),
+    Q (nx, nx) >= 0, R (nu, nu) > 0.
+    """
+    P, iterations, method = riccati_solution(A, B, Q, R, tolerance, max_iterations)
+    return RiccatiSolution(P=P, K=lqr_gain(A, B, R, P), iterations=iterations, method=method)
+
+
+def double_integrator(period: float) -> tuple[np.ndarray, np.ndarray]:
+    """``(A (2, 2), B (2,))`` of the exact zero-order-hold double integrator with period T (s)
+    (module docstring)."""
+    return np.array([[1.0, period], [0.0, 1.0]]), np.array([0.5 * period * period, period])
+
+
+def double_integrator_step(q, v, acceleration, period: float):
+    """``(q + T v + T^2/2 a, v + T a)``: one period of the double integrator (arrays of one shape)."""
+    return q + period * v + 0.5 * period * period * acceleration, v + period * acceleration
+
+
+def reference_defects(q_r: np.ndarray, v_r: np.ndarray, a_r: np.ndarray, period: float) -> np.ndarray:
+    """The one-step defects ``c_k = x_r,k+1 - A x_r,k - B a_r,k`` (..., N, n, 2) of a reference
+    sampled at N + 1 instants T apart: ``q_r, v_r, a_r`` (..., N + 1, n), the sample axis
+    second to last (``a_r``'s last sample is not used). ``c[..., 0]`` rad, ``c[..., 1]`` rad/s."""
+    c = np.empty(q_r.shape[:-2] + (q_r.shape[-2] - 1, q_r.shape[-1], 2))
+    half = 0.5 * period * period  # the scalar first, as B's T^2/2 (the same rounding as inline)
+    c[..., 0] = q_r[..., 1:, :] - q_r[..., :-1, :] - period * v_r[..., :-1, :] - half * a_r[..., :-1, :]
+    c[..., 1] = v_r[..., 1:, :] - v_r[..., :-1, :] - period * a_r[..., :-1, :]
+    return c
+
+
+def filter_covariance(
+    period: float, measurement: np.ndarray, noise: np.ndarray, acceleration_variance: float,
+    tolerance: float = 1e-13, max_iterations: int = 1_000_000,
+) -> np.ndarray:  # fmt: skip
+    """The steady-state prior covariance Sigma (2, 2) of a Kalman filter on the double integrator
+    driven by white acceleration noise of variance ``acceleration_variance`` ((rad/s^2)^2), for
+    the measurement matrix C (``measurement``, (m, 2)) and noise covariance R (``noise``,
+    (m, m)): the filter's DARE by fixed-point iteration of
+    ``Sigma = A (Sigma - Sigma C^T (C Sigma C^T + R)^-1 C Sigma) A^T + Q_w``, ``Q_w = sigma_a^2 B B^T``.
+    Raises :class:`ConfigError` if it does not converge."""
+    a_mat, b_vec = double_integrator(period)
+    process = acceleration_variance * np.outer(b_vec, b_vec)
+    c_mat = np.atleast_2d(measurement)
+    sigma = process.copy()
+    for _ in range(max_iterations):
+        gain = sigma @ c_mat.T @ np.linalg.inv(c_mat @ sigma @ c_mat.T + noise)
+        posterior = (np.eye(2) - gain @ c_mat) @ sigma
+        updated = a_mat @ posterior @ a_mat.T + process
+        if np.all(np.abs(updated - sigma) <= tolerance * np.abs(updated)):
+            return 0.5 * (updated + updated.T)
+        sigma = updated
+    raise ConfigError(
+        f"estimator: the Kalman covariance did not converge in {max_iterations} iterations "
+        f"(R = {np.asarray(noise).tolist()!r}, acceleration_variance = {acceleration_variance!r})"
+    )
