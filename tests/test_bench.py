@@ -118,6 +118,20 @@ def test_helpers():
     assert row["median"] == pytest.approx(1.0) and row["n"] == 10
 
 
+def test_a_section_alone_says_its_machine_and_load():
+    """``--only`` files: the .md's first line names the load; above the core count it says so."""
+    from hydroarm_bench.suite import section_markdown
+
+    machine = {"cpu_count": 2, "cpu_model": "x"}
+    report = {"date": "d", "machine": machine, "load_average": [[7.5, 1, 1], [8.6, 1, 1]], "s": {}}
+    text = section_markdown(report, "s", lambda section: "\n## body\n")
+    first = text.splitlines()[0]
+    assert "load average 7.5 at the start and 8.6 at the end" in first and "a loaded machine" in first
+    assert text.endswith("## body\n")
+    report["load_average"] = [[0.5, 1, 1], [1.5, 1, 1]]
+    assert "a loaded machine" not in section_markdown(report, "s", lambda section: "")
+
+
 # --------------------------------------------------------------------------------------
 # Compiled kernels equal their plain-NumPy twins (*_numpy)
 # --------------------------------------------------------------------------------------

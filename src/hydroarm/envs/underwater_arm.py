@@ -220,6 +220,8 @@ class UnderwaterArmEnv(gymnasium.Env):
         self._x = self.x0.copy()
         self._y = self.x0.copy()
         self._k = 0
+        self._reference_step = -1
+        self._reference_sample = (np.zeros(self.n), np.zeros(self.n))
         # the compiled step is compiled (or loaded from numba's cache) now, not at the first step
         self.plant.step(0.0, self.x0, np.zeros(self.n), self.period)
 
@@ -253,8 +255,18 @@ class UnderwaterArmEnv(gymnasium.Env):
         """The true state [q, v] (2n,)."""
         return self._x.copy()
 
+    def _reference_now(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(q_r, v_r)`` (n,) at the current step, read-only: sampled once a step (the
+        observation after a step and the next step's reward see the same time, so the second
+        reads the first's sample, the same numbers)."""
+        if self._reference_step != self._k:
+            q_r, v_r, _ = self.reference.sample(self.t)
+            self._reference_sample = (q_r, v_r)
+            self._reference_step = self._k
+        return self._reference_sample
+
     def _observation(self) -> np.ndarray:
-        q_r, v_r, _ = self.reference.sample(self.t)
+        q_r, v_r = self._reference_now()
         return np.clip(np.concatenate([self._y, q_r, v_r]), -self._high, self._high)
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
@@ -282,7 +294,7 @@ class UnderwaterArmEnv(gymnasium.Env):
     def step(self, action):
         tau = self.torque(action)
         t = self.t
-        q_r, v_r, _ = self.reference.sample(t)
+        q_r, v_r = self._reference_now()
         error = q_r - self._x[: self.n]
         reward = -float(error @ error + VELOCITY_WEIGHT * np.sum((v_r - self._x[self.n :]) ** 2))
         step = self.loop.step(t, tau)

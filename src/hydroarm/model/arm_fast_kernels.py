@@ -3,7 +3,7 @@ instant and its whole RK4 control period, body by body in the bodies' own frames
 
 Rigid body: Featherstone's RNEA (``nle = C v + G``) and CRBA (``M``) on the revolute tree taken
 from Pinocchio's model once; the same spatial algebra as the vehicle's fast path
-(:mod:`hydroarm.model.uvms_fast_kernels`, whose helpers this reuses), with a fixed root. The
+(:mod:`hydroarm.model.tree_kernels`, the passes both kernels call), with a fixed root. The
 water: every wetted cylinder through :func:`hydroarm.model.water_effects.cylinder_water` in the
 frame of the body that carries it (:func:`~hydroarm.model.uvms_fast_kernels.body_frame`), its
 wrench carried to the joints by the RNEA's backward pass; the added-mass inertia, constant in
@@ -29,13 +29,16 @@ from numba.experimental import structref
 from hydroarm.model.current import current_at
 from hydroarm.model.friction import friction_torque
 from hydroarm.model.integrator import rk4_second_order_stage
-from hydroarm.model.strips import STRIPS_TYPE, rotation_into
-from hydroarm.model.uvms_fast_kernels import (
-    _cholesky_solve,
-    _force_to_parent,
-    _motion_to_child,
-    body_frame,
+from hydroarm.model.strips import STRIPS_TYPE
+from hydroarm.model.tree_kernels import (
+    body_force,
+    crba_column,
+    force_to_parent,
+    joint_motion,
+    motion_to_child,
+    place_joint,
 )
+from hydroarm.model.uvms_fast_kernels import _cholesky_solve, body_frame
 from hydroarm.model.water_effects import DRAG_REYNOLDS, cylinder_water, new_frame
 
 
@@ -112,32 +115,11 @@ def _forward(q, v, arm, work):  # pragma: no cover - compiled
     parents, place_rotation, place_translation, axes = work[26][0], work[26][1], work[26][2], work[26][3]
     for i in range(1, parents.shape[0]):
         par = parents[i]
-        rotation_into(axes[i], q[i - 1], rj)
-        for a in range(3):
-            pos[i, a] = place_translation[i, a]
-            for b in range(3):
-                rot[i, a, b] = (place_rotation[i, a, 0] * rj[0, b] + place_rotation[i, a, 1] * rj[1, b]
-                                + place_rotation[i, a, 2] * rj[2, b])  # fmt: skip
-        for a in range(3):
-            for b in range(3):
-                rot_world[i, a, b] = (rot_world[par, a, 0] * rot[i, 0, b] + rot_world[par, a, 1] * rot[i, 1, b]
-                                      + rot_world[par, a, 2] * rot[i, 2, b])  # fmt: skip
+        place_joint(i, par, q[i - 1], place_rotation, place_translation, axes, rot, pos, rot_world, rj)
         for a in range(3):
             pos_world[i, a] = pos_world[par, a] + (rot_world[par, a, 0] * pos[i, 0] + rot_world[par, a, 1] * pos[i, 1]
                                                    + rot_world[par, a, 2] * pos[i, 2])  # fmt: skip
-        _motion_to_child(rot[i], pos[i], vel[par], vel[i])
-        _motion_to_child(rot[i], pos[i], acc[par], acc[i])
-        qd = v[i - 1]
-        s0, s1, s2 = axes[i, 0] * qd, axes[i, 1] * qd, axes[i, 2] * qd
-        vel[i, 3] += s0
-        vel[i, 4] += s1
-        vel[i, 5] += s2
-        acc[i, 0] += vel[i, 1] * s2 - vel[i, 2] * s1
-        acc[i, 1] += vel[i, 2] * s0 - vel[i, 0] * s2
-        acc[i, 2] += vel[i, 0] * s1 - vel[i, 1] * s0
-        acc[i, 3] += vel[i, 4] * s2 - vel[i, 5] * s1
-        acc[i, 4] += vel[i, 5] * s0 - vel[i, 3] * s2
-        acc[i, 5] += vel[i, 3] * s1 - vel[i, 4] * s0
+        joint_motion(i, par, v[i - 1], axes, rot, pos, vel, acc)
 
 
 @numba.njit(cache=True, inline="always")
@@ -152,21 +134,7 @@ def _body_forces(arm, work):  # pragma: no cover - compiled
             tmp[a] = acc[i, a]
         for a in range(3):
             tmp[a] -= rot_world[i, 0, a] * g0 + rot_world[i, 1, a] * g1 + rot_world[i, 2, a] * g2
-        for a in range(6):
-            s = 0.0
-            t2 = 0.0
-            for b in range(6):
-                s += rigid[i, a, b] * tmp[b]
-                t2 += rigid[i, a, b] * vel[i, b]
-            force[i, a] = s
-            tmp2[a] = t2
-        w0, w1, w2 = vel[i, 3], vel[i, 4], vel[i, 5]
-        force[i, 0] += w1 * tmp2[2] - w2 * tmp2[1]
-        force[i, 1] += w2 * tmp2[0] - w0 * tmp2[2]
-        force[i, 2] += w0 * tmp2[1] - w1 * tmp2[0]
-        force[i, 3] += w1 * tmp2[5] - w2 * tmp2[4] + vel[i, 1] * tmp2[2] - vel[i, 2] * tmp2[1]
-        force[i, 4] += w2 * tmp2[3] - w0 * tmp2[5] + vel[i, 2] * tmp2[0] - vel[i, 0] * tmp2[2]
-        force[i, 5] += w0 * tmp2[4] - w1 * tmp2[3] + vel[i, 0] * tmp2[1] - vel[i, 1] * tmp2[0]
+        body_force(rigid[i], tmp, vel[i], tmp2, force[i])
 
 
 @numba.njit(cache=True, inline="always")
@@ -204,9 +172,9 @@ def _backward(arm, work, nle, water_force, drag_force):  # pragma: no cover - co
         water_force[k] = a0 * water[i, 3] + a1 * water[i, 4] + a2 * water[i, 5]
         drag_force[k] = a0 * drag[i, 3] + a1 * drag[i, 4] + a2 * drag[i, 5]
         if par > 0:
-            _force_to_parent(rot[i], pos[i], force[i], force[par])
-            _force_to_parent(rot[i], pos[i], water[i], water[par])
-            _force_to_parent(rot[i], pos[i], drag[i], drag[par])
+            force_to_parent(rot[i], pos[i], force[i], force[par])
+            force_to_parent(rot[i], pos[i], water[i], water[par])
+            force_to_parent(rot[i], pos[i], drag[i], drag[par])
 
 
 @numba.njit(cache=True, inline="always")
@@ -254,22 +222,7 @@ def crba(arm, work, mass):  # pragma: no cover - compiled
                 composite[i, a, b] = total[i, a, b]
     for i in range(nj - 1, 0, -1):
         par = parents[i]
-        k = i - 1
-        a0, a1, a2 = axes[i, 0], axes[i, 1], axes[i, 2]
-        for a in range(6):
-            tmp[a] = composite[i, a, 3] * a0 + composite[i, a, 4] * a1 + composite[i, a, 5] * a2
-        mass[k, k] = a0 * tmp[3] + a1 * tmp[4] + a2 * tmp[5]
-        j = i
-        while parents[j] > 0:
-            for a in range(6):
-                tmp2[a] = 0.0
-            _force_to_parent(rot[j], pos[j], tmp, tmp2)
-            for a in range(6):
-                tmp[a] = tmp2[a]
-            j = parents[j]
-            value = axes[j, 0] * tmp[3] + axes[j, 1] * tmp[4] + axes[j, 2] * tmp[5]
-            mass[j - 1, k] = value
-            mass[k, j - 1] = value
+        crba_column(i, parents, axes, rot, pos, composite[i], 0, -1, mass, tmp, tmp2)
         if par > 0:
             _add_to_world(composite[i], rot[i], pos[i], composite[par], tmp6)
 
@@ -282,7 +235,7 @@ def mass_times(arm, work, qdd, out):  # pragma: no cover - compiled
     parents, axes, rigid = work[26][0], work[26][3], work[26][4]
     nj = parents.shape[0]
     for i in range(1, nj):
-        _motion_to_child(rot[i], pos[i], acc[parents[i]], acc[i])
+        motion_to_child(rot[i], pos[i], acc[parents[i]], acc[i])
         for a in range(3):
             acc[i, 3 + a] += axes[i, a] * qdd[i - 1]
         for a in range(6):
@@ -294,7 +247,7 @@ def mass_times(arm, work, qdd, out):  # pragma: no cover - compiled
         par = parents[i]
         out[i - 1] = axes[i, 0] * force[i, 3] + axes[i, 1] * force[i, 4] + axes[i, 2] * force[i, 5]
         if par > 0:
-            _force_to_parent(rot[i], pos[i], force[i], force[par])
+            force_to_parent(rot[i], pos[i], force[i], force[par])
 
 
 @numba.njit(cache=True, inline="always")

@@ -15,7 +15,13 @@ import numpy as np
 from numba.core import types
 from numba.experimental import structref
 
-from hydroarm.model.strips import rotation_into
+from hydroarm.model.tree_kernels import (
+    body_force,
+    crba_column,
+    force_to_parent,
+    joint_motion,
+    place_joint,
+)
 from hydroarm.model.vehicle import quaternion_matrix, vehicle_generalised_force
 from hydroarm.model.water_effects import (
     COLUMNS,
@@ -93,32 +99,6 @@ def workspace(nv, tree, vehicle, strips):  # pragma: no cover - compiled
                       vehicle.cb)  # fmt: skip
     strip_arrays = (strips.joint_ids, strips.start, strips.axis, strips.table)
     return scratch, tree_arrays, vehicle_arrays, strip_arrays
-
-
-@numba.njit(cache=True, inline="always")
-def _motion_to_child(rot, pos, m, out):  # pragma: no cover - compiled
-    """out = X m: motion (v, w) in the parent frame -> the child frame (child placement rot, pos)."""
-    w0, w1, w2 = m[3], m[4], m[5]
-    l0 = m[0] + w1 * pos[2] - w2 * pos[1]
-    l1 = m[1] + w2 * pos[0] - w0 * pos[2]
-    l2 = m[2] + w0 * pos[1] - w1 * pos[0]
-    for i in range(3):
-        out[i] = rot[0, i] * l0 + rot[1, i] * l1 + rot[2, i] * l2
-        out[3 + i] = rot[0, i] * w0 + rot[1, i] * w1 + rot[2, i] * w2
-
-
-@numba.njit(cache=True, inline="always")
-def _force_to_parent(rot, pos, f, out):  # pragma: no cover - compiled
-    """out += X^T f: force (f, n) in the child frame -> the parent frame."""
-    r0 = rot[0, 0] * f[0] + rot[0, 1] * f[1] + rot[0, 2] * f[2]
-    r1 = rot[1, 0] * f[0] + rot[1, 1] * f[1] + rot[1, 2] * f[2]
-    r2 = rot[2, 0] * f[0] + rot[2, 1] * f[1] + rot[2, 2] * f[2]
-    out[0] += r0
-    out[1] += r1
-    out[2] += r2
-    out[3] += rot[0, 0] * f[3] + rot[0, 1] * f[4] + rot[0, 2] * f[5] + pos[1] * r2 - pos[2] * r1
-    out[4] += rot[1, 0] * f[3] + rot[1, 1] * f[4] + rot[1, 2] * f[5] + pos[2] * r0 - pos[0] * r2
-    out[5] += rot[2, 0] * f[3] + rot[2, 1] * f[4] + rot[2, 2] * f[5] + pos[0] * r1 - pos[1] * r0
 
 
 @numba.njit(cache=True)
@@ -224,29 +204,8 @@ def _forward_pass(q, v, tree_arrays, scratch):  # pragma: no cover - compiled
         acc[1, i] = 0.0
     for i in range(2, nj):
         par = parents[i]
-        rotation_into(axes[i], q[5 + i], rj)
-        for a in range(3):
-            pos[i, a] = place_translation[i, a]
-            for b in range(3):
-                rot[i, a, b] = (place_rotation[i, a, 0] * rj[0, b] + place_rotation[i, a, 1] * rj[1, b]
-                                + place_rotation[i, a, 2] * rj[2, b])  # fmt: skip
-        for a in range(3):
-            for b in range(3):
-                rot_world[i, a, b] = (rot_world[par, a, 0] * rot[i, 0, b] + rot_world[par, a, 1] * rot[i, 1, b]
-                                      + rot_world[par, a, 2] * rot[i, 2, b])  # fmt: skip
-        _motion_to_child(rot[i], pos[i], vel[par], vel[i])
-        _motion_to_child(rot[i], pos[i], acc[par], acc[i])
-        qd = v[4 + i]
-        for a in range(3):
-            vel[i, 3 + a] += axes[i, a] * qd
-        # acc += v x (S qd), S qd = (0, axis qd)
-        s0, s1, s2 = axes[i, 0] * qd, axes[i, 1] * qd, axes[i, 2] * qd
-        acc[i, 0] += vel[i, 1] * s2 - vel[i, 2] * s1
-        acc[i, 1] += vel[i, 2] * s0 - vel[i, 0] * s2
-        acc[i, 2] += vel[i, 0] * s1 - vel[i, 1] * s0
-        acc[i, 3] += vel[i, 4] * s2 - vel[i, 5] * s1
-        acc[i, 4] += vel[i, 5] * s0 - vel[i, 3] * s2
-        acc[i, 5] += vel[i, 3] * s1 - vel[i, 4] * s0
+        place_joint(i, par, q[5 + i], place_rotation, place_translation, axes, rot, pos, rot_world, rj)
+        joint_motion(i, par, v[4 + i], axes, rot, pos, vel, acc)
 
 
 @numba.njit(cache=True, inline="always")
@@ -257,21 +216,7 @@ def _rigid_forces(nj, rigid, gravity, rot_world, vel, acc, tmp, tmp2, force):  #
             tmp[a] = acc[i, a]
         for a in range(3):
             tmp[a] += rot_world[i, 2, a] * gravity
-        for a in range(6):
-            s = 0.0
-            t2 = 0.0
-            for b in range(6):
-                s += rigid[i, a, b] * tmp[b]
-                t2 += rigid[i, a, b] * vel[i, b]
-            force[i, a] = s
-            tmp2[a] = t2
-        w0, w1, w2 = vel[i, 3], vel[i, 4], vel[i, 5]
-        force[i, 0] += w1 * tmp2[2] - w2 * tmp2[1]
-        force[i, 1] += w2 * tmp2[0] - w0 * tmp2[2]
-        force[i, 2] += w0 * tmp2[1] - w1 * tmp2[0]
-        force[i, 3] += w1 * tmp2[5] - w2 * tmp2[4] + vel[i, 1] * tmp2[2] - vel[i, 2] * tmp2[1]
-        force[i, 4] += w2 * tmp2[3] - w0 * tmp2[5] + vel[i, 2] * tmp2[0] - vel[i, 0] * tmp2[2]
-        force[i, 5] += w0 * tmp2[4] - w1 * tmp2[3] + vel[i, 0] * tmp2[1] - vel[i, 1] * tmp2[0]
+        body_force(rigid[i], tmp, vel[i], tmp2, force[i])
 
 
 @numba.njit(cache=True, inline="always")
@@ -293,24 +238,12 @@ def _backward_pass(tau, tree_arrays, scratch):  # pragma: no cover - compiled
         par = parents[i]
         k = 4 + i
         rhs[k] = tau[k] - (axes[i, 0] * force[i, 3] + axes[i, 1] * force[i, 4] + axes[i, 2] * force[i, 5])
-        _force_to_parent(rot[i], pos[i], force[i], force[par])
+        force_to_parent(rot[i], pos[i], force[i], force[par])
         # F = Ic S, carried to the root
-        for a in range(6):
-            tmp[a] = composite[i, a, 3] * axes[i, 0] + composite[i, a, 4] * axes[i, 1] + composite[i, a, 5] * axes[i, 2]
-        mass[k, k] = axes[i, 0] * tmp[3] + axes[i, 1] * tmp[4] + axes[i, 2] * tmp[5]
-        j = i
-        while parents[j] > 1:
-            for a in range(6):
-                tmp2[a] = 0.0
-            _force_to_parent(rot[j], pos[j], tmp, tmp2)
-            for a in range(6):
-                tmp[a] = tmp2[a]
-            j = parents[j]
-            mass[4 + j, k] = axes[j, 0] * tmp[3] + axes[j, 1] * tmp[4] + axes[j, 2] * tmp[5]
-            mass[k, 4 + j] = mass[4 + j, k]
+        j = crba_column(i, parents, axes, rot, pos, composite[i], 1, 4, mass, tmp, tmp2)
         for a in range(6):
             tmp2[a] = 0.0
-        _force_to_parent(rot[j], pos[j], tmp, tmp2)
+        force_to_parent(rot[j], pos[j], tmp, tmp2)
         for a in range(6):
             mass[a, k] = tmp2[a]
             mass[k, a] = tmp2[a]
