@@ -9,6 +9,8 @@ estimator, and the SMC also behind the Kalman filter. Writes docs/data/arms_comp
 .md.
 
 Usage: python scripts/arms_study.py [--duration 10] [--workers 2] [--out docs/data/arms_comparison]
+    [--rows "GP-MPC|GP-IDMPC+KF"]   (only these rows run, on the tuned settings OUT.json records;
+                                     its other rows are kept)
 """
 
 from __future__ import annotations
@@ -90,26 +92,46 @@ class Cache(RunCache):
         return outcome
 
 
+def tune_baselines(case: str, base: ExperimentConfig, args) -> dict:
+    """The SMC's and the MPC's settings tuned on this case's dry arm (`hydroarm tune`'s procedure)."""
+    best = {}
+    for controller in ("SMC", "MPC"):
+        folder = args.cache / "tune" / case.replace(" ", "_").replace(",", "").replace("(", "").replace(")", "")
+        result = tune(base, controller, folder / controller, workers=args.workers)
+        best.update(result.best)
+        print(case, controller, "tuned:", result.best, f"score {result.rows[0]['score']:.5g}", flush=True)
+    return best
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--duration", type=float, default=10.0)
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--out", type=Path, default=Path("docs/data/arms_comparison"))
     parser.add_argument("--cache", type=Path, default=Path(tempfile.gettempdir()) / "hydroarm-arms-study")
+    parser.add_argument(
+        "--rows",
+        default=None,
+        help="only these rows, separated by |, on the tuned settings OUT.json records; its other rows are kept",
+    )
     args = parser.parse_args()
+    rows = list(ROWS) if args.rows is None else args.rows.split("|")
+    unknown = [row for row in rows if row not in ROWS]
+    if unknown:
+        parser.error(f"--rows: unknown {unknown}; the rows are {list(ROWS)}")
     results: dict = {}
     tuned: dict = {}
+    if args.rows is not None:
+        recorded = json.loads(args.out.with_suffix(".json").read_text())
+        if recorded["duration"] != args.duration:
+            parser.error(f"--rows: OUT.json was run for {recorded['duration']} s, not --duration {args.duration}")
+        results, tuned = recorded["results"], recorded["tuned"]
     for case, overrides in CASES.items():
         base = with_overrides(ExperimentConfig(), {**overrides, "duration": args.duration})
-        best = {}
-        for controller in ("SMC", "MPC"):
-            folder = args.cache / "tune" / case.replace(" ", "_").replace(",", "").replace("(", "").replace(")", "")
-            result = tune(base, controller, folder / controller, workers=args.workers)
-            best.update(result.best)
-            print(case, controller, "tuned:", result.best, f"score {result.rows[0]['score']:.5g}", flush=True)
+        best = tuned[case] if args.rows is not None else tune_baselines(case, base, args)
         tuned[case] = best
         tasks = []
-        for row, (controller, extra) in ROWS.items():
+        for row, (controller, extra) in ((row, ROWS[row]) for row in rows):
             for table, seeds in SEEDS.items():
                 for seed in seeds:
                     settings = with_overrides(
@@ -138,7 +160,7 @@ def main() -> None:
             raise report.failed[0][1]
         outcomes = {**finished, **report.results}
         block = results.setdefault(case, {})
-        for row in ROWS:
+        for row in rows:
             for table in SEEDS:
                 runs = [outcomes[t.id] for t in tasks if t.label.startswith(f"{case} {row} {table} ")]
                 ep = np.mean([r["Ep"] for r in runs], axis=0)
@@ -151,7 +173,7 @@ def main() -> None:
                     "step_ms_p99": float(np.max([r["step_ms_p99"] for r in runs])),
                     "max_torque_over_limit": float(np.max([r["max_torque_over_limit"] for r in runs])),
                 }
-        print(case, {row: round(block[row]["clean"]["Ep_mean"], 5) for row in ROWS}, flush=True)
+        print(case, {row: round(block[row]["clean"]["Ep_mean"], 5) for row in rows}, flush=True)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.with_suffix(".json").write_text(
         json.dumps({"duration": args.duration, "tuned": tuned, "results": results}, indent=1)

@@ -175,6 +175,30 @@ def table(results: list[dict]) -> str:
     return "\n".join(lines)
 
 
+def grid_table(results: list[dict]) -> str:
+    """The grid's worlds, one row each (sensor delay, friction, dropout), every controller's mean
+    E_p (rad^2), ``*`` out of the band; docs/robustness.md prints it."""
+    lines = ["| sensor delay, friction, dropout | " + " | ".join(CONTROLLERS) + " |"]
+    lines.append("|---|" + "---|" * len(CONTROLLERS))
+    worlds: dict[tuple, dict[str, dict]] = {}
+    for r in results:
+        if r["group"] == "grid":
+            o = r["overrides"]
+            key = (o["sensor.delay"], o["friction.scale"], o["sensor.dropout"])
+            worlds.setdefault(key, {})[r["controller"]] = r
+    for (delay, scale, dropout), by in sorted(worlds.items()):
+        label = f"{delay}, {f'{scale:g}x' if scale else '0'}, {f'{dropout * 100:g} %' if dropout else '0'}"
+        if (delay, scale, dropout) == (1, 1.0, 0.0):
+            label = f"**{label} (target)**"
+        cells = []
+        for name in CONTROLLERS:
+            r = by[name]
+            diverged = r["Ep"] is None or r["diverged"]
+            cells.append("diverged" if diverged else f"{r['Ep']:.4f}{'' if r['within_band'] else '*'}")
+        lines.append(f"| {label} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--out", type=Path, default=Path("docs/data/real_loop.json"))

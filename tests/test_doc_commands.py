@@ -4,7 +4,7 @@ traceback (issue 24), on quick settings.
 The commands run in order in one folder holding a copy of ``examples/`` (the README's
 ``animate`` reads what its ``reproduce`` wrote). Each command is the documented one with only
 what makes it quick added at its end (:func:`quick`): a short task (``--set duration=...``), one
-noisy seed and ``--quick`` for ``reproduce``, the example sweep files shortened likewise. What is
+noisy seed, two replicas and ``--quick`` for ``reproduce``, the example sweep files shortened likewise. What is
 not run, and why, is :func:`not_run`'s list: installs, the test suite, Ray clusters, the
 benchmark suite (``tests/test_bench.py`` runs ``hydroarm bench --quick``), the viewer's server.
 """
@@ -95,7 +95,8 @@ def quick(command: str) -> str:
     if words[1] == "reproduce":  # --quick sets a 3 s task itself: a short task and one seed instead
         words = [w for w in words if w != "--quick"]
         command = shlex.join(words)
-        extra = ["--seeds", "1", "--no-ablation", "--set", f"duration={DURATION}"]
+        # two replicas of each GP row (the fewest that still report a spread), not the default 8
+        extra = ["--seeds", "1", "--no-ablation", "--replicas", "2", "--set", f"duration={DURATION}"]
     elif words[1] in ("run", "tune") and "--vehicle" not in words:
         extra = ["--set", f"duration={DURATION}"]
     elif words[1] == "run":

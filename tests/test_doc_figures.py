@@ -274,6 +274,41 @@ def test_the_start_up_learning_table_is_the_learning_studys():
         assert line in text.replace("**", ""), line
 
 
+def test_the_learning_table_is_the_learning_studys():
+    """docs/controllers.md, "Learning against the classic observers": every number of its table
+    (the best observer by clean whole-run E_p, GP-IDMPC, PI-IDMPC, PI-IDMPC and the best observer
+    after 2 s, clean / noisy) is docs/data/learning_study.json's, to the digits printed."""
+    study = json.loads((ROOT / "docs" / "data" / "learning_study.json").read_text())
+    text = _text("docs/controllers.md").replace("**", "")
+    observers = {
+        "IDMPC+TDE": "TDE",
+        "IDMPC+TDE-gated": "TDE-gated",
+        "IDMPC+NDOB": "NDOB",
+        "IDMPC+NDOB-gated": "NDOB-gated",
+    }
+
+    def mean(runs, key="Ep_mean"):
+        return float(np.mean([run[key] for run in runs]))
+
+    def pair(values, digits=5):
+        return " / ".join(f"{v:.{digits}g}".replace("e-0", "e-") for v in values)
+
+    for case, rows in study.items():
+        tables = ("clean", "noisy")
+        best = min(observers, key=lambda row: mean(rows[row]["clean"]))
+        after = [min(mean(rows[o][t], "Ep_mean_after_2s") for o in observers) for t in tables]
+        cells = [
+            case,
+            f"{observers[best]} {pair([mean(rows[best][t]) for t in tables])}",
+            pair([mean(rows["GP-IDMPC"][t]) for t in tables]),
+            pair([mean(rows["PI-IDMPC"][t]) for t in tables]),
+            pair([mean(rows["PI-IDMPC"][t], "Ep_mean_after_2s") for t in tables], 3),
+            pair(after, 3),
+        ]
+        line = "| " + " | ".join(cells) + " |"
+        assert line in text, line
+
+
 def test_the_transfer_limit_is_the_transfer_studys():
     """docs/controllers.md: the plant's own coefficients against the prior over the first 2 s."""
     rows = json.loads((ROOT / "docs" / "data" / "transfer_study.json").read_text())["clean"]["rows"]

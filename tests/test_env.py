@@ -299,15 +299,18 @@ MORISON = {"water.added_mass_model": "morison"}
     ],
 )
 def test_a_random_policy_runs_whole_episodes(arm, settings):
-    """Uniform random normalised actions over the full range: 100 episodes of 1 s, none ends early,
+    """Uniform random normalised actions over the full range: 30 episodes of 1 s, none ends early,
     on every arm with the env's default water (the Kirchhoff added mass); with the paper's Morison
-    added mass the paper arm and the UR5 end early (strict xfail), without any added mass they do not."""
+    added mass the paper arm and the UR5 end early (strict xfail), without any added mass they do not.
+    30, not 100, to keep CI within its budget: the Morison arms end in the seventh of them (episode 6)
+    here, and 100 episodes of 10 s each on every arm are scripts/env_random_episodes.py's
+    measurement (docs/data/env_random_episodes*.json)."""
     env = gymnasium.make(ENV_ID, arm=arm, duration=1.0, settings=settings)
     water = env.unwrapped.config.water
     assert water.added_mass == settings.get("water.added_mass", True)
     assert water.added_mass_model == settings.get("water.added_mass_model", "kirchhoff")
     env.action_space.seed(0)
-    for episode in range(100):
+    for episode in range(30):
         env.reset(seed=episode)
         steps, done = 0, False
         while not done:

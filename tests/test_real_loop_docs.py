@@ -43,5 +43,6 @@ def test_the_campaign_tables_are_its_results_file():
     script = _script("real_loop_campaign")
     data = json.loads((ROOT / "docs" / "data" / "real_loop.json").read_text())
     assert script.table(data["runs"]) in (ROOT / "docs" / "robustness.md").read_text()
+    assert script.grid_table(data["runs"]) in (ROOT / "docs" / "robustness.md").read_text()
     # run on defaults: the sweep file sets no estimator setting
     assert load_sweep(ROOT / "examples" / "real_loop.toml").base.estimator == EstimatorConfig()

@@ -33,21 +33,30 @@ def run_benchmarks(out_dir: Path, quick: bool = False) -> dict:
     limiter, blas_threads, how = limit_threads()
     started = time.perf_counter()
     load_start = os.getloadavg()
+    seconds: dict[str, float] = {}
+
+    def timed(name, bench, *args):
+        start = time.perf_counter()
+        try:
+            return bench(*args)
+        finally:
+            seconds[name] = time.perf_counter() - start
+
     try:
-        breakdown, throughput, recorded = bench_control_steps(quick)
-        events = record_gp_stream(4.0 if quick else 13.0)  # 13 s: >= 1000 full windows of 200
-        mpc_peers = bench_mpc_peers(recorded, breakdown["MPC"]["total"], quick)
-        gp_peers = bench_gp_peers(events, quick)
-        plant = bench_plant(recorded, quick)
-        arm_fast = bench_arm_fast(quick)
-        batched_env = bench_batched_env(quick)
-        scaling = bench_scaling(events, recorded, quick)
-        profile = profile_closed_loop(1.0 if quick else 3.0)
-        uvms = bench_uvms(quick)
-        viewer = bench_viewer(quick)
-        envs = bench_envs(quick)
-        replay = bench_replay(quick)
-        planner = bench_planner(quick)
+        breakdown, throughput, recorded = timed("control_steps", bench_control_steps, quick)
+        events = timed("gp_stream", record_gp_stream, 4.0 if quick else 13.0)  # 13 s: >= 1000 full windows of 200
+        mpc_peers = timed("mpc_peers", bench_mpc_peers, recorded, breakdown["MPC"]["total"], quick)
+        gp_peers = timed("gp_peers", bench_gp_peers, events, quick)
+        plant = timed("plant", bench_plant, recorded, quick)
+        arm_fast = timed("arm_fast", bench_arm_fast, quick)
+        batched_env = timed("batched_env", bench_batched_env, quick)
+        scaling = timed("scaling", bench_scaling, events, recorded, quick)
+        profile = timed("profile", profile_closed_loop, 1.0 if quick else 3.0)
+        uvms = timed("uvms", bench_uvms, quick)
+        viewer = timed("viewer", bench_viewer, quick)
+        envs = timed("envs", bench_envs, quick)
+        replay = timed("replay", bench_replay, quick)
+        planner = timed("planner", bench_planner, quick)
     finally:
         if limiter is not None:
             limiter.unregister()
@@ -62,6 +71,7 @@ def run_benchmarks(out_dir: Path, quick: bool = False) -> dict:
     report["planner"] = planner
     report["target_status"] = target_status(report)  # again, with the vehicle and viewer sections
     report["suite_wall_s"] = time.perf_counter() - started
+    report["section_wall_s"] = seconds  # where the suite's time goes, per section (s)
     report = json.loads(json.dumps(report, default=json_default))  # plain JSON types only
     (out_dir / "bench.json").write_text(json.dumps(report, indent=2) + "\n")
     (out_dir / "bench.md").write_text(
