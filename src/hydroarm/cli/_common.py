@@ -197,11 +197,13 @@ def _experiment_config(config_file: Path | None, overrides: list[str], tuned: bo
     from hydroarm.config import read_mapping
     from hydroarm.model.loading import tuned_settings_path
     from hydroarm.sim.experiment import ExperimentConfig, load_experiment_config, with_overrides
+    from hydroarm.sim.settings_schema import migrated
 
     config = load_experiment_config(config_file) if config_file else ExperimentConfig()
     if tuned:
         name = arm if arm is not None else config.arm
-        config = with_overrides(config, _flat(read_mapping(tuned_settings_path(name))))
+        path = tuned_settings_path(name)
+        config = with_overrides(config, _flat(migrated(read_mapping(path), str(path))))
     pairs = {}
     for item in overrides:
         if "=" not in item:
