@@ -26,6 +26,7 @@ from hydroarm.config import (
     FrozenModel,
     check_joint_counts,
     dotted_keys,
+    field_error,
     read_mapping,
     shown,
     unknown_key_message,
@@ -200,6 +201,46 @@ class ExperimentConfig(FrozenModel):
         VehicleRun(), description="the arm on a vehicle holding station (section; off unless vehicle.name is set)"
     )
 
+    _declared: dict[str, pydantic.BaseModel] = pydantic.PrivateAttr(default_factory=dict)
+
+    @pydantic.model_validator(mode="wrap")
+    @classmethod
+    def _declared_sections(cls, data: Any, handler: Any) -> ExperimentConfig:
+        """The sections registered controllers declare (``registry.declared_settings``),
+        validated against their models and kept beside the built-in ones (:meth:`section`)."""
+        declared = registry.declared_settings()
+        if not declared or not isinstance(data, dict):
+            return handler(data)
+        clash = sorted(set(declared) & set(cls.model_fields))
+        if clash:
+            raise ConfigError(f"a registered controller declares the settings section {clash[0]!r}, a built-in one")
+        config = handler({key: value for key, value in data.items() if key not in declared})
+        for name, model in declared.items():
+            config._declared[name] = _declared_section(name, model, data.get(name, {}))
+        return config
+
+    @pydantic.model_serializer(mode="wrap")
+    def _with_declared(self, handler: Any, info: Any) -> dict[str, Any]:
+        data = handler(self)
+        for name, section in self._declared.items():
+            data[name] = section.model_dump(mode=info.mode)
+        return data
+
+    def section(self, name: str) -> pydantic.BaseModel:
+        """Settings section ``name``: a built-in one, or one a registered controller declares (its
+        defaults where these settings were validated before it was registered)."""
+        if name in type(self).model_fields:
+            return getattr(self, name)
+        if name in self._declared:
+            return self._declared[name]
+        declared = registry.declared_settings()
+        if name not in declared:
+            raise ConfigError(
+                f"a registered controller reads the settings section {name!r}, which ExperimentConfig has not: "
+                "declare it (ControllerSpec(settings={name: Model}))"
+            )
+        return declared[name]()
+
     @pydantic.model_validator(mode="after")
     def _bounded_step_count(self) -> ExperimentConfig:
         steps = self.duration / self.control_period
@@ -224,12 +265,30 @@ class ExperimentConfig(FrozenModel):
         if self.estimator.acceleration_variance is None and self.estimator.measures_velocity(self.sensor):
             data["estimator"]["acceleration_variance"] = MEASURED_VELOCITY_ACCELERATION_VARIANCE  # null = 100 here
         sections = [section for migration in MIGRATIONS for section in migration.sections]
-        return compact(data, {s: type(getattr(self, s))().model_dump(mode="json") for s in sections})
+        data = compact(data, {s: type(getattr(self, s))().model_dump(mode="json") for s in sections})
+        for name, model in registry.declared_settings().items():  # a declared section: left out at its defaults
+            if data.get(name) == model().model_dump(mode="json"):
+                data.pop(name)
+        return data
 
     def digest(self) -> str:
         """A short hash of the settings (to tell a finished run of these settings from others)."""
         text = json.dumps(self.canonical(), sort_keys=True)
         return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def _declared_section(name: str, model: type[pydantic.BaseModel], value: Any) -> pydantic.BaseModel:
+    """``value`` validated as the declared section ``name`` (``model``); a :class:`ConfigError`
+    naming the first bad field (``toy.kp = -1.0: ...``)."""
+    try:
+        return model.model_validate(value)
+    except pydantic.ValidationError as error:
+        first = error.errors()[0]
+        field = ".".join([name, *(str(part) for part in first["loc"])])
+        reason = first["msg"].removeprefix("Value error, ")
+        if first["type"] == "extra_forbidden":
+            reason = f"unknown setting of the section {name!r} (allowed: {', '.join(model.model_fields)})"
+        raise field_error(field, first.get("input"), reason) from None
 
 
 def _is_arm_file(arm: Any) -> bool:
@@ -303,14 +362,7 @@ def with_overrides(config: ExperimentConfig, overrides: dict[str, Any]) -> Exper
 def controller_settings(config: ExperimentConfig) -> dict[str, Any]:
     """The config sections the registered controllers read, by name, from ``config`` (the
     ``sections`` mapping of :func:`hydroarm.control.registry.build_controller`)."""
-    sections = {}
-    for section in controller_sections():
-        if section not in ExperimentConfig.model_fields:
-            raise ConfigError(
-                f"a registered controller reads the settings section {section!r}, which ExperimentConfig has not"
-            )
-        sections[section] = getattr(config, section)
-    return sections
+    return {section: config.section(section) for section in controller_sections()}
 
 
 def gp_inputs(name: str, config: ExperimentConfig, n_joints: int) -> tuple[int, str] | None:
@@ -337,6 +389,8 @@ def check_settings_for_arm(
     n = arm.n_joints
     try:
         check_joint_counts(config, n)
+        for name in registry.declared_settings():  # the sections registered controllers declare
+            check_joint_counts(config.section(name), n, f"{name}.")
         if config.task.kind != "arm":  # the task's joint count, its file
             reference_for(config.task, arm)
         real_loop = any(getattr(config, s) != type(getattr(config, s))() for s in REAL_LOOP_SECTIONS)

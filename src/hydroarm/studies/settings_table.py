@@ -20,7 +20,7 @@ import annotated_types
 import pydantic
 from pydantic.fields import FieldInfo
 
-from hydroarm.control.registry import controller_spec
+from hydroarm.control.registry import REGISTRY, controller_spec, declared_settings
 from hydroarm.sim.experiment import ExperimentConfig
 
 GENERAL_SECTIONS: tuple[str, ...] = (
@@ -177,6 +177,11 @@ def section_descriptions(model: type[pydantic.BaseModel] = ExperimentConfig, pre
         if inner is not None:
             out[prefix + name] = (field.description or "").removesuffix(" (section)")
             out.update(section_descriptions(inner, f"{prefix}{name}."))
+    if not prefix and model is ExperimentConfig:
+        for spec in REGISTRY.values():
+            for name, declared in spec.settings.items():
+                out[name] = f"declared by the registered controller {spec.name}"
+                out.update(section_descriptions(declared, f"{name}."))
     return out
 
 
@@ -193,6 +198,8 @@ def controller_sections(controller: str | None) -> tuple[str, ...] | None:
 def experiment_settings(controller: str | None = None) -> list[SettingRow]:
     """The rows of :class:`ExperimentConfig`; only the sections ``controller`` reads if given."""
     rows = settings_table(ExperimentConfig)
+    for name, model in declared_settings().items():  # sections registered controllers declare
+        rows += settings_table(model, f"{name}.")
     sections = controller_sections(controller)
     if sections is None:
         return rows
@@ -274,7 +281,6 @@ def _cell(text: str) -> str:
 def settings_markdown() -> str:
     """docs/settings.md: every setting of :class:`ExperimentConfig`, by section, and which
     controller reads which section (``hydroarm settings --markdown > docs/settings.md``)."""
-    from hydroarm.control.registry import REGISTRY
 
     titles = section_descriptions()
     lines = [
