@@ -256,6 +256,25 @@ class ExperimentConfig(FrozenModel):
             )
         return self
 
+    @pydantic.model_validator(mode="after")
+    def _one_system(self) -> ExperimentConfig:
+        """The system is a fixed arm (``vehicle.name`` null) or an arm on a vehicle: a fixed arm
+        takes no vehicle setting, an arm on a vehicle no fixed-base-only one
+        (:func:`~hydroarm.sim.vehicle.check_vehicle_settings`); one message naming the field."""
+        if self.vehicle.name is not None:
+            check_vehicle_settings(self)
+            return self
+        changed = _first_change(self.vehicle, VehicleRun(), "vehicle.")
+        if changed is not None:
+            key, value, default = changed
+            raise field_error(
+                key,
+                value,
+                "read only by a run on a vehicle: set vehicle.name (hydroarm run --vehicle NAME), "
+                f"or leave it at its default ({shown(default)}) for the arm on a fixed base",
+            )
+        return self
+
     def canonical(self) -> dict[str, Any]:
         """The settings as JSON data in their compact form (what digests, run ids and summaries
         hold): what a migration added left out where it holds the migration's value
@@ -275,6 +294,19 @@ class ExperimentConfig(FrozenModel):
         """A short hash of the settings (to tell a finished run of these settings from others)."""
         text = json.dumps(self.canonical(), sort_keys=True)
         return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def _first_change(value: pydantic.BaseModel, default: pydantic.BaseModel, prefix: str) -> tuple[str, Any, Any] | None:
+    """``(dotted key, value, default)`` of the first setting of ``value`` away from ``default``
+    (through its sub-sections), or None."""
+    for key in type(value).model_fields:
+        mine, theirs = getattr(value, key), getattr(default, key)
+        if mine == theirs:
+            continue
+        if isinstance(mine, pydantic.BaseModel) and type(mine) is type(theirs):
+            return _first_change(mine, theirs, f"{prefix}{key}.")
+        return f"{prefix}{key}", mine, theirs
+    return None
 
 
 def _declared_section(name: str, model: type[pydantic.BaseModel], value: Any) -> pydantic.BaseModel:
