@@ -26,7 +26,6 @@ from hydroarm.config import (
     FrozenModel,
     check_joint_counts,
     dotted_keys,
-    field_error,
     read_mapping,
     shown,
     unknown_key_message,
@@ -55,6 +54,7 @@ from hydroarm.model.task_file import SplineReference, TaskConfig, reference_for
 from hydroarm.model.water import Water
 from hydroarm.sim.plant import Plant
 from hydroarm.sim.runner import Trajectory, run_closed_loop
+from hydroarm.sim.settings_rules import check_one_system, compact_declared, declared_section_of, split_declared
 from hydroarm.sim.settings_schema import MIGRATIONS, SCHEMA, compact, migrated, moved_settings
 from hydroarm.sim.vehicle import (
     VehicleRun,
@@ -206,17 +206,10 @@ class ExperimentConfig(FrozenModel):
     @pydantic.model_validator(mode="wrap")
     @classmethod
     def _declared_sections(cls, data: Any, handler: Any) -> ExperimentConfig:
-        """The sections registered controllers declare (``registry.declared_settings``),
-        validated against their models and kept beside the built-in ones (:meth:`section`)."""
-        declared = registry.declared_settings()
-        if not declared or not isinstance(data, dict):
-            return handler(data)
-        clash = sorted(set(declared) & set(cls.model_fields))
-        if clash:
-            raise ConfigError(f"a registered controller declares the settings section {clash[0]!r}, a built-in one")
-        config = handler({key: value for key, value in data.items() if key not in declared})
-        for name, model in declared.items():
-            config._declared[name] = _declared_section(name, model, data.get(name, {}))
+        """The sections registered controllers declare, validated and kept (:meth:`section`)."""
+        rest, declared = split_declared(data, set(cls.model_fields))
+        config = handler(rest)
+        config._declared.update(declared)
         return config
 
     @pydantic.model_serializer(mode="wrap")
@@ -227,19 +220,8 @@ class ExperimentConfig(FrozenModel):
         return data
 
     def section(self, name: str) -> pydantic.BaseModel:
-        """Settings section ``name``: a built-in one, or one a registered controller declares (its
-        defaults where these settings were validated before it was registered)."""
-        if name in type(self).model_fields:
-            return getattr(self, name)
-        if name in self._declared:
-            return self._declared[name]
-        declared = registry.declared_settings()
-        if name not in declared:
-            raise ConfigError(
-                f"a registered controller reads the settings section {name!r}, which ExperimentConfig has not: "
-                "declare it (ControllerSpec(settings={name: Model}))"
-            )
-        return declared[name]()
+        """Settings section ``name``: a built-in one or one a registered controller declares."""
+        return getattr(self, name) if name in type(self).model_fields else declared_section_of(self._declared, name)
 
     @pydantic.model_validator(mode="after")
     def _bounded_step_count(self) -> ExperimentConfig:
@@ -258,21 +240,7 @@ class ExperimentConfig(FrozenModel):
 
     @pydantic.model_validator(mode="after")
     def _one_system(self) -> ExperimentConfig:
-        """The system is a fixed arm (``vehicle.name`` null) or an arm on a vehicle: a fixed arm
-        takes no vehicle setting, an arm on a vehicle no fixed-base-only one
-        (:func:`~hydroarm.sim.vehicle.check_vehicle_settings`); one message naming the field."""
-        if self.vehicle.name is not None:
-            check_vehicle_settings(self)
-            return self
-        changed = _first_change(self.vehicle, VehicleRun(), "vehicle.")
-        if changed is not None:
-            key, value, default = changed
-            raise field_error(
-                key,
-                value,
-                "read only by a run on a vehicle: set vehicle.name (hydroarm run --vehicle NAME), "
-                f"or leave it at its default ({shown(default)}) for the arm on a fixed base",
-            )
+        check_one_system(self)  # a fixed arm or an arm on a vehicle, each with its own settings
         return self
 
     def canonical(self) -> dict[str, Any]:
@@ -285,42 +253,12 @@ class ExperimentConfig(FrozenModel):
             data["estimator"]["acceleration_variance"] = MEASURED_VELOCITY_ACCELERATION_VARIANCE  # null = 100 here
         sections = [section for migration in MIGRATIONS for section in migration.sections]
         data = compact(data, {s: type(getattr(self, s))().model_dump(mode="json") for s in sections})
-        for name, model in registry.declared_settings().items():  # a declared section: left out at its defaults
-            if data.get(name) == model().model_dump(mode="json"):
-                data.pop(name)
-        return data
+        return compact_declared(data)
 
     def digest(self) -> str:
         """A short hash of the settings (to tell a finished run of these settings from others)."""
         text = json.dumps(self.canonical(), sort_keys=True)
         return hashlib.sha256(text.encode()).hexdigest()[:16]
-
-
-def _first_change(value: pydantic.BaseModel, default: pydantic.BaseModel, prefix: str) -> tuple[str, Any, Any] | None:
-    """``(dotted key, value, default)`` of the first setting of ``value`` away from ``default``
-    (through its sub-sections), or None."""
-    for key in type(value).model_fields:
-        mine, theirs = getattr(value, key), getattr(default, key)
-        if mine == theirs:
-            continue
-        if isinstance(mine, pydantic.BaseModel) and type(mine) is type(theirs):
-            return _first_change(mine, theirs, f"{prefix}{key}.")
-        return f"{prefix}{key}", mine, theirs
-    return None
-
-
-def _declared_section(name: str, model: type[pydantic.BaseModel], value: Any) -> pydantic.BaseModel:
-    """``value`` validated as the declared section ``name`` (``model``); a :class:`ConfigError`
-    naming the first bad field (``toy.kp = -1.0: ...``)."""
-    try:
-        return model.model_validate(value)
-    except pydantic.ValidationError as error:
-        first = error.errors()[0]
-        field = ".".join([name, *(str(part) for part in first["loc"])])
-        reason = first["msg"].removeprefix("Value error, ")
-        if first["type"] == "extra_forbidden":
-            reason = f"unknown setting of the section {name!r} (allowed: {', '.join(model.model_fields)})"
-        raise field_error(field, first.get("input"), reason) from None
 
 
 def _is_arm_file(arm: Any) -> bool:
