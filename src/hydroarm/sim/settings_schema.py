@@ -5,11 +5,12 @@ Settings change: sections and keys appear, keys move. A record of settings (a ru
 ``meta["settings"]`` and ``meta["schema"]``, a settings file with ``schema = k``) carries the
 number of the schema it was written at; reading it applies the migrations ``k -> k+1 -> ... ->``
 :data:`SCHEMA` in order (:func:`migrate`). Each :class:`Migration` says what appeared, with the
-value it takes where a record has no value for it (what the runs made before it did), and what
-moved where. Settings written with a schema newer than this hydroarm's get one message saying so.
+value a record without it holds (for every key so far today's default, which is what the run
+ids made before it assumed), and what moved where. Settings written with a schema newer than
+this hydroarm's get one message saying so.
 
-The same migrations make the compact form of :meth:`ExperimentConfig.canonical
-<hydroarm.sim.experiment.ExperimentConfig.canonical>` (digests, run ids): a section or key that
+The same migrations make the compact form of
+:meth:`~hydroarm.sim.experiment.ExperimentConfig.canonical` (digests, run ids): a section or key that
 a migration added is left out where it holds the value the migration gives it
 (:func:`compact`), so the runs made before it keep their ids. In that form a key's absence
 always means its migration's value, which never changes (a default that changes is a new
