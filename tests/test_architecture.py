@@ -27,6 +27,9 @@ that has parts worth naming), and splitting it along that boundary is the way do
 LONG_MODULES: dict[str, str] = {
     "envs/vector.py": "the multi-process vector env as one Gymnasium VectorEnv: its lanes' commands, "
     "errors, a dead worker, Ctrl-C and closing (the workers' side is envs/vector_lanes.py)",
+    "sim/experiment.py": "one experiment as validated data and its one builder: ExperimentConfig (every "
+    "section, its compact form for run ids, reading settings of any schema) and build_experiment "
+    "(the migrations and the settings rules are sim/settings_schema.py and sim/settings_rules.py)",
 }
 """The modules allowed above :data:`GUIDE_LINES`, each with the concept that justifies its size."""
 

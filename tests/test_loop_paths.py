@@ -98,9 +98,8 @@ def test_a_controller_in_the_env_is_the_runner_in_the_real_loop():
 def test_a_vehicle_run_refuses_the_fixed_base_real_loop_settings(key, value):
     """The floating plant measures its true state and applies the arm's torques as commanded: a
     real-loop setting on a vehicle run is refused naming the field (was: validated, then ignored)."""
-    config = with_overrides(ExperimentConfig(), {"vehicle.name": "bluerov2-heavy", "arm": "alpha5", key: value})
-    with pytest.raises(ConfigError, match=key.replace(".", r"\.")):
-        build_experiment(config, "idmpc")
+    with pytest.raises(ConfigError, match=key.replace(".", r"\.")):  # when the settings are validated
+        build_experiment(with_overrides(ExperimentConfig(), {"vehicle.name": "bluerov2-heavy", key: value}), "idmpc")
 
 
 def test_a_learning_arm_controller_learns_on_the_vehicle_env():
@@ -123,6 +122,7 @@ def test_a_learning_arm_controller_learns_on_the_vehicle_env():
 def test_the_vehicle_env_refuses_the_fixed_base_real_loop_settings(key, value):
     from hydroarm.envs.vehicle import UVMSEnv
 
-    config = with_overrides(ExperimentConfig(), {"vehicle.name": "bluerov2-heavy", "arm": "mount", key: value})
-    with pytest.raises(ConfigError, match=key.replace(".", r"\.")):
-        UVMSEnv(config=config)
+    with pytest.raises(ConfigError, match=key.replace(".", r"\.")):  # when the settings are validated
+        UVMSEnv(
+            config=with_overrides(ExperimentConfig(), {"vehicle.name": "bluerov2-heavy", "arm": "mount", key: value})
+        )

@@ -9,8 +9,7 @@ import sys
 
 import pytest
 
-from hydroarm.config import load_model
-from hydroarm.sim.experiment import ExperimentConfig, with_overrides
+from hydroarm.sim.experiment import ExperimentConfig, load_experiment_config, with_overrides
 from hydroarm.studies.tune import DRY, plan_tuning, tune, tuning_grid, write_settings
 
 
@@ -59,11 +58,11 @@ def test_settings_file_merges_and_is_read_back(tmp_path):
     path = tmp_path / "tuned.toml"
     write_settings(path, {"arm": "alpha5", "smc.surface_slope": 20.0, "smc.linear_gain": 10.0}, "first")
     write_settings(path, {"mpc.r": 1e-3, "mpc.q_velocity": 0.01, "smc.surface_slope": 30.0}, "second")
-    config = load_model(ExperimentConfig, path)
+    config = load_experiment_config(path)  # the file carries its schema (schema = N)
     assert config.arm == "alpha5"
     assert (config.smc.surface_slope, config.smc.linear_gain) == (30.0, 10.0)
     assert (config.mpc.r, config.mpc.q_velocity) == (1e-3, 0.01)
-    assert path.read_text().startswith("# second")
+    assert path.read_text().startswith("# second") and "schema = " in path.read_text()
 
 
 @pytest.mark.subprocess
@@ -98,7 +97,7 @@ def test_cli_tune_writes_a_settings_file_run_reads(tmp_path):
     assert result.returncode == 0, result.stderr
     rows = json.loads((tmp_path / "tuned.toml.json").read_text())["rows"]
     assert len(rows) == 10
-    config = load_model(ExperimentConfig, out)
+    config = load_experiment_config(out)
     assert config.arm == "alpha5" and config.mpc.r == rows[0]["point"]["mpc.r"]
     run = [
         *cmd,
@@ -120,7 +119,7 @@ def test_builtin_arms_ship_tuned_settings_that_the_cli_applies(arm):
     from hydroarm.cli import _experiment_config
     from hydroarm.model.loading import tuned_settings_path
 
-    shipped = load_model(ExperimentConfig, tuned_settings_path(arm))
+    shipped = load_experiment_config(tuned_settings_path(arm))
     assert shipped.arm == arm
     config = _experiment_config(None, [], tuned=True, arm=arm)
     assert (config.smc, config.mpc) == (shipped.smc, shipped.mpc)

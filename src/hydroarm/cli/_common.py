@@ -190,19 +190,28 @@ def _flat(mapping: dict, prefix: str = "") -> dict:
     return out
 
 
-def _experiment_config(config_file: Path | None, overrides: list[str], tuned: bool = False, arm: str | None = None):
+def _experiment_config(
+    config_file: Path | None,
+    overrides: list[str],
+    tuned: bool = False,
+    arm: str | None = None,
+    vehicle: str | None = None,
+):
     """The settings of ``--config`` (or the defaults), then, with ``--tuned``, the gains tuned for
     the arm (``arm`` or the settings' arm; :func:`hydroarm.model.loading.tuned_settings_path`),
-    then the ``--set`` overrides."""
+    then ``--vehicle`` (``vehicle``) with the ``--set`` overrides (validated together: a vehicle's
+    settings are refused on a fixed arm)."""
     from hydroarm.config import read_mapping
     from hydroarm.model.loading import tuned_settings_path
     from hydroarm.sim.experiment import ExperimentConfig, load_experiment_config, with_overrides
+    from hydroarm.sim.settings_schema import migrated
 
     config = load_experiment_config(config_file) if config_file else ExperimentConfig()
     if tuned:
         name = arm if arm is not None else config.arm
-        config = with_overrides(config, _flat(read_mapping(tuned_settings_path(name))))
-    pairs = {}
+        path = tuned_settings_path(name)
+        config = with_overrides(config, _flat(migrated(read_mapping(path), str(path))))
+    pairs: dict[str, Any] = {} if vehicle is None else {"vehicle.name": vehicle}
     for item in overrides:
         if "=" not in item:
             raise ConfigError(f"--set '{item}': expected key=value, e.g. mpc.r=0.001")

@@ -76,8 +76,8 @@ def run(
     try:
         settings, mismatch = _split_mismatch(overrides or [])
         request = RunRequest(
-            _experiment_config(config_file, settings, tuned, arm), controller, arm, noise, vehicle, seed, mismatch,
-            model, save_model,
+            _experiment_config(config_file, settings, tuned, arm, vehicle), controller, arm, noise, vehicle, seed,
+            mismatch, model, save_model,
         )  # fmt: skip
         prepared = prepare_run(request)
         claim_output(out, "run", prepared.what, description=prepared.made_by, overwrite=overwrite)

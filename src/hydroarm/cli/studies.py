@@ -279,7 +279,10 @@ def tune(
         f"grid: {json.dumps(grid)}\nbest score {result.rows[0]['score']:.6g} rad^2"
     )
     written_arm = arm_for_settings_file(arm, out)
-    write_settings(out, {"arm": written_arm, **result.best}, header)
+    try:
+        write_settings(out, {"arm": written_arm, **result.best}, header)
+    except ConfigError as error:  # the file at --out is of a newer settings schema
+        _fail(str(error))
     out.with_name(out.name + ".json").write_text(
         json.dumps({"controller": name, "arm": written_arm, "rows": result.rows}, indent=1)
     )

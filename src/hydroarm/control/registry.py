@@ -7,14 +7,18 @@ sections it reads, and a builder. Names are matched case-insensitively, with ``_
 To add a controller: write it in :mod:`hydroarm.control` with the
 :class:`~hydroarm.control.interface.Controller` interface and a config model, then add one
 :class:`ControllerSpec` to :data:`REGISTRY` (and its config section to
-:class:`~hydroarm.sim.experiment.ExperimentConfig`).
+:class:`~hydroarm.sim.experiment.ExperimentConfig`). From outside the package: :func:`register`
+a spec that declares its own section (``settings={"toy": ToyConfig}``).
 """
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
+
+import pydantic
 
 from hydroarm.config import ConfigError
 from hydroarm.control.delay_design import delayed_observer_gain
@@ -51,6 +55,12 @@ class ControllerSpec:
     observer: bool = False
     gp_inputs: Callable[[Mapping[str, Any], int], tuple[int, str]] | None = None
     tuning_grid: Mapping[str, Sequence[Any]] = field(default_factory=dict)
+    settings: Mapping[str, type[pydantic.BaseModel]] = field(default_factory=dict)
+    """Settings sections the controller declares, section name -> its config model (a frozen
+    pydantic model with a default for every field): a controller registered from outside
+    hydroarm brings its own section; the run's settings then take it (``--set toy.kp=400``,
+    ``[toy]`` in a settings file), validate it, list it (``hydroarm settings``) and hand it to
+    ``build`` as ``sections[name]``. Its names join ``sections`` (:func:`register`)."""
 
 
 def _smc(arm: Arm, sections: Mapping[str, Any], period: float) -> Controller:
@@ -167,8 +177,20 @@ def register(spec: ControllerSpec) -> ControllerSpec:
     taken = [name for name in (*REGISTRY, *ALIASES) if _key(name) == key]
     if taken:
         raise ConfigError(f"controller {spec.name!r}: a controller of that name is registered already ({taken[0]})")
+    for section, model in spec.settings.items():
+        held = declared_settings().get(section)
+        if held is not None and held is not model:
+            raise ConfigError(f"controller {spec.name!r}: settings section {section!r} is declared already ({held})")
+    extra = tuple(section for section in spec.settings if section not in spec.sections)
+    spec = dataclasses.replace(spec, sections=(*spec.sections, *extra)) if extra else spec
     REGISTRY[spec.name] = spec
     return spec
+
+
+def declared_settings() -> dict[str, type[pydantic.BaseModel]]:
+    """The settings sections registered controllers declare (:attr:`ControllerSpec.settings`):
+    section name -> config model."""
+    return {section: model for spec in REGISTRY.values() for section, model in spec.settings.items()}
 
 
 def controller_names() -> tuple[str, ...]:

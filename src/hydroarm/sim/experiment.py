@@ -54,6 +54,8 @@ from hydroarm.model.task_file import SplineReference, TaskConfig, reference_for
 from hydroarm.model.water import Water
 from hydroarm.sim.plant import Plant
 from hydroarm.sim.runner import Trajectory, run_closed_loop
+from hydroarm.sim.settings_rules import check_one_system, compact_declared, declared_section_of, split_declared
+from hydroarm.sim.settings_schema import MIGRATIONS, SCHEMA, compact, migrated, moved_settings
 from hydroarm.sim.vehicle import (
     VehicleRun,
     check_vehicle_settings,
@@ -79,6 +81,8 @@ __all__ = [
     "canonical_name",
     "check_settings_for_arm",
     "load_experiment_config",
+    "run_settings",
+    "settings_from_record",
     "run_experiment",
     "start_for_arm",
     "with_overrides",
@@ -91,28 +95,13 @@ MAX_CONTROL_STEPS = 1_000_000
 """Most control steps of one run (duration / control_period): every step's row is stored."""
 
 REAL_LOOP_SECTIONS: tuple[str, ...] = ("sensor", "actuator", "friction")
-"""The sections of the real loop (issue 23); at their defaults (the idealised loop) left out of
-:meth:`ExperimentConfig.canonical` (digests, run ids): results made before them still match."""
+"""The sections of the real loop (issue 23): at their defaults, the idealised loop."""
 
-OPTIONAL_SECTIONS: tuple[str, ...] = (*REAL_LOOP_SECTIONS, "vehicle", "observer", "water_model", "pi_idmpc", "task")
-"""The sections left out of :meth:`ExperimentConfig.canonical` at their defaults: the real loop's,
-the vehicle's (off unless ``vehicle.name`` is set), the disturbance observer's (none), the
-physics-informed water model's and PI-IDMPC's planner's (read by PI-IDMPC only) and the task's
-(the arm's own): results made before they existed still match."""
-
-MOVED_SETTINGS: dict[str, str] = {f"water_model.{key}": f"pi_idmpc.{key}" for key in PIIDMPCConfig.model_fields}
-"""Settings that moved, old dotted key -> new: an old key is refused with a message naming the new
-one (:attr:`ExperimentConfig.moved_settings`): the planner's settings are PI-IDMPC's, not its water
-model's."""
-
-LATER_KEYS: dict[str, tuple[str, ...]] = {
-    "estimator": ("measures", "delay", "repeated"),  # the real loop's
-    "water": ("added_mass_model", "axial_drag"),  # the energy-consistent added mass, axial drag
-    "idmpc": ("delay_margin", "loop_delay", "inertia_margin"),  # the told delay (issue 32)
-    "plant": ("compiled", "drag_points"),  # the compiled plant (issue 30)
-}
-"""Settings added after run ids were first made, per section: left out of
-:meth:`ExperimentConfig.canonical` at their defaults, so runs and sweeps made before them resume."""
+MOVED_SETTINGS: dict[str, str] = moved_settings()
+"""Settings that moved, old dotted key -> new (the migrations' ``moved``,
+:mod:`hydroarm.sim.settings_schema`): in today's settings an old key is refused with a message
+naming the new one (:attr:`ExperimentConfig.moved_settings`); a record of an older schema is
+migrated."""
 
 
 class InitialState(FrozenModel):
@@ -212,6 +201,28 @@ class ExperimentConfig(FrozenModel):
         VehicleRun(), description="the arm on a vehicle holding station (section; off unless vehicle.name is set)"
     )
 
+    _declared: dict[str, pydantic.BaseModel] = pydantic.PrivateAttr(default_factory=dict)
+
+    @pydantic.model_validator(mode="wrap")
+    @classmethod
+    def _declared_sections(cls, data: Any, handler: Any) -> ExperimentConfig:
+        """The sections registered controllers declare, validated and kept (:meth:`section`)."""
+        rest, declared = split_declared(data, set(cls.model_fields))
+        config = handler(rest)
+        config._declared.update(declared)
+        return config
+
+    @pydantic.model_serializer(mode="wrap")
+    def _with_declared(self, handler: Any, info: Any) -> dict[str, Any]:
+        data = handler(self)
+        for name, section in self._declared.items():
+            data[name] = section.model_dump(mode=info.mode)
+        return data
+
+    def section(self, name: str) -> pydantic.BaseModel:
+        """Settings section ``name``: a built-in one or one a registered controller declares."""
+        return getattr(self, name) if name in type(self).model_fields else declared_section_of(self._declared, name)
+
     @pydantic.model_validator(mode="after")
     def _bounded_step_count(self) -> ExperimentConfig:
         steps = self.duration / self.control_period
@@ -227,22 +238,22 @@ class ExperimentConfig(FrozenModel):
             )
         return self
 
+    @pydantic.model_validator(mode="after")
+    def _one_system(self) -> ExperimentConfig:
+        check_one_system(self)  # a fixed arm or an arm on a vehicle, each with its own settings
+        return self
+
     def canonical(self) -> dict[str, Any]:
-        """The settings as JSON data, the optional sections (:data:`OPTIONAL_SECTIONS`: the real
-        loop's and the vehicle's), and the later keys (:data:`LATER_KEYS`) left out where they are at their defaults
-        (what digests, run ids and summaries hold)."""
+        """The settings as JSON data in their compact form (what digests, run ids and summaries
+        hold): what a migration added left out where it holds the migration's value
+        (:func:`~hydroarm.sim.settings_schema.compact`), so runs made before it keep their ids.
+        Read back with :func:`settings_from_record`."""
         data = self.model_dump(mode="json")
-        for section in OPTIONAL_SECTIONS:
-            if getattr(self, section) == type(getattr(self, section))():
-                data.pop(section)
         if self.estimator.acceleration_variance is None and self.estimator.measures_velocity(self.sensor):
             data["estimator"]["acceleration_variance"] = MEASURED_VELOCITY_ACCELERATION_VARIANCE  # null = 100 here
-        for section, keys in LATER_KEYS.items():  # at their defaults: as before they existed
-            defaults = type(getattr(self, section))()
-            for key in keys:
-                if getattr(getattr(self, section), key) == getattr(defaults, key):
-                    data[section].pop(key)
-        return data
+        sections = [section for migration in MIGRATIONS for section in migration.sections]
+        data = compact(data, {s: type(getattr(self, s))().model_dump(mode="json") for s in sections})
+        return compact_declared(data)
 
     def digest(self) -> str:
         """A short hash of the settings (to tell a finished run of these settings from others)."""
@@ -258,7 +269,9 @@ def load_experiment_config(path: str | Path) -> ExperimentConfig:
     """The settings of file ``path`` (TOML/YAML), validated. A relative ``arm`` file in it is
     read relative to the settings file's folder (as ``hydroarm tune`` writes it), so the file
     works from any working directory; if no such file is there, relative to the working
-    directory (as older settings files meant it)."""
+    directory (as older settings files meant it). A top-level ``schema = k`` (as ``hydroarm
+    tune`` writes it) says which settings schema the file was written at: it is migrated to
+    today's (:mod:`hydroarm.sim.settings_schema`); without it the file is read as today's."""
     path = Path(path)
     data = read_mapping(path)
     arm = data.get("arm")
@@ -266,7 +279,25 @@ def load_experiment_config(path: str | Path) -> ExperimentConfig:
         beside = path.parent / arm
         if beside.exists():
             data = {**data, "arm": str(beside)}
-    return validate(ExperimentConfig, data, str(path))
+    return settings_from_record(data, str(path), missing=SCHEMA)
+
+
+def settings_from_record(data: dict[str, Any], source: str, missing: int = 1) -> ExperimentConfig:
+    """Settings written by any hydroarm, validated: ``data`` (nested, a settings file's or the
+    compact form of :meth:`ExperimentConfig.canonical`, e.g. a run's ``meta["settings"]``) with
+    its schema number in ``data["schema"]`` (default ``missing``: 1, a record made before schema
+    numbers), migrated to today's schema. A newer schema, or settings that do not validate,
+    raise :class:`ConfigError` naming ``source``."""
+    return validate(ExperimentConfig, migrated(data, source, missing), source)
+
+
+def run_settings(meta: dict[str, Any], source: str) -> ExperimentConfig:
+    """The settings of a saved run (:class:`~hydroarm.sim.runner.Trajectory` ``meta``: its
+    ``settings`` and ``schema``; runs saved before schema numbers read as schema 1)."""
+    settings = meta.get("settings")
+    if not isinstance(settings, dict):
+        raise ConfigError(f"{source}: holds no settings (not a run saved by hydroarm)")
+    return settings_from_record({**settings, "schema": meta.get("schema")}, source)
 
 
 def arm_for_settings_file(arm: str, settings_file: str | Path) -> str:
@@ -301,14 +332,7 @@ def with_overrides(config: ExperimentConfig, overrides: dict[str, Any]) -> Exper
 def controller_settings(config: ExperimentConfig) -> dict[str, Any]:
     """The config sections the registered controllers read, by name, from ``config`` (the
     ``sections`` mapping of :func:`hydroarm.control.registry.build_controller`)."""
-    sections = {}
-    for section in controller_sections():
-        if section not in ExperimentConfig.model_fields:
-            raise ConfigError(
-                f"a registered controller reads the settings section {section!r}, which ExperimentConfig has not"
-            )
-        sections[section] = getattr(config, section)
-    return sections
+    return {section: config.section(section) for section in controller_sections()}
 
 
 def gp_inputs(name: str, config: ExperimentConfig, n_joints: int) -> tuple[int, str] | None:
@@ -335,6 +359,8 @@ def check_settings_for_arm(
     n = arm.n_joints
     try:
         check_joint_counts(config, n)
+        for name in registry.declared_settings():  # the sections registered controllers declare
+            check_joint_counts(config.section(name), n, f"{name}.")
         if config.task.kind != "arm":  # the task's joint count, its file
             reference_for(config.task, arm)
         real_loop = any(getattr(config, s) != type(getattr(config, s))() for s in REAL_LOOP_SECTIONS)
@@ -425,6 +451,7 @@ class Experiment:
             self.plant, self.controller, self.reference, self.config.duration, seed, x0=self.x0, progress=progress
         )
         traj.meta["settings"] = self.config.canonical()
+        traj.meta["schema"] = SCHEMA  # the settings' schema version (read back with run_settings)
         traj.meta["digest"] = self.config.digest()
         traj.meta["arm"] = self.config.arm
         if self.uvms is not None:

@@ -20,7 +20,7 @@ import annotated_types
 import pydantic
 from pydantic.fields import FieldInfo
 
-from hydroarm.control.registry import controller_spec
+from hydroarm.control.registry import REGISTRY, controller_spec, declared_settings
 from hydroarm.sim.experiment import ExperimentConfig
 
 GENERAL_SECTIONS: tuple[str, ...] = (
@@ -177,6 +177,11 @@ def section_descriptions(model: type[pydantic.BaseModel] = ExperimentConfig, pre
         if inner is not None:
             out[prefix + name] = (field.description or "").removesuffix(" (section)")
             out.update(section_descriptions(inner, f"{prefix}{name}."))
+    if not prefix and model is ExperimentConfig:
+        for spec in REGISTRY.values():
+            for name, declared in spec.settings.items():
+                out[name] = f"declared by the registered controller {spec.name}"
+                out.update(section_descriptions(declared, f"{name}."))
     return out
 
 
@@ -193,6 +198,8 @@ def controller_sections(controller: str | None) -> tuple[str, ...] | None:
 def experiment_settings(controller: str | None = None) -> list[SettingRow]:
     """The rows of :class:`ExperimentConfig`; only the sections ``controller`` reads if given."""
     rows = settings_table(ExperimentConfig)
+    for name, model in declared_settings().items():  # sections registered controllers declare
+        rows += settings_table(model, f"{name}.")
     sections = controller_sections(controller)
     if sections is None:
         return rows
@@ -274,7 +281,6 @@ def _cell(text: str) -> str:
 def settings_markdown() -> str:
     """docs/settings.md: every setting of :class:`ExperimentConfig`, by section, and which
     controller reads which section (``hydroarm settings --markdown > docs/settings.md``)."""
-    from hydroarm.control.registry import REGISTRY
 
     titles = section_descriptions()
     lines = [
@@ -346,5 +352,54 @@ def settings_markdown() -> str:
         lines.append(f"| `{row.key}` | `{_cell(_shown(row.default))}` | {_cell(allowed)} | {_cell(row.description)} |")
     from hydroarm.studies.settings_resolved import precedence_markdown
 
-    lines += ["", *precedence_markdown()]
+    lines += ["", *precedence_markdown(), "", *system_markdown(), "", *schema_markdown()]
     return "\n".join(lines).rstrip("\n") + "\n"
+
+
+def system_markdown() -> list[str]:
+    """docs/settings.md's section on the system a run simulates and the sections controllers declare."""
+    from hydroarm.sim.vehicle import FIXED_BASE_ONLY_SECTIONS
+
+    fixed = ", ".join(f"`{section}`" for section in FIXED_BASE_ONLY_SECTIONS)
+    return [
+        "## One system per run, and the sections controllers declare",
+        "",
+        "A run simulates one system: the arm on a fixed base (`vehicle.name` null, the default) or the arm on a",
+        "vehicle (`vehicle.name` set, `hydroarm run --vehicle NAME`). A `vehicle.*` setting away from its default on",
+        f"a fixed arm, or a setting of the fixed-base-only sections ({fixed}) away from its default",
+        "on a vehicle run, fails validation with one message naming the field (exit code 2), before anything is",
+        "built. Replaying logs (`hydroarm replay`) takes the settings of its own section above.",
+        "",
+        "A controller registered from outside hydroarm may declare its own section",
+        '(`register(ControllerSpec(..., settings={"toy": ToyConfig}))`): `--set toy.kp=400` and a `[toy]` table',
+        "are then validated against its model, `hydroarm settings` lists it, and run ids leave it out at its",
+        "defaults.",
+    ]
+
+
+def schema_markdown() -> list[str]:
+    """docs/settings.md's section on the settings' schema version and its migrations."""
+    from hydroarm.sim.settings_schema import MIGRATIONS, SCHEMA
+
+    lines = [
+        "## Settings written by an older hydroarm: the schema and its migrations",
+        "",
+        "Settings that hydroarm writes carry the number of the schema they were written at: a saved run's",
+        '`meta["schema"]`, `schema = N` at the top of a settings file `hydroarm tune` writes. This hydroarm',
+        f"writes schema {SCHEMA}. Reading settings of an older schema applies the migrations after it, in order",
+        "(`hydroarm.sim.settings_schema`); a run saved before schema numbers reads as schema 1, a settings file",
+        "without `schema` as today's (a key that moved is answered with its new name). Settings of a newer schema",
+        "are refused with one message (exit code 2). Run ids and digests leave out what a migration added where",
+        "it holds the value the migration gives it, so the runs made before it keep their ids.",
+        "",
+        "| schema | what changed | appeared (its value where absent) | moved |",
+        "|---|---|---|---|",
+    ]
+    for migration in MIGRATIONS:
+        appeared = [f"`{section}` (its defaults)" for section in migration.sections]
+        appeared += [f"`{key}` (`{_cell(_shown(value))}`)" for key, value in migration.keys.items()]
+        moved = ", ".join(f"`{old}`" for old in migration.moved)
+        if migration.moved:  # one section's keys to another's (the keys keep their names)
+            moved += " to " + ", ".join(sorted({f"`{new.split('.')[0]}`" for new in migration.moved.values()}))
+        lines.append(f"| {migration.schema} | {_cell(migration.what)} | {', '.join(appeared)} | {moved} |")
+    return lines

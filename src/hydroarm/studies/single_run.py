@@ -61,13 +61,13 @@ def prepare_run(request: RunRequest) -> PreparedRun:
     from hydroarm.model.loading import load_arm
     from hydroarm.studies.sweep.plan import perturbed_arm
 
-    options = {"arm": request.arm, "plant.noise_variance": request.noise, "vehicle.name": request.vehicle}
-    config = with_overrides(request.config, {key: value for key, value in options.items() if value is not None})
-    on_vehicle = config.vehicle.name is not None
-    if on_vehicle and request.arm is None and config.arm == "paper":
-        config = with_overrides(config, {"arm": "mount"})  # the arm the vehicle file mounts
+    on_vehicle = request.vehicle is not None or request.config.vehicle.name is not None
     if on_vehicle and request.noise is not None:
         raise ConfigError("--noise does not apply on a vehicle: the floating plant gives its true state")
+    options = {"arm": request.arm, "plant.noise_variance": request.noise, "vehicle.name": request.vehicle}
+    config = with_overrides(request.config, {key: value for key, value in options.items() if value is not None})
+    if on_vehicle and request.arm is None and config.arm == "paper":
+        config = with_overrides(config, {"arm": "mount"})  # the arm the vehicle file mounts
     name = canonical_name(request.controller if request.controller is not None else ("smc" if on_vehicle else "gp-mpc"))
     files = request.model is not None or request.save_model is not None
     if files and name != "PI-IDMPC":

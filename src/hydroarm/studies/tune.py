@@ -30,9 +30,10 @@ import numpy as np
 
 from hydroarm.config import ConfigError
 from hydroarm.control.registry import canonical_name, controller_spec
-from hydroarm.sim.experiment import ExperimentConfig, build_experiment, with_overrides
+from hydroarm.sim.experiment import ExperimentConfig, build_experiment, settings_from_record, with_overrides
 from hydroarm.sim.files import atomic_write
 from hydroarm.sim.runner import tracking_metrics
+from hydroarm.sim.settings_schema import SCHEMA, migrate, schema_of
 from hydroarm.studies.executor import RunCache, make_executor, run_tasks
 
 NOISE_VARIANCE = 1e-3
@@ -96,7 +97,7 @@ def plan_tuning(base: ExperimentConfig, controller: str, grid: Mapping[str, list
 
 def run_tuning_task(task: TuneTask, arm: Any, progress: Callable[[int, int], None] | None) -> dict:
     """One tuning run (an executor's run function): ``{"Ep_mean", "diverged"}``."""
-    config = ExperimentConfig.model_validate(task.settings)
+    config = settings_from_record(task.settings, f"tuning run {task.id}", missing=SCHEMA)  # the compact form
     traj = build_experiment(config, task.controller).run(seed=0, progress=progress)
     ep = np.asarray(tracking_metrics(traj)["Ep"], dtype=float)
     mean = float(ep.mean())
@@ -169,10 +170,18 @@ def _toml_value(value: Any) -> str:
     raise TypeError(f"cannot write {value!r} to TOML")
 
 
+def _without_nulls(data: dict[str, Any]) -> dict[str, Any]:
+    return {k: _without_nulls(v) if isinstance(v, dict) else v for k, v in data.items() if v is not None}
+
+
 def write_settings(path: Path, best: Mapping[str, Any], header: str) -> None:
     """Merge the dotted ``best`` keys into the TOML settings file ``path`` (created if absent;
     other keys kept) and write it atomically with a ``header`` comment."""
     data: dict[str, Any] = tomllib.loads(path.read_text()) if path.exists() else {}
+    # an older schema's file is migrated first: the tuned keys are today's, and so is its schema
+    # (TOML has no null: a null a migration filled in is today's default, left out)
+    data = _without_nulls(migrate(data, schema_of(data.pop("schema", None), str(path), SCHEMA)))
+    data["schema"] = SCHEMA
     for key, value in best.items():
         target = data
         *sections, leaf = key.split(".")

@@ -20,6 +20,7 @@ import pydantic
 from hydroarm.config import ConfigError, FrozenModel, read_mapping, validate
 from hydroarm.control.registry import canonical_name, controller_names
 from hydroarm.sim.experiment import ExperimentConfig
+from hydroarm.sim.settings_schema import migrated
 
 MAX_RUNS = 100_000
 MISMATCH_PREFIX = "mismatch."
@@ -201,7 +202,8 @@ def validate_sweep(data: Mapping[str, Any], source: str = "sweep", folder: Path 
     data = dict(data)
     if isinstance(data.get("base"), str):
         try:
-            data["base"] = read_mapping(resolve_path(data["base"], folder))
+            base = resolve_path(data["base"], folder)
+            data["base"] = migrated(read_mapping(base), str(base))  # its schema = k, if any
         except ConfigError as error:
             raise ConfigError(f"{source}: base = {data['base']!r}: {error}") from None
     parameters = data.get("parameters", {})

@@ -17,9 +17,10 @@ from typing import Any
 import numpy as np
 
 from hydroarm.model.arm import Arm
-from hydroarm.sim.experiment import ExperimentConfig, build_experiment
+from hydroarm.sim.experiment import build_experiment, settings_from_record
 from hydroarm.sim.files import file_bytes
 from hydroarm.sim.runner import Trajectory, fault_counts, stop_reason, tracking_metrics
+from hydroarm.sim.settings_schema import SCHEMA
 from hydroarm.studies.executor import StepHook
 from hydroarm.studies.sweep.plan import FORMAT, RunTask, perturbed_arm
 from hydroarm.studies.sweep.schema import Mismatch
@@ -84,7 +85,7 @@ def execute_run(task: RunTask, arm: Arm, progress: StepHook | None = None) -> di
     from hydroarm import __version__
 
     start = time.perf_counter()
-    config = ExperimentConfig.model_validate(task.settings)
+    config = settings_from_record(task.settings, f"run {task.id}", missing=SCHEMA)  # the compact form
     mismatch = Mismatch.model_validate(task.mismatch)
     experiment = build_experiment(config, task.controller, arm=arm, plant_arm=perturbed_arm(arm, mismatch))
     traj: Trajectory = experiment.run(task.seed, progress)
