@@ -59,6 +59,13 @@ class Ros2Config(FrozenModel):
         pattern=r"^[A-Za-z][A-Za-z0-9_]*$",
         description="the ros2_control forward controller's name: commands on /<controller_name>/commands",
     )
+    thruster_controller_name: str = pydantic.Field(
+        "thruster_controller",
+        min_length=1,
+        max_length=64,
+        pattern=r"^[A-Za-z][A-Za-z0-9_]*$",
+        description="on a vehicle: the thrusters' forward controller: thrusts (N) on /<name>/commands",
+    )
 
     @property
     def local_only(self) -> bool:
@@ -67,6 +74,10 @@ class Ros2Config(FrozenModel):
     @property
     def command_topic(self) -> str:
         return f"/{self.controller_name}/commands"
+
+    @property
+    def thruster_topic(self) -> str:
+        return f"/{self.thruster_controller_name}/commands"
 
 
 def cyclone_xml(config: Ros2Config) -> str:
