@@ -30,6 +30,7 @@ from hydroarm.ros2 import messages as m  # noqa: E402
 from hydroarm.ros2.gate import CommandGate  # noqa: E402
 from hydroarm.ros2.participant import Ros2Config, cyclone_xml  # noqa: E402
 from hydroarm.sim.experiment import ExperimentConfig, run_experiment, with_overrides  # noqa: E402
+from hydroarm.sim.rosbag import read_bag, trajectory_from_bag  # noqa: E402
 from hydroarm.sim.runner import tracking_metrics  # noqa: E402
 
 STORE = rosbags_typesys.get_typestore(rosbags_typesys.Stores.ROS2_HUMBLE)
@@ -247,9 +248,11 @@ def test_two_processes_in_lockstep_are_the_in_process_run(tmp_path):
     domain_id = _domain_id() + 50
     common = ["--set", "arm=paper", "--set", "duration=0.5", "--clock", "lockstep", "--domain-id", str(domain_id)]
     common += ["--command-timeout", "20"]
+    bag = tmp_path / "bag"
     sim = subprocess.Popen(
-        [*HYDROARM, "ros2", "sim", *common, "--out", str(tmp_path / "sim")], stderr=subprocess.PIPE, text=True
-    )
+        [*HYDROARM, "ros2", "sim", *common, "--out", str(tmp_path / "sim"), "--record", str(bag)],
+        stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
     controller = [*HYDROARM, "ros2", "control", "--controller", "idmpc", *common, "--duration", "300"]
     control = subprocess.run(
         [*controller, "--out", str(tmp_path / "control")], capture_output=True, text=True, timeout=400
@@ -259,12 +262,201 @@ def test_two_processes_in_lockstep_are_the_in_process_run(tmp_path):
     result = json.loads((tmp_path / "sim" / "ros2_sim.json").read_text())
     assert result["counts"]["accepted"] == 50 and result["counts"]["stale"] == 0
     config = with_overrides(ExperimentConfig(), {"arm": "paper", "duration": 0.5})
-    assert result["Ep"] == tracking_metrics(run_experiment(config, "idmpc", seed=0))["Ep"]
+    run = run_experiment(config, "idmpc", seed=0)
+    assert result["Ep"] == tracking_metrics(run)["Ep"]
+    # the recorded bag reads back as the run: the joint states on the wire are the measured ones
+    recorded = trajectory_from_bag(bag)
+    np.testing.assert_array_equal(recorded.x, run.y)
+    np.testing.assert_array_equal(recorded.u, run.u)
+    np.testing.assert_array_equal(recorded.q_ref, run.q_ref)
+    np.testing.assert_allclose(recorded.t, run.t, rtol=0, atol=1e-9)  # stamps to the nanosecond
     counts = json.loads((tmp_path / "control" / "ros2_control.json").read_text())["counts"]
     # one per step, and maybe the state the run ended at (best effort, published as the sim exits)
     assert counts["commands"] in (50, 51) and counts["dropped_states"] == 0
     # the simulator stopped after its 0.5 s: the controller node stopped commanding and said so
     assert counts["timeouts"] == 1 and "stopped commanding" in control.stderr
+
+
+@dataclass
+class PlainVector3(IdlStruct, typename="geometry_msgs::msg::dds_::Vector3_"):
+    x: t.float64 = 0.0
+    y: t.float64 = 0.0
+    z: t.float64 = 0.0
+
+
+@dataclass
+class PlainQuaternion(IdlStruct, typename="geometry_msgs::msg::dds_::Quaternion_"):
+    x: t.float64 = 0.0
+    y: t.float64 = 0.0
+    z: t.float64 = 0.0
+    w: t.float64 = 1.0
+
+
+@dataclass
+class PlainImu(IdlStruct, typename="sensor_msgs::msg::dds_::Imu_"):
+    header: PlainHeader = field(default_factory=PlainHeader)
+    orientation: PlainQuaternion = field(default_factory=PlainQuaternion)
+    orientation_covariance: t.array[t.float64, 9] = field(default_factory=lambda: [0.0] * 9)
+    angular_velocity: PlainVector3 = field(default_factory=PlainVector3)
+    angular_velocity_covariance: t.array[t.float64, 9] = field(default_factory=lambda: [0.0] * 9)
+    linear_acceleration: PlainVector3 = field(default_factory=PlainVector3)
+    linear_acceleration_covariance: t.array[t.float64, 9] = field(default_factory=lambda: [0.0] * 9)
+
+
+@dataclass
+class PlainPose(IdlStruct, typename="geometry_msgs::msg::dds_::Pose_"):
+    position: PlainVector3 = field(default_factory=PlainVector3)  # Point: the same three float64
+    orientation: PlainQuaternion = field(default_factory=PlainQuaternion)
+
+
+@dataclass
+class PlainPoseWithCovariance(IdlStruct, typename="geometry_msgs::msg::dds_::PoseWithCovariance_"):
+    pose: PlainPose = field(default_factory=PlainPose)
+    covariance: t.array[t.float64, 36] = field(default_factory=lambda: [0.0] * 36)
+
+
+@dataclass
+class PlainTwist(IdlStruct, typename="geometry_msgs::msg::dds_::Twist_"):
+    linear: PlainVector3 = field(default_factory=PlainVector3)
+    angular: PlainVector3 = field(default_factory=PlainVector3)
+
+
+@dataclass
+class PlainTwistWithCovariance(IdlStruct, typename="geometry_msgs::msg::dds_::TwistWithCovariance_"):
+    twist: PlainTwist = field(default_factory=PlainTwist)
+    covariance: t.array[t.float64, 36] = field(default_factory=lambda: [0.0] * 36)
+
+
+@dataclass
+class PlainOdometry(IdlStruct, typename="nav_msgs::msg::dds_::Odometry_"):
+    header: PlainHeader = field(default_factory=PlainHeader)
+    child_frame_id: str = ""
+    pose: PlainPoseWithCovariance = field(default_factory=PlainPoseWithCovariance)
+    twist: PlainTwistWithCovariance = field(default_factory=PlainTwistWithCovariance)
+
+
+@dataclass
+class PlainFloat64MultiArray(IdlStruct, typename="std_msgs::msg::dds_::Float64MultiArray_"):
+    layout: m.MultiArrayLayout = field(default_factory=m.MultiArrayLayout)  # empty: its type is not read here
+    data: t.sequence[t.float64] = field(default_factory=list)
+
+
+VEHICLE = ["--set", "vehicle.name=bluerov2-heavy", "--set", "arm=mount"]
+
+
+def test_a_plain_subscriber_receives_imu_and_odometry_from_the_vehicle_sim(tmp_path):
+    """`hydroarm ros2 sim` on the vehicle: a subscriber written here with plain Cyclone DDS and ROS
+    2's type names receives /imu and /odom, stamped on the control grid, in the documented frames,
+    the IMU's orientation and rate those of the odometry of the same stamp, the specific force
+    about +g along the body's z (level, slow); bad thruster commands from a plain writer are
+    dropped and counted on the thrusters' gate, and the held good one goes stale."""
+    domain_id = _domain_id() + 60
+    domain = Domain(domain_id, config=LOOPBACK_XML)
+    participant = DomainParticipant(domain_id)
+    sensor = Qos(Policy.Reliability.BestEffort, Policy.History.KeepLast(200))
+    imu = DataReader(participant, Topic(participant, "rt/imu", PlainImu), qos=sensor)
+    odom = DataReader(participant, Topic(participant, "rt/odom", PlainOdometry), qos=sensor)
+    reliable = Qos(Policy.Reliability.Reliable(0), Policy.History.KeepLast(10))
+    from cyclonedds.pub import DataWriter
+
+    arm = DataWriter(participant, Topic(participant, "rt/effort_controller/commands", PlainFloat64MultiArray), reliable)
+    topic = Topic(participant, "rt/thruster_controller/commands", PlainFloat64MultiArray)
+    thrusts = DataWriter(participant, topic, reliable)
+    command = [*HYDROARM, "ros2", "sim", *VEHICLE, "--duration", "1", "--domain-id", str(domain_id)]
+    command += ["--command-timeout", "0.05", "--out", str(tmp_path)]
+    sim = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    imus, odoms, sent = [], [], False
+    deadline = time.monotonic() + 120
+    while sim.poll() is None and time.monotonic() < deadline:
+        imus += imu.take(N=200)
+        odoms += odom.take(N=200)
+        if not sent and thrusts.get_matched_subscriptions() and imus:
+            for data in ([1.0, 2.0], [float("nan")] * 8, [0.0] * 8):  # wrong length, not finite, good
+                thrusts.write(PlainFloat64MultiArray(data=data))
+            sent = True
+        time.sleep(0.005)
+    imus += imu.take(N=200)
+    odoms += odom.take(N=200)
+    _, err = sim.communicate(timeout=30)
+    assert sim.returncode == 0, err
+    del arm, thrusts, domain
+    imus = [s for s in imus if isinstance(s, PlainImu)]
+    odoms = {_ns(s.header.stamp): s for s in odoms if isinstance(s, PlainOdometry)}
+    assert len(imus) >= 60 and len(odoms) >= 60, (len(imus), len(odoms))  # 101 published, best effort
+    assert all(s.header.frame_id == "base_link" for s in imus)
+    assert all(s.header.frame_id == "world" and s.child_frame_id == "base_link" for s in odoms.values())
+    assert all(_ns(s.header.stamp) % 10_000_000 == 0 for s in imus)  # on the 10 ms grid of simulated time
+    paired = 0
+    for sample in imus:
+        other = odoms.get(_ns(sample.header.stamp))
+        if other is None:
+            continue
+        paired += 1
+        assert sample.orientation == other.pose.pose.orientation
+        assert sample.angular_velocity == other.twist.twist.angular
+        q = sample.orientation
+        assert abs(q.x**2 + q.y**2 + q.z**2 + q.w**2 - 1.0) < 1e-9
+        assert abs(sample.linear_acceleration.z - 9.81) < 1.0  # level and slow: gravity dominates
+    assert paired >= 40
+    thrusters = json.loads((tmp_path / "ros2_sim.json").read_text())["thruster_counts"]
+    assert (thrusters["wrong_length"], thrusters["non_finite"], thrusters["accepted"]) == (1, 1, 1)
+    assert thrusters["stale"] > 0 and thrusters["missing"] > 0
+
+
+def _ns(stamp) -> int:
+    return stamp.sec * 1_000_000_000 + stamp.nanosec
+
+
+def test_the_vehicle_in_lockstep_is_the_in_process_run_and_its_bag_reads_back(tmp_path):
+    """`hydroarm ros2 sim` on the vehicle and `hydroarm ros2 control --controller smc` (the arm's SMC
+    + the station keeper) in lockstep: E_p and the whole final state (vehicle pose, twist, thrust,
+    arm) equal, number for number, to `hydroarm run`'s on the same settings; every arm and thrust
+    command accepted. The bag recorded meanwhile reads back through compare's reader (the run's
+    rows) and replay's (the joint states and the IMU's orientation: the vehicle's)."""
+    domain_id = _domain_id() + 110
+    # 1 s: the shortest log replay takes
+    common = [*VEHICLE, "--set", "duration=1", "--clock", "lockstep", "--domain-id", str(domain_id)]
+    bag = tmp_path / "bag"
+    sim = subprocess.Popen(
+        [*HYDROARM, "ros2", "sim", *common, "--command-timeout", "20", "--out", str(tmp_path), "--record", str(bag)],
+        stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    controller = [*HYDROARM, "ros2", "control", "--controller", "smc", *common, "--command-timeout", "3"]
+    control = subprocess.run([*controller, "--duration", "300"], capture_output=True, text=True, timeout=400)
+    _, err = sim.communicate(timeout=60)
+    assert sim.returncode == 0 and control.returncode == 0, (err, control.stderr)
+    result = json.loads((tmp_path / "ros2_sim.json").read_text())
+    config = with_overrides(ExperimentConfig(), {"vehicle.name": "bluerov2-heavy", "arm": "mount", "duration": 1.0})
+    run = run_experiment(config, "smc", seed=0)
+    assert result["Ep"] == tracking_metrics(run)["Ep"]
+    assert result["final_state"] == run.meta["final_state"]
+    for counts in (result["counts"], result["thruster_counts"]):
+        assert counts["accepted"] == 100 and counts["stale"] == 0 and counts["received"] == 100
+    recorded = trajectory_from_bag(bag)
+    np.testing.assert_array_equal(recorded.x, run.y)  # the floating plant measures its true state
+    np.testing.assert_array_equal(recorded.u, run.u)
+    np.testing.assert_array_equal(recorded.q_ref, run.q_ref)
+    log = read_bag(bag)  # what `hydroarm replay BAG --vehicle bluerov2-heavy` reads
+    np.testing.assert_array_equal(log.joint_position[:100], run.q)
+    np.testing.assert_array_equal(log.imu_quaternion[:100], run.extra["base_pose"][:, 3:7])
+    assert log.joint_names == tuple(str(name) for name in load_arm("alpha5").model.names[1:])
+
+
+def test_replay_refuses_a_fixed_arm_bag_naming_compare(tmp_path):
+    """A fixed-base arm's recorded run has no IMU: replay exits 2 and names compare."""
+    from hydroarm.model.urdf_export import arm_to_urdf
+    from hydroarm.ros2.record import BagRecorder
+
+    recorder = BagRecorder(tmp_path / "bag")
+    header = m.Header(m.Time(0, 0), "")
+    recorder.write("/joint_states", m.JointState(header, ["j1"], [0.0], [0.0], [0.0]), 0.0)
+    recorder.write("/hydroarm/joint_reference", m.JointState(header, ["j1"], [0.0], [0.0], []), 0.0)
+    recorder.write("/robot_description", m.String(arm_to_urdf(load_arm("paper"))), 0.0)
+    recorder.close()
+    command = [*HYDROARM, "replay", str(tmp_path / "bag"), "--vehicle", "bluerov2-heavy", "--out", str(tmp_path / "r")]
+    result = subprocess.run(command, capture_output=True, text=True, timeout=120)
+    assert result.returncode == 2 and "Traceback" not in result.stderr
+    assert "hydroarm compare" in result.stderr and "no vehicle" in result.stderr
 
 
 def test_the_controller_node_never_commands_blind(tmp_path):

@@ -7,7 +7,8 @@ and every command it takes, so the bag has all of them (a recorder on the graph 
 best-effort joint states as the graph delivers them: some can be lost on a loaded machine), and
 each is written as the bytes that went on the wire (Cyclone DDS's CDR, equal to rosbags'
 serialisation: ``tests/test_ros2.py``). Times: the simulated time of the step the message belongs
-to (ns), for the states their stamp, for a command the state it answered.
+to (ns), for the states their stamp, for a command the state it answered. A state the simulator
+publishes again in lockstep (the same messages, while it waits for a command) is recorded once.
 """
 
 from __future__ import annotations

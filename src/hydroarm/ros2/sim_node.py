@@ -104,6 +104,7 @@ class SimNode:
         self.thruster_gate = None if self.vehicle is None else CommandGate(thrusters, ros.command_timeout, ros.on_stale)
         self._arrivals: list[float] = []
         self._sim_time = 0.0
+        self._resending = False
         self.resent = 0
         self.overruns = 0
         self._domain, participant = open_domain(ros)
@@ -152,12 +153,14 @@ class SimNode:
 
     def _write(self, topic: str, message, t: float) -> None:
         self._writers[topic].write(message)
-        if self.record is not None:
+        if self.record is not None and not self._resending:
             self.record.write(topic, message, t)
 
-    def _publish(self, t: float, y: np.ndarray, applied: np.ndarray) -> None:
+    def _publish(self, t: float, y: np.ndarray, applied: np.ndarray, resend: bool = False) -> None:
         """The state ``y`` at ``t`` (s) on the graph; ``applied``: the plant's input held over the
-        step that ended at ``t`` (its first n entries: the joints' torques, N m)."""
+        step that ended at ``t`` (its first n entries: the joints' torques, N m); ``resend``: the
+        same messages again (lockstep), recorded once."""
+        self._resending = resend
         stamp = Time.of(t)
         n = self.n
         joints = self.plant.joint_state(y)
@@ -257,7 +260,7 @@ class SimNode:
                     start += late
                     self.overruns += 1
                 self._serve_until(start + (k + 1) * self.period)
-            resend = (lambda t=t, y=y, a=applied: self._publish(t, y, a)) if lockstep else None
+            resend = (lambda t=t, y=y, a=applied: self._publish(t, y, a, resend=True)) if lockstep else None
             step = self.loop.step(t, self._next_command(lockstep, resend))
             applied, final = step.applied, step.x_next
             rows["x"][k], rows["u"][k] = plant.joint_state(step.x), applied[:n]

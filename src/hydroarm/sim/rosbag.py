@@ -27,6 +27,8 @@ from hydroarm.sim.logs import LogError, TrialLog, _check_stream, _check_time
 JOINT_STATE = "sensor_msgs/msg/JointState"
 IMU = "sensor_msgs/msg/Imu"
 POSE = "geometry_msgs/msg/PoseStamped"
+REFERENCE_TOPIC = "/hydroarm/joint_reference"
+"""The task's joint reference that ``hydroarm ros2 sim`` publishes (and records) beside the joint states."""
 
 
 def _typestore():
@@ -57,6 +59,11 @@ def read_bag(path: str | Path) -> TrialLog:
         for kind in (JOINT_STATE, IMU):
             if kind not in by_type:
                 topics = ", ".join(f"{c.topic} ({c.msgtype})" for c in reader.connections) or "none"
+                if kind == IMU and any(c.topic == REFERENCE_TOPIC for c in reader.connections):
+                    raise LogError(
+                        f"{source}: a fixed-base arm's run recorded by hydroarm ros2 sim: no vehicle, no "
+                        f"{IMU} topic to replay against; read it with hydroarm compare {source}"
+                    )
                 raise LogError(f"{source}: no {kind} topic (topics: {topics})")
         joint_topics = [c for c in by_type[JOINT_STATE] if not c.topic.startswith("/hydroarm/")]
         joints = (joint_topics or by_type[JOINT_STATE])[0]
@@ -185,9 +192,6 @@ def write_bag(
                 message, ns = pose(t, q, "world")
                 writer.write(sim, ns, store.serialize_cdr(message, POSE))
     return path
-
-
-REFERENCE_TOPIC = "/hydroarm/joint_reference"
 
 
 def is_bag(path: str | Path) -> bool:
