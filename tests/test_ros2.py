@@ -156,7 +156,14 @@ def test_the_default_participant_stays_on_this_machine():
     assert '<NetworkInterface name="eth0"/>' in opened and "AllowMulticast" not in opened and "Peer" not in opened
 
 
-@pytest.mark.parametrize("key, value", [("domain_id", 233), ("interface", "lo; rm"), ("on_stale", "brake")])
+@pytest.mark.parametrize(
+    "key, value",
+    [
+        ("domain_id", 233), ("interface", "lo; rm"), ("on_stale", "brake"),
+        ("thruster_controller_name", "effort_controller"),  # the arm's: two readers of one topic
+        ("thruster_controller_name", "thrusters"),  # a fixed-base arm has no thrusters: never ignored
+    ],
+)  # fmt: skip
 def test_bad_ros2_settings_are_refused_naming_the_field(key, value):
     result = subprocess.run(
         [*HYDROARM, "ros2", "sim", f"--{key.replace('_', '-')}", str(value), "--duration", "0.1"],
@@ -610,3 +617,34 @@ def test_tf_is_the_links_of_the_published_urdf():
         np.testing.assert_allclose(quaternion.toRotationMatrix(), placement.rotation, atol=1e-12)
         translation = stamped.transform.translation
         np.testing.assert_allclose([translation.x, translation.y, translation.z], placement.translation, atol=1e-12)
+
+
+def test_the_vehicle_tf_chain_is_the_floating_system_kinematics():
+    """On a vehicle, /tf's chain world -> base_link -> arm_base_link -> arm_link1 -> ... composes
+    to each arm joint's world placement that Pinocchio computes on the whole floating system (the
+    vehicle file's mount included), at a random pose and arm configuration."""
+    import pinocchio as pin
+
+    from hydroarm.ros2.sim_node import SimNode
+    from hydroarm.sim.experiment import build_experiment
+
+    config = with_overrides(ExperimentConfig(), {"vehicle.name": "bluerov2-heavy", "arm": "mount", "duration": 0.1})
+    experiment = build_experiment(config, None)
+    node = SimNode(experiment, Ros2Config(domain_id=_domain_id() + 140))
+    model, n = experiment.uvms.model, node.n
+    rng = np.random.default_rng(5)
+    q = pin.randomConfiguration(model, -np.ones(model.nq), np.ones(model.nq))
+    q[7:] = rng.uniform(-3.0, 3.0, n)
+    x = np.concatenate([q, np.zeros(model.nv), np.zeros(node.plant.n_inputs - n)])
+    stamp = m.Time(1, 0)
+    chain = [*node.vehicle.transforms(stamp, x), *node._transforms(stamp, q[7:]).transforms]
+    frames = {"world": pin.SE3.Identity()}
+    for stamped in chain:
+        r, p = stamped.transform.rotation, stamped.transform.translation
+        local = pin.SE3(pin.Quaternion(r.w, r.x, r.y, r.z).toRotationMatrix(), np.array([p.x, p.y, p.z]))
+        frames[stamped.child_frame_id] = frames[stamped.header.frame_id] * local
+    data = model.createData()
+    pin.forwardKinematics(model, data, q)
+    for joint in range(1, n + 1):
+        expected = data.oMi[joint + 1]  # joint 1 of the system: the vehicle's free flyer
+        np.testing.assert_allclose(frames[f"arm_link{joint}"].homogeneous, expected.homogeneous, atol=1e-12)

@@ -50,6 +50,13 @@ def _ros2_config(**values):
         _fail(str(error))
 
 
+def _check_vehicle(ros, experiment) -> None:
+    try:
+        ros.check_vehicle(experiment.uvms is not None)
+    except ValueError as error:
+        raise ConfigError(str(error)) from None
+
+
 def _write(out: Path | None, name: str, data: dict) -> None:
     if out is not None:
         out.mkdir(parents=True, exist_ok=True)
@@ -93,6 +100,7 @@ def sim(
 
         config = _experiment_config(config_file, overrides or [])
         experiment = build_experiment(config, None)
+        _check_vehicle(ros, experiment)
         if record is not None and record.exists():
             raise ConfigError(f"--record {record}: exists; give a new folder for the bag")
         recorder = None if record is None else BagRecorder(record)
@@ -148,7 +156,9 @@ def control(
         from hydroarm.sim.experiment import build_experiment
 
         config = _experiment_config(config_file, overrides or [])
-        node = ControlNode(build_experiment(config, controller), ros)
+        experiment = build_experiment(config, controller)
+        _check_vehicle(ros, experiment)
+        node = ControlNode(experiment, ros)
     except ConfigError as error:
         _fail(str(error))
     counts = node.run(duration or config.duration, wait=wait, log=console.print)
