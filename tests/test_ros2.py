@@ -25,6 +25,7 @@ from cyclonedds.qos import Policy, Qos  # noqa: E402
 from cyclonedds.sub import DataReader  # noqa: E402
 from cyclonedds.topic import Topic  # noqa: E402
 
+from hydroarm.config import ConfigError  # noqa: E402
 from hydroarm.model.loading import load_arm  # noqa: E402
 from hydroarm.ros2 import messages as m  # noqa: E402
 from hydroarm.ros2.gate import CommandGate  # noqa: E402
@@ -648,3 +649,27 @@ def test_the_vehicle_tf_chain_is_the_floating_system_kinematics():
     for joint in range(1, n + 1):
         expected = data.oMi[joint + 1]  # joint 1 of the system: the vehicle's free flyer
         np.testing.assert_allclose(frames[f"arm_link{joint}"].homogeneous, expected.homogeneous, atol=1e-12)
+
+
+def test_compare_reads_a_recorded_bag_as_a_run(tmp_path):
+    """`hydroarm compare`'s reader on a bag of three states (one re-sent): row k is the state at
+    t_k with the effort of the state after it; E_p the closed form over the two rows."""
+    from hydroarm.ros2.record import BagRecorder
+    from hydroarm.studies.compare import compare_rows, load_runs
+
+    with pytest.raises(ConfigError, match="without .bag"):
+        BagRecorder(tmp_path / "run.bag")
+    recorder = BagRecorder(tmp_path / "run1")
+    names = ["j1", "j2"]
+    states = [([0.1, 0.2], [0.0, 0.0]), ([0.3, -0.1], [5.0, 6.0]), ([0.2, 0.0], [7.0, 8.0])]
+    for k, (q, effort) in enumerate(states):
+        header = m.Header(m.Time.of(0.01 * k), "")
+        for _ in range(1 + (k == 1)):  # the second state twice, as a lockstep re-send reaches a recorder
+            recorder.write("/joint_states", m.JointState(header, names, q, [0.0, 0.0], effort), 0.01 * k)
+        recorder.write("/hydroarm/joint_reference", m.JointState(header, names, [0.0, 0.0], [0.0, 0.0]), 0.01 * k)
+    recorder.close()
+    (run,) = load_runs([tmp_path / "run1"])
+    np.testing.assert_array_equal(run.trajectory.q, [[0.1, 0.2], [0.3, -0.1]])
+    np.testing.assert_array_equal(run.trajectory.u, [[5.0, 6.0], [7.0, 8.0]])
+    (row,) = compare_rows([run])
+    np.testing.assert_allclose(row["Ep"], [(0.1**2 + 0.3**2) / 2, (0.2**2 + 0.1**2) / 2], rtol=1e-15)

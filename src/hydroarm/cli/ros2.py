@@ -101,8 +101,6 @@ def sim(
         config = _experiment_config(config_file, overrides or [])
         experiment = build_experiment(config, None)
         _check_vehicle(ros, experiment)
-        if record is not None and record.exists():
-            raise ConfigError(f"--record {record}: exists; give a new folder for the bag")
         recorder = None if record is None else BagRecorder(record)
         node = SimNode(experiment, ros, urdf=arm_to_urdf(experiment.arm), record=recorder)
     except ConfigError as error:

@@ -30,6 +30,8 @@ class BagRecorder:
         self.path = Path(path)
         if self.path.exists():
             raise ConfigError(f"--record {self.path}: exists; give a new folder for the bag")
+        if self.path.suffix == ".bag":  # readers (rosbags' AnyReader, ros2 bag) take a .bag for a ROS 1 bag file
+            raise ConfigError(f"--record {self.path}: a ROS 2 bag is a folder; name it without .bag (e.g. run1)")
         self._store = get_typestore(Stores.ROS2_HUMBLE)
         self._writer = Writer(self.path, version=8, storage_plugin=StoragePlugin.MCAP)
         self._writer.open()

@@ -134,6 +134,8 @@ class SimNode:
         self._description = description
         # the compiled step compiled (or loaded from numba's cache) now, not while a peer waits
         self.plant.step(0.0, experiment.x0, np.zeros(self.plant.n_inputs), self.period)
+        if self.vehicle is not None:
+            self.vehicle.specific_force(0.0, experiment.x0, np.zeros(self.plant.n_inputs))
 
     def _take_commands(self) -> int:
         """Offer every command that arrived to its gate; the number of arm commands accepted
