@@ -20,7 +20,10 @@ def _cell(value: float | None) -> str:
 
 @app.command()
 def compare(
-    runs: Annotated[list[Path], typer.Argument(help="Trajectory .npz files (from run, reproduce, sweep).")],
+    runs: Annotated[
+        list[Path],
+        typer.Argument(help="Trajectory .npz files (from run, reproduce, sweep) or ROS 2 bags of ros2 sim --record."),
+    ],
     out: Annotated[Path, typer.Option("--out", help="The figure to write (PNG).")] = Path("compare.png"),
     steady_after: Annotated[
         float, typer.Option("--steady-after", min=0.0, max=3600.0, help="Where the start-up ends (s).")

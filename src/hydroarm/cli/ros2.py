@@ -27,6 +27,12 @@ StaleOption = Annotated[str, typer.Option("--on-stale", help="hold (the last goo
 NameOption = Annotated[
     str, typer.Option("--controller-name", help="The ros2_control controller: commands on /NAME/commands.")
 ]
+ThrusterNameOption = Annotated[
+    str,
+    typer.Option(
+        "--thruster-controller-name", help="On a vehicle: the thrusters' controller: thrusts on /NAME/commands."
+    ),
+]
 DurationOption = Annotated[float, typer.Option("--duration", min=0.0, help="Seconds to run (default: the settings').")]
 
 
@@ -42,6 +48,13 @@ def _ros2_config(**values):
         return validate(Ros2Config, values, "ros2")
     except ConfigError as error:
         _fail(str(error))
+
+
+def _check_vehicle(ros, experiment) -> None:
+    try:
+        ros.check_vehicle(experiment.uvms is not None)
+    except ValueError as error:
+        raise ConfigError(str(error)) from None
 
 
 def _write(out: Path | None, name: str, data: dict) -> None:
@@ -62,37 +75,53 @@ def sim(
     command_timeout: TimeoutOption = 0.5,
     on_stale: StaleOption = "hold",
     controller_name: NameOption = "effort_controller",
+    thruster_controller_name: ThrusterNameOption = "thruster_controller",
     wait: Annotated[
         float, typer.Option("--wait", min=0.0, max=3600.0, help="Seconds to wait for a command publisher.")
     ] = 10.0,
     out: Annotated[Path | None, typer.Option("--out", help="Folder for ros2_sim.json (E_p, counts).")] = None,
+    record: Annotated[
+        Path | None, typer.Option("--record", help="Write the node's traffic to this ROS 2 bag (MCAP; a new folder).")
+    ] = None,
 ) -> None:
-    """The simulated arm on the graph: /joint_states (through the sensor model), /clock,
-    /robot_description; joint torques from /CONTROLLER_NAME/commands. Example:
+    """The simulated arm on the graph: /joint_states (through the sensor model), /clock, /tf,
+    /robot_description; joint torques from /CONTROLLER_NAME/commands; on a vehicle (vehicle.name)
+    also /imu and /odom, thrusts from /THRUSTER_CONTROLLER_NAME/commands. Example:
     hydroarm ros2 sim --set arm=paper --clock lockstep --duration 10"""
     ros = _ros2_config(
         domain_id=domain_id, interface=interface, clock=clock, command_timeout=command_timeout,
-        on_stale=on_stale, controller_name=controller_name,
+        on_stale=on_stale, controller_name=controller_name, thruster_controller_name=thruster_controller_name,
     )  # fmt: skip
     try:
         from hydroarm.model.urdf_export import arm_to_urdf
+        from hydroarm.ros2.record import BagRecorder
         from hydroarm.ros2.sim_node import SimNode
         from hydroarm.sim.experiment import build_experiment
 
         config = _experiment_config(config_file, overrides or [])
-        if config.vehicle.name is not None:
-            raise ConfigError("vehicle.name: hydroarm ros2 sim runs a fixed-base arm (no vehicle topics yet)")
         experiment = build_experiment(config, None)
-        node = SimNode(experiment, ros, urdf=arm_to_urdf(experiment.arm))
+        _check_vehicle(ros, experiment)
+        recorder = None if record is None else BagRecorder(record)
+        node = SimNode(experiment, ros, urdf=arm_to_urdf(experiment.arm), record=recorder)
     except ConfigError as error:
         _fail(str(error))
     where = f"domain {ros.domain_id} on {ros.interface}"
-    console.print(f"ros2 sim: {experiment.arm.name}, {len(node.names)} joints, {where}")
-    result = node.run(duration or config.duration, seed=seed, wait_for_subscriber=wait)
+    on = "" if experiment.uvms is None else f" on {experiment.uvms.vehicle.name}"
+    console.print(f"ros2 sim: {experiment.arm.name}{on}, {len(node.names)} joints, {where}")
+    try:
+        result = node.run(duration or config.duration, seed=seed, wait_for_subscriber=wait)
+    finally:
+        if recorder is not None:
+            recorder.close()
     summary = {"Ep": result.ep(), "steps": len(result.t), "diverged": result.diverged, "counts": result.counts}
+    if result.thruster_counts is not None:
+        summary["thruster_counts"] = result.thruster_counts
+    summary["final_state"] = result.final_state.tolist()
     summary["timing"] = result.timing
     _write(out, "ros2_sim.json", summary)
     console.print(f"E_p per joint (rad^2): {[round(v, 6) for v in summary['Ep']]}; commands {result.counts}")
+    if recorder is not None:
+        console.print(f"recorded {recorder.messages} messages to {record}")
     if result.diverged:
         raise typer.Exit(1)
 
@@ -109,21 +138,25 @@ def control(
     clock: ClockOption = "wall",
     command_timeout: TimeoutOption = 0.5,
     controller_name: NameOption = "effort_controller",
+    thruster_controller_name: ThrusterNameOption = "thruster_controller",
     out: Annotated[Path | None, typer.Option("--out", help="Folder for ros2_control.json (counts).")] = None,
 ) -> None:
-    """A hydroarm controller as a node: /joint_states in, /CONTROLLER_NAME/commands out; never a
-    command before a state, none after --command-timeout without one. Example:
+    """A hydroarm controller as a node: /joint_states in, /CONTROLLER_NAME/commands out (on a
+    vehicle also /odom in, /THRUSTER_CONTROLLER_NAME/commands out); never a command before a
+    state, none after --command-timeout without one. Example:
     hydroarm ros2 control --controller idmpc --set arm=paper --clock lockstep"""
     ros = _ros2_config(
         domain_id=domain_id, interface=interface, clock=clock, command_timeout=command_timeout,
-        controller_name=controller_name,
+        controller_name=controller_name, thruster_controller_name=thruster_controller_name,
     )  # fmt: skip
     try:
         from hydroarm.ros2.control_node import ControlNode
         from hydroarm.sim.experiment import build_experiment
 
         config = _experiment_config(config_file, overrides or [])
-        node = ControlNode(build_experiment(config, controller), ros)
+        experiment = build_experiment(config, controller)
+        _check_vehicle(ros, experiment)
+        node = ControlNode(experiment, ros)
     except ConfigError as error:
         _fail(str(error))
     counts = node.run(duration or config.duration, wait=wait, log=console.print)

@@ -8,7 +8,8 @@ message (an independent implementation of the ROS 2 wire format; ``tests/test_ro
 Each class's fields are its ROS 2 message's, in order, with the same types: ``builtin_interfaces``
 Time; ``std_msgs`` Header, String, MultiArrayDimension, MultiArrayLayout, Float64MultiArray;
 ``sensor_msgs`` JointState; ``rosgraph_msgs`` Clock; ``geometry_msgs`` Vector3, Quaternion,
-Transform, TransformStamped; ``tf2_msgs`` TFMessage.
+Transform, TransformStamped, Point, Pose, PoseWithCovariance, Twist, TwistWithCovariance;
+``tf2_msgs`` TFMessage; ``nav_msgs`` Odometry; ``sensor_msgs`` Imu.
 """
 
 # no `from __future__ import annotations`: Cyclone DDS reads the field types at run time
@@ -119,6 +120,60 @@ class TFMessage(IdlStruct, typename="tf2_msgs::msg::dds_::TFMessage_"):
     transforms: t.sequence[TransformStamped] = field(default_factory=list)
 
 
+@dataclass
+class Point(IdlStruct, typename="geometry_msgs::msg::dds_::Point_"):
+    x: t.float64 = 0.0
+    y: t.float64 = 0.0
+    z: t.float64 = 0.0
+
+
+@dataclass
+class Pose(IdlStruct, typename="geometry_msgs::msg::dds_::Pose_"):
+    position: Point = field(default_factory=Point)
+    orientation: Quaternion = field(default_factory=Quaternion)
+
+
+@dataclass
+class PoseWithCovariance(IdlStruct, typename="geometry_msgs::msg::dds_::PoseWithCovariance_"):
+    pose: Pose = field(default_factory=Pose)
+    covariance: t.array[t.float64, 36] = field(default_factory=lambda: [0.0] * 36)
+
+
+@dataclass
+class Twist(IdlStruct, typename="geometry_msgs::msg::dds_::Twist_"):
+    linear: Vector3 = field(default_factory=Vector3)
+    angular: Vector3 = field(default_factory=Vector3)
+
+
+@dataclass
+class TwistWithCovariance(IdlStruct, typename="geometry_msgs::msg::dds_::TwistWithCovariance_"):
+    twist: Twist = field(default_factory=Twist)
+    covariance: t.array[t.float64, 36] = field(default_factory=lambda: [0.0] * 36)
+
+
+@dataclass
+class Odometry(IdlStruct, typename="nav_msgs::msg::dds_::Odometry_"):
+    """The pose in ``header.frame_id`` and the twist in ``child_frame_id`` (ROS's convention)."""
+
+    header: Header = field(default_factory=Header)
+    child_frame_id: str = ""
+    pose: PoseWithCovariance = field(default_factory=PoseWithCovariance)
+    twist: TwistWithCovariance = field(default_factory=TwistWithCovariance)
+
+
+@dataclass
+class Imu(IdlStruct, typename="sensor_msgs::msg::dds_::Imu_"):
+    """A covariance whose first entry is -1 marks the quantity not measured (ROS's convention)."""
+
+    header: Header = field(default_factory=Header)
+    orientation: Quaternion = field(default_factory=Quaternion)
+    orientation_covariance: t.array[t.float64, 9] = field(default_factory=lambda: [0.0] * 9)
+    angular_velocity: Vector3 = field(default_factory=Vector3)
+    angular_velocity_covariance: t.array[t.float64, 9] = field(default_factory=lambda: [0.0] * 9)
+    linear_acceleration: Vector3 = field(default_factory=Vector3)
+    linear_acceleration_covariance: t.array[t.float64, 9] = field(default_factory=lambda: [0.0] * 9)
+
+
 ROS_NAMES: dict[type, str] = {
     Time: "builtin_interfaces/msg/Time",
     Header: "std_msgs/msg/Header",
@@ -133,5 +188,12 @@ ROS_NAMES: dict[type, str] = {
     Transform: "geometry_msgs/msg/Transform",
     TransformStamped: "geometry_msgs/msg/TransformStamped",
     TFMessage: "tf2_msgs/msg/TFMessage",
+    Point: "geometry_msgs/msg/Point",
+    Pose: "geometry_msgs/msg/Pose",
+    PoseWithCovariance: "geometry_msgs/msg/PoseWithCovariance",
+    Twist: "geometry_msgs/msg/Twist",
+    TwistWithCovariance: "geometry_msgs/msg/TwistWithCovariance",
+    Odometry: "nav_msgs/msg/Odometry",
+    Imu: "sensor_msgs/msg/Imu",
 }
 """Each class's ROS 2 message name (``pkg/msg/Type``, as rosbags and ``ros2 topic`` write it)."""

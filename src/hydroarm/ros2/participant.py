@@ -59,6 +59,32 @@ class Ros2Config(FrozenModel):
         pattern=r"^[A-Za-z][A-Za-z0-9_]*$",
         description="the ros2_control forward controller's name: commands on /<controller_name>/commands",
     )
+    thruster_controller_name: str = pydantic.Field(
+        "thruster_controller",
+        min_length=1,
+        max_length=64,
+        pattern=r"^[A-Za-z][A-Za-z0-9_]*$",
+        description="on a vehicle: the thrusters' forward controller: thrusts (N) on /<name>/commands",
+    )
+
+    @pydantic.model_validator(mode="after")
+    def _two_topics(self) -> Ros2Config:
+        if self.thruster_controller_name == self.controller_name:
+            raise ValueError(
+                f"thruster_controller_name = {self.thruster_controller_name!r}: the arm's controller has this "
+                "name; give the thrusters' controller another one"
+            )
+        return self
+
+    def check_vehicle(self, on_vehicle: bool) -> None:
+        """Raise ValueError when ``thruster_controller_name`` was set away from its default for a
+        fixed-base arm (no thrusters: the setting would be ignored)."""
+        default = type(self).model_fields["thruster_controller_name"].default
+        if not on_vehicle and self.thruster_controller_name != default:
+            raise ValueError(
+                f"ros2.thruster_controller_name = {self.thruster_controller_name!r}: a fixed-base arm has no "
+                "thrusters; set vehicle.name, or leave it at its default"
+            )
 
     @property
     def local_only(self) -> bool:
@@ -67,6 +93,10 @@ class Ros2Config(FrozenModel):
     @property
     def command_topic(self) -> str:
         return f"/{self.controller_name}/commands"
+
+    @property
+    def thruster_topic(self) -> str:
+        return f"/{self.thruster_controller_name}/commands"
 
 
 def cyclone_xml(config: Ros2Config) -> str:

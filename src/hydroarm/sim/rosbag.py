@@ -2,14 +2,18 @@
 
 Reading (:func:`read_bag`: an ``.mcap`` or ``.db3`` file, or a bag folder with
 ``metadata.yaml``; ROS 1 bags too, through ``rosbags.highlevel.AnyReader``): the first topic of
-type ``sensor_msgs/msg/JointState`` gives the joints (by name; positions in rad), the first
-``sensor_msgs/msg/Imu`` the IMU (orientation x y z w, angular velocity rad/s) and the first
-``geometry_msgs/msg/PoseStamped`` the motion capture. Times are the messages' header stamps (s).
+type ``sensor_msgs/msg/JointState`` (not hydroarm's own ``/hydroarm/...``) gives the joints (by
+name; positions in rad), the first ``sensor_msgs/msg/Imu`` the IMU (orientation x y z w, angular
+velocity rad/s) and the first ``geometry_msgs/msg/PoseStamped`` the motion capture. Times are
+the messages' header stamps (s).
 
 Writing (:func:`write_bag`): the same three topics (``/joint_states``, ``/imu``, ``/mocap/pose``)
 into an MCAP bag (ROS 2 ``humble`` message definitions), plus, for a replayed run, the simulated
 vehicle attitude as ``/hydroarm/vehicle_pose`` (PoseStamped): Foxglove and PlotJuggler open it.
 A bag written from a log reads back to the same log (a test).
+
+A bag that ``hydroarm ros2 sim --record`` wrote reads back as a run (:func:`trajectory_from_bag`,
+what ``hydroarm compare`` reads): ``/joint_states`` and the task's ``/hydroarm/joint_reference``.
 """
 
 from __future__ import annotations
@@ -23,6 +27,8 @@ from hydroarm.sim.logs import LogError, TrialLog, _check_stream, _check_time
 JOINT_STATE = "sensor_msgs/msg/JointState"
 IMU = "sensor_msgs/msg/Imu"
 POSE = "geometry_msgs/msg/PoseStamped"
+REFERENCE_TOPIC = "/hydroarm/joint_reference"
+"""The task's joint reference that ``hydroarm ros2 sim`` publishes (and records) beside the joint states."""
 
 
 def _typestore():
@@ -53,8 +59,14 @@ def read_bag(path: str | Path) -> TrialLog:
         for kind in (JOINT_STATE, IMU):
             if kind not in by_type:
                 topics = ", ".join(f"{c.topic} ({c.msgtype})" for c in reader.connections) or "none"
+                if kind == IMU and any(c.topic == REFERENCE_TOPIC for c in reader.connections):
+                    raise LogError(
+                        f"{source}: a fixed-base arm's run recorded by hydroarm ros2 sim: no vehicle, no "
+                        f"{IMU} topic to replay against; read it with hydroarm compare {source}"
+                    )
                 raise LogError(f"{source}: no {kind} topic (topics: {topics})")
-        joints = by_type[JOINT_STATE][0]
+        joint_topics = [c for c in by_type[JOINT_STATE] if not c.topic.startswith("/hydroarm/")]
+        joints = (joint_topics or by_type[JOINT_STATE])[0]
         names: tuple[str, ...] | None = None
         joint_rows, joint_time = [], []
         imu_time, imu_q, imu_w = [], [], []
@@ -180,3 +192,76 @@ def write_bag(
                 message, ns = pose(t, q, "world")
                 writer.write(sim, ns, store.serialize_cdr(message, POSE))
     return path
+
+
+def is_bag(path: str | Path) -> bool:
+    """True for an ``.mcap`` / ``.db3`` file or a bag folder (with ``metadata.yaml``)."""
+    path = Path(path)
+    return path.suffix in (".mcap", ".db3") or (path.is_dir() and (path / "metadata.yaml").is_file())
+
+
+def trajectory_from_bag(path: str | Path, control_period: float | None = None):
+    """The run that ``hydroarm ros2 sim --record`` wrote to the bag at ``path``, as a
+    :class:`~hydroarm.sim.runner.Trajectory` (K rows: the states but the last).
+
+    Row k: ``x`` = ``y`` the measured joint state of ``/joint_states`` at t_k (what was on the
+    wire: the true state only where the sensor is ideal), ``u`` the torque applied over the step
+    from t_k (the ``effort`` of the next state: each state carries the torque of the step that
+    ended at its stamp), ``q_ref``, ``v_ref`` from ``/hydroarm/joint_reference`` at t_k; the
+    disturbance and its estimate NaN (not on the graph). A stamp sent twice (the simulator's
+    re-sends in lockstep) counts once. :class:`LogError` for a bag without the two topics."""
+    from rosbags.highlevel import AnyReader
+
+    from hydroarm.sim.runner import Trajectory
+
+    path = Path(path)
+    try:
+        reader = AnyReader([path], default_typestore=_typestore())
+        reader.open()
+    except Exception as error:  # rosbags raises its own error types for unreadable bags
+        raise LogError(f"{path}: not a readable ROS bag ({error})") from None
+    try:
+        topics = {c.topic: c for c in reader.connections if c.msgtype == JOINT_STATE}
+        if "/joint_states" not in topics or REFERENCE_TOPIC not in topics:
+            listed = ", ".join(f"{c.topic} ({c.msgtype})" for c in reader.connections) or "none"
+            raise LogError(
+                f"{path}: a recorded run needs /joint_states and {REFERENCE_TOPIC} ({JOINT_STATE}; "
+                f"hydroarm ros2 sim --record writes them); topics: {listed}"
+            )
+        rows: dict[str, dict[int, tuple]] = {"/joint_states": {}, REFERENCE_TOPIC: {}}
+        names = None
+        for connection, _, raw in reader.messages(connections=[topics["/joint_states"], topics[REFERENCE_TOPIC]]):
+            message = reader.deserialize(raw, JOINT_STATE)
+            stamp = int(message.header.stamp.sec) * 1_000_000_000 + int(message.header.stamp.nanosec)
+            names = names or tuple(message.name)
+            if tuple(message.name) != names:
+                raise LogError(f"{path}: {connection.topic}: the joint names change ({names} -> {message.name})")
+            fields = (message.position, message.velocity, message.effort)
+            rows[connection.topic].setdefault(stamp, tuple(np.asarray(f, dtype=float) for f in fields))
+    finally:
+        reader.close()
+    states, reference = rows["/joint_states"], rows[REFERENCE_TOPIC]
+    stamps = sorted(stamp for stamp in states if stamp in reference)
+    n = len(names or ())
+    if len(stamps) < 2 or any(states[s][0].size != n or states[s][1].size != n for s in stamps):
+        raise LogError(f"{path}: fewer than two joint states with their reference, or states without {n} values")
+    if any(states[s][2].size != n for s in stamps[1:]):
+        raise LogError(f"{path}: /joint_states without the {n} efforts of a recorded run")
+    t = np.asarray(stamps[:-1], dtype=float) * 1e-9
+    x = np.vstack([np.concatenate(states[s][:2]) for s in stamps[:-1]])
+    u = np.vstack([states[s][2] for s in stamps[1:]])
+    q_ref = np.vstack([reference[s][0] for s in stamps[:-1]])
+    v_ref = np.vstack([reference[s][1] if reference[s][1].size == n else np.full(n, np.nan) for s in stamps[:-1]])
+    period = float(np.median(np.diff(t))) if control_period is None else control_period
+    nan = np.full((t.size, n), np.nan)
+    meta = {
+        "controller": f"{path.stem if path.is_file() else path.name} (bag)",
+        "duration": (stamps[-1] - stamps[0]) * 1e-9,
+        "control_period": period, "steps": int(t.size), "diverged": False, "source": str(path),
+        "joint_names": list(names),
+    }  # fmt: skip
+    return Trajectory(
+        t=t, x=x, y=x.copy(), u=u, q_ref=q_ref, v_ref=v_ref, disturbance=nan, disturbance_estimate=nan.copy(),
+        disturbance_var=nan.copy(), terminal_violation=np.full(t.size, np.nan), status=np.full(t.size, "", dtype=str),
+        events=np.full(t.size, "", dtype=str), meta=meta,
+    )  # fmt: skip

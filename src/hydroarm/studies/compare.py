@@ -1,10 +1,11 @@
 """Several saved runs side by side: ``hydroarm compare RUN.npz RUN.npz ...``.
 
 :func:`load_runs` reads the trajectories (from ``hydroarm run``, ``reproduce``, ``sweep
---trajectories``), :func:`compare_rows` gives each run's E_p over the whole run and after the
-start-up (per joint and the mean over joints, rad^2), and :func:`plot_comparison` overlays their
-joint errors, torques and disturbance estimates, one row of axes per joint, each axis scaled
-to its own joint (a light wrist's torques are not flattened by the shoulder's).
+--trajectories``; a ROS 2 bag of ``hydroarm ros2 sim --record``:
+:func:`~hydroarm.sim.rosbag.trajectory_from_bag`), :func:`compare_rows` gives each run's E_p
+over the whole run and after the start-up (per joint and the mean over joints, rad^2), and
+:func:`plot_comparison` overlays their joint errors, torques and disturbance estimates, one row
+of axes per joint, each axis scaled to its own joint (a light wrist's torques are not flattened by the shoulder's).
 """
 
 from __future__ import annotations
@@ -17,6 +18,8 @@ import matplotlib
 import numpy as np
 
 from hydroarm.config import ConfigError
+from hydroarm.sim.logs import LogError
+from hydroarm.sim.rosbag import is_bag, trajectory_from_bag
 from hydroarm.sim.runner import Trajectory, tracking_metrics
 from hydroarm.studies.figures import subplots
 
@@ -41,6 +44,13 @@ def load_runs(paths: list[Path]) -> list[ComparedRun]:
     runs = []
     for path in paths:
         path = Path(path)
+        if is_bag(path):
+            try:
+                traj = trajectory_from_bag(path)
+            except LogError as error:
+                raise ConfigError(f"RUN '{path}': {error}") from None
+            runs.append(ComparedRun(_label(traj, path), path, traj))
+            continue
         if not path.is_file():
             kind = "a folder, not a file" if path.is_dir() else "no such file"
             raise ConfigError(f"RUN '{path}': {kind}")
