@@ -41,6 +41,24 @@ def _stamp(header) -> float:
     return float(header.stamp.sec) + 1e-9 * float(header.stamp.nanosec)
 
 
+def _connections_by_type(reader, source: str) -> dict[str, list]:
+    """The bag's connections by message type; LogError naming what is missing for a replay (a
+    fixed-base arm's bag, which has no IMU, is pointed to ``hydroarm compare``)."""
+    by_type: dict[str, list] = {}
+    for connection in reader.connections:
+        by_type.setdefault(connection.msgtype, []).append(connection)
+    for kind in (JOINT_STATE, IMU):
+        if kind not in by_type:
+            topics = ", ".join(f"{c.topic} ({c.msgtype})" for c in reader.connections) or "none"
+            if kind == IMU and any(c.topic == REFERENCE_TOPIC for c in reader.connections):
+                raise LogError(
+                    f"{source}: a fixed-base arm's run recorded by hydroarm ros2 sim: no vehicle, no "
+                    f"{IMU} topic to replay against; read it with hydroarm compare {source}"
+                )
+            raise LogError(f"{source}: no {kind} topic (topics: {topics})")
+    return by_type
+
+
 def read_bag(path: str | Path) -> TrialLog:
     """The trial in a ROS 2 (or ROS 1) bag (module docstring); LogError for a bag without the topics."""
     from rosbags.highlevel import AnyReader
@@ -53,18 +71,7 @@ def read_bag(path: str | Path) -> TrialLog:
     except Exception as error:  # rosbags raises its own error types for unreadable bags
         raise LogError(f"{source}: not a readable ROS bag ({error})") from None
     try:
-        by_type: dict[str, list] = {}
-        for connection in reader.connections:
-            by_type.setdefault(connection.msgtype, []).append(connection)
-        for kind in (JOINT_STATE, IMU):
-            if kind not in by_type:
-                topics = ", ".join(f"{c.topic} ({c.msgtype})" for c in reader.connections) or "none"
-                if kind == IMU and any(c.topic == REFERENCE_TOPIC for c in reader.connections):
-                    raise LogError(
-                        f"{source}: a fixed-base arm's run recorded by hydroarm ros2 sim: no vehicle, no "
-                        f"{IMU} topic to replay against; read it with hydroarm compare {source}"
-                    )
-                raise LogError(f"{source}: no {kind} topic (topics: {topics})")
+        by_type = _connections_by_type(reader, source)
         joint_topics = [c for c in by_type[JOINT_STATE] if not c.topic.startswith("/hydroarm/")]
         joints = (joint_topics or by_type[JOINT_STATE])[0]
         names: tuple[str, ...] | None = None
