@@ -261,7 +261,9 @@ def test_two_processes_in_lockstep_are_the_in_process_run(tmp_path):
         [*HYDROARM, "ros2", "sim", *common, "--out", str(tmp_path / "sim"), "--record", str(bag)],
         stderr=subprocess.PIPE, text=True,
     )  # fmt: skip
-    controller = [*HYDROARM, "ros2", "control", "--controller", "idmpc", *common, "--duration", "300"]
+    # the controller stops 5 s after the last state (the simulator's own wait stays 20 s, for a loaded machine)
+    controller = [*HYDROARM, "ros2", "control", "--controller", "idmpc", *common, "--command-timeout", "5"]
+    controller += ["--duration", "300"]
     control = subprocess.run(
         [*controller, "--out", str(tmp_path / "control")], capture_output=True, text=True, timeout=400
     )
