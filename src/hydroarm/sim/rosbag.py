@@ -41,6 +41,18 @@ def _stamp(header) -> float:
     return float(header.stamp.sec) + 1e-9 * float(header.stamp.nanosec)
 
 
+def _open_bag(path: Path):
+    """An open rosbags reader of the bag at ``path`` (ROS 2 or ROS 1); LogError if it cannot be read."""
+    from rosbags.highlevel import AnyReader
+
+    try:
+        reader = AnyReader([path], default_typestore=_typestore())
+        reader.open()
+    except Exception as error:  # rosbags raises its own error types for unreadable bags
+        raise LogError(f"{path}: not a readable ROS bag ({error})") from None
+    return reader
+
+
 def _connections_by_type(reader, source: str) -> dict[str, list]:
     """The bag's connections by message type; LogError naming what is missing for a replay (a
     fixed-base arm's bag, which has no IMU, is pointed to ``hydroarm compare``)."""
@@ -61,15 +73,9 @@ def _connections_by_type(reader, source: str) -> dict[str, list]:
 
 def read_bag(path: str | Path) -> TrialLog:
     """The trial in a ROS 2 (or ROS 1) bag (module docstring); LogError for a bag without the topics."""
-    from rosbags.highlevel import AnyReader
-
     path = Path(path)
     source = str(path)
-    try:
-        reader = AnyReader([path], default_typestore=_typestore())
-        reader.open()
-    except Exception as error:  # rosbags raises its own error types for unreadable bags
-        raise LogError(f"{source}: not a readable ROS bag ({error})") from None
+    reader = _open_bag(path)
     try:
         by_type = _connections_by_type(reader, source)
         joint_topics = [c for c in by_type[JOINT_STATE] if not c.topic.startswith("/hydroarm/")]
@@ -217,16 +223,10 @@ def trajectory_from_bag(path: str | Path, control_period: float | None = None):
     ended at its stamp), ``q_ref``, ``v_ref`` from ``/hydroarm/joint_reference`` at t_k; the
     disturbance and its estimate NaN (not on the graph). A stamp sent twice (the simulator's
     re-sends in lockstep) counts once. :class:`LogError` for a bag without the two topics."""
-    from rosbags.highlevel import AnyReader
-
     from hydroarm.sim.runner import Trajectory
 
     path = Path(path)
-    try:
-        reader = AnyReader([path], default_typestore=_typestore())
-        reader.open()
-    except Exception as error:  # rosbags raises its own error types for unreadable bags
-        raise LogError(f"{path}: not a readable ROS bag ({error})") from None
+    reader = _open_bag(path)
     try:
         topics = {c.topic: c for c in reader.connections if c.msgtype == JOINT_STATE}
         if "/joint_states" not in topics or REFERENCE_TOPIC not in topics:
