@@ -67,3 +67,31 @@ def test_settings_resolved_command():
     assert upper[0]["value"] == "1.2"
     bad = CliRunner().invoke(app, ["settings", "--arm", "paper"])
     assert bad.exit_code == 2 and "--resolved" in bad.output
+
+
+def test_cylinder_over_link_over_water(tmp_path):
+    """The three tiers of the one coefficient rule (hydroarm.model.arm.coefficient): a cylinder's own
+    cd (1.7) beats its link's (1.2), which beats water.cd (0.8); a cylinder with neither takes the
+    water's; the resolved table and the strip water agree on each."""
+    import shutil
+
+    from hydroarm.model.arm import coefficient
+
+    shutil.copy(ROOT / "examples" / "urdf" / "myarm.urdf", tmp_path / "myarm.urdf")
+    text = (ROOT / "examples" / "urdf" / "myarm.hydro.toml").read_text()
+    text = text.replace('link = "forearm"\n', 'link = "forearm"\ncd = 1.2\ncm = 1.4\n')
+    text = text.replace("diameter = 0.06\n", "diameter = 0.06\ncd = 1.7\n")
+    (tmp_path / "myarm.hydro.toml").write_text(text)
+    hydro = str(tmp_path / "myarm.hydro.toml")
+    arm = load_arm(hydro)
+    config = with_overrides(ExperimentConfig(), {"arm": hydro, "water.cd": 0.8, "water.cm": 1.5})
+    forearm = next(c for c in arm.cylinders if c.name.startswith("forearm"))
+    column = next(c for c in arm.cylinders if c.name.startswith("column"))
+    assert forearm.coefficients(config.water) == (1.7, 1.4)  # cylinder cd, link cm
+    assert column.coefficients(config.water) == (0.8, 1.5)  # the water's
+    assert coefficient(None, None, 0.8) == 0.8 and coefficient(1.7, 1.2, 0.8) == 1.7 and coefficient(None) is None
+    rows = resolve_settings(config, arm)
+    assert _by(rows, "water.cd")[forearm.name].value == "1.7" and _by(rows, "water.cm")[forearm.name].value == "1.4"
+    geometry = StripGeometry(arm, config.water)
+    k = arm.cylinders.index(forearm)
+    assert np.isclose(geometry.drag_per_length[k], 0.5 * config.water.rho * 1.7 * forearm.diameter, rtol=1e-12)

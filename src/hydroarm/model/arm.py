@@ -221,6 +221,22 @@ class WettedCylinder:
         """Cross-section area pi D^2 / 4 (m^2)."""
         return math.pi * self.diameter**2 / 4.0
 
+    def coefficients(self, water) -> tuple[float, float]:
+        """``(C_d, C_m)`` of this cylinder in ``water`` (a :class:`~hydroarm.model.water.Water`):
+        its own (from the hydrodynamics file) where given, else the water's (:func:`coefficient`)."""
+        return coefficient(self.cd, water.cd), coefficient(self.cm, water.cm)
+
+
+def coefficient(*sources: float | None) -> float | None:
+    """The one rule of which C_d, C_m or C_a a wetted cylinder gets: the first of ``sources``
+    given (not None), in order of precedence: the cylinder's own in a URDF arm's hydrodynamics
+    file (``[[links.cylinders]]``), its link's there (``[[links]]``), the settings' (``water.cd``,
+    ``water.cm``). The hydrodynamics file's two are merged when the arm is imported
+    (:mod:`hydroarm.model.urdf_import`), the water's when a plant is built
+    (:meth:`WettedCylinder.coefficients`); docs/settings.md's precedence table states it, and
+    ``hydroarm settings --resolved`` shows the result. None when none is given."""
+    return next((value for value in sources if value is not None), None)
+
 
 @dataclass
 class Arm:

@@ -102,7 +102,7 @@ def _cd(cylinder, water: Water) -> float:
             "water.drag_model = 'reynolds': only the fixed-base plant (UnderwaterPlant) has it; "
             "use water.drag_model = 'constant' here"
         )
-    return water.cd if cylinder.cd is None else cylinder.cd
+    return cylinder.coefficients(water)[0]
 
 
 def arm_to_mjcf(

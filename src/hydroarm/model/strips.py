@@ -145,12 +145,13 @@ class StripGeometry:
         self.start = np.asarray([c.start for c in cylinders], dtype=float).reshape(-1, 3)
         self.axis = np.asarray([c.axis for c in cylinders], dtype=float).reshape(-1, 3)
         self.length = np.asarray([c.length for c in cylinders], dtype=float)
+        coefficients = [c.coefficients(water) for c in cylinders]  # (C_d, C_m): the one precedence rule
         self.drag_per_length = np.asarray(
-            [0.5 * water.rho * (water.cd if c.cd is None else c.cd) * c.diameter for c in cylinders],
+            [0.5 * water.rho * cd * c.diameter for c, (cd, _) in zip(cylinders, coefficients, strict=True)],
             dtype=float,
         )
         self.mass_per_length = np.asarray(
-            [water.rho * (water.cm if c.cm is None else c.cm) * c.area for c in cylinders], dtype=float
+            [water.rho * cm * c.area for c, (_, cm) in zip(cylinders, coefficients, strict=True)], dtype=float
         )
         self.buoyancy_force = np.asarray(
             [water.rho * water.gravity * c.displaced_volume for c in cylinders], dtype=float

@@ -62,7 +62,7 @@ import numpy as np
 import pinocchio as pin
 
 from hydroarm.config import ConfigError, not_a_file, read_mapping, shown, validate
-from hydroarm.model.arm import Arm, WettedCylinder
+from hydroarm.model.arm import Arm, WettedCylinder, coefficient
 from hydroarm.model.hydro_spec import HYDRO_SUFFIXES, REVOLUTE_JOINTS, HydroSpec, LinkHydroSpec
 
 POINT_LENGTH = 1e-6
@@ -354,9 +354,9 @@ def _wetted_cylinders(model: pin.Model, hydro: HydroSpec, collisions: dict, sour
                     end=placement.act(np.asarray(end, dtype=float)),
                     diameter=float(diameter),
                     displaced_volume=float(volume),
-                    cd=cd if cd is not None else spec.cd,
-                    cm=cm if cm is not None else spec.cm,
-                    cd_axial=cd_axial if cd_axial is not None else spec.cd_axial,
+                    cd=coefficient(cd, spec.cd),
+                    cm=coefficient(cm, spec.cm),
+                    cd_axial=coefficient(cd_axial, spec.cd_axial),
                 )
             )
     return out

@@ -4,10 +4,10 @@ arm's hydrodynamics file) resolved for one run, with where each value came from
 docs/settings.md's table).
 
 The rules are the code's, not restated: the coefficients are the ones the strip water uses
-(:class:`~hydroarm.model.strips.StripGeometry`: a cylinder's own ``cd``/``cm`` when its file
-gives one, else ``water.cd``/``water.cm``), the torque limit the one the experiment builds
-(:meth:`~hydroarm.model.arm.Arm.with_torque_limit`: ``torque_limit`` when set, else the arm
-file's); tests/test_settings_resolved.py checks both against those functions.
+(:func:`~hydroarm.model.arm.coefficient`, the one rule: a cylinder's own ``cd``/``cm`` when its
+hydrodynamics file gives one, else ``water.cd``/``water.cm``; a DH arm file gives none), the
+torque limit the one the experiment builds (:meth:`~hydroarm.model.arm.Arm.with_torque_limit`:
+``torque_limit`` when set, else the arm file's); tests/test_settings_resolved.py checks both against those functions.
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ PRECEDENCE: tuple[tuple[str, tuple[str, ...]], ...] = (
     (
         "C_d of a wetted cylinder (`water.cd`)",
         (
-            "the cylinder's `cd` in a URDF arm's hydrodynamics file (`[[links.cylinders]]`) or in a DH arm file",
+            "the cylinder's `cd` in a URDF arm's hydrodynamics file (`[[links.cylinders]]`)",
             "its link's `cd` in the hydrodynamics file (`[[links]]`)",
             "the settings' `water.cd`",
         ),
@@ -29,7 +29,7 @@ PRECEDENCE: tuple[tuple[str, tuple[str, ...]], ...] = (
     (
         "C_m of a wetted cylinder (`water.cm`)",
         (
-            "the cylinder's `cm` in the hydrodynamics file or the DH arm file",
+            "the cylinder's `cm` in the hydrodynamics file",
             "its link's `cm` in the hydrodynamics file",
             "the settings' `water.cm`",
         ),
@@ -79,9 +79,9 @@ def resolve_settings(config: ExperimentConfig, arm: Arm) -> list[Resolved]:
     file = "the arm's file" if arm.spec is not None else "the arm's hydrodynamics file"
     rows = []
     for cylinder in arm.cylinders:
-        for key, own, default in (("cd", cylinder.cd, config.water.cd), ("cm", cylinder.cm, config.water.cm)):
+        for key, own, used in zip(("cd", "cm"), (cylinder.cd, cylinder.cm), cylinder.coefficients(config.water)):
             source = f"{file} (cylinder or link)" if own is not None else f"settings water.{key}"
-            rows.append(Resolved(f"water.{key}", cylinder.name, _number(own if own is not None else default), source))
+            rows.append(Resolved(f"water.{key}", cylinder.name, _number(used), source))
     limit = arm.with_torque_limit(config.torque_limit).torque_limit
     source = "settings torque_limit" if config.torque_limit is not None else "the arm file's torque_limit"
     rows.append(Resolved("torque_limit", f"{arm.n_joints} joints (N m)", _limits(limit), source))
