@@ -5,15 +5,21 @@ plant and by the dry model.
 takes; :class:`StepInfo` is what one step of a joint-space model reports beside the next
 state (the true plant's disturbance; zero for :class:`~hydroarm.model.nominal.NominalModel`).
 Both live here, not in the true plant's module, so that the dry model does not import the plant.
+:func:`inner_step_setting` is the one definition of the ``inner_step`` setting (its range, unit
+and meaning) that every plant's settings use: each system has its own (``plant.inner_step`` on
+a fixed base, ``vehicle.plant.inner_step`` on a vehicle, the replay's ``inner_step``), with its
+own default, and nothing else sets the step.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import numba
 import numpy as np
+import pydantic
 
 Derivative = Callable[[float, np.ndarray], np.ndarray]
 
@@ -29,6 +35,23 @@ class StepInfo:
 
     disturbance: np.ndarray
     disturbance_start: np.ndarray
+
+
+INNER_STEP_RANGE: tuple[float, float] = (1e-5, 0.1)
+"""s: the allowed ``inner_step`` of every plant (:func:`inner_step_setting`)."""
+
+
+def inner_step_setting(default: float, plant: str) -> Any:
+    """The ``inner_step`` field (s, in :data:`INNER_STEP_RANGE`) of ``plant``'s settings at
+    ``default``: the longest RK4 step; the control period (or output period) is split into the
+    fewest equal steps no longer than it (:func:`inner_steps`)."""
+    low, high = INNER_STEP_RANGE
+    return pydantic.Field(
+        default,
+        ge=low,
+        le=high,
+        description=f"longest RK4 step of {plant}; each period is split into equal steps no longer (s)",
+    )
 
 
 def inner_steps(dt: float, inner_step: float | None) -> tuple[int, float]:

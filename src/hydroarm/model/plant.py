@@ -35,7 +35,7 @@ from hydroarm.config import ConfigError, FrozenModel, per_joint
 from hydroarm.model.arm import Arm
 from hydroarm.model.current import current_at
 from hydroarm.model.friction import FrictionConfig, friction_torque
-from hydroarm.model.integrator import StepInfo, inner_steps, rk4_second_order_stage, rk4_step
+from hydroarm.model.integrator import StepInfo, inner_step_setting, inner_steps, rk4_second_order_stage, rk4_step
 from hydroarm.model.sensing import Actuator, ActuatorConfig, Sensor, SensorConfig
 from hydroarm.model.strips import solve_underwater, water_terms
 from hydroarm.model.water import Water, WaterModel, added_mass_matrix
@@ -58,9 +58,7 @@ class PlantConfig(FrozenModel):
     Table 2).
     """
 
-    inner_step: float = pydantic.Field(
-        1e-3, ge=1e-5, le=0.1, description="longest RK4 step; the control period is split into equal steps (s)"
-    )
+    inner_step: float = inner_step_setting(1e-3, "the fixed-base plant")
     friction: float = pydantic.Field(0.0, ge=0.0, le=1e4, description="joint viscous friction, 0 = off (N m s/rad)")
     noise_variance: float = pydantic.Field(
         0.0, ge=0.0, le=10.0, description="variance of the Gaussian measurement noise on q and v (rad^2, (rad/s)^2)"

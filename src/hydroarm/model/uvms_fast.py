@@ -33,7 +33,7 @@ from numba.experimental import structref
 
 from hydroarm.config import FrozenModel
 from hydroarm.model.current import current_at
-from hydroarm.model.integrator import inner_steps
+from hydroarm.model.integrator import inner_step_setting, inner_steps
 from hydroarm.model.strips import STRIPS_TYPE, StripGeometry
 from hydroarm.model.uvms import UVMS, VEHICLE_WATER_TYPE, vehicle_water
 from hydroarm.model.uvms_fast_kernels import RIGID_TREE_TYPE, WORK_TYPE, evaluate, new_rigid_tree, workspace
@@ -44,7 +44,7 @@ from hydroarm.model.water import Water
 class FastUVMSConfig(FrozenModel):
     """Settings of :class:`FastUVMSPlant`."""
 
-    inner_step: float = pydantic.Field(5e-3, ge=1e-5, le=0.1, description="RK4 step (s)")
+    inner_step: float = inner_step_setting(5e-3, "the floating plant")
     drag_points: int = pydantic.Field(3, ge=1, le=16, description="Gauss points per drag piece on each cylinder (-)")
     arm_drag: bool = pydantic.Field(True, description="switch: drag on the arm (on/off)")
     arm_added_mass: bool = pydantic.Field(True, description="switch: added mass of the arm (on/off)")

@@ -23,13 +23,12 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 import pinocchio as pin
-import pydantic
 from numba.core import types
 from numba.experimental import structref
 
 from hydroarm.config import FrozenModel
 from hydroarm.model.current import current_at
-from hydroarm.model.integrator import inner_steps
+from hydroarm.model.integrator import inner_step_setting, inner_steps
 from hydroarm.model.uvms import UVMS, UVMSDynamics, uvms_acceleration_kernel
 from hydroarm.model.vehicle import quaternion_matrix
 from hydroarm.model.water import Water
@@ -39,7 +38,7 @@ class UVMSPlantConfig(FrozenModel):
     """``inner_step`` (s, in [1e-5, 0.1]): the longest RK4 step (the control period is split
     into equal steps no longer than this)."""
 
-    inner_step: float = pydantic.Field(1e-3, ge=1e-5, le=0.1, description="RK4 step (s)")
+    inner_step: float = inner_step_setting(1e-3, "the floating plant")
 
 
 @dataclass(frozen=True)

@@ -44,7 +44,7 @@ All world quantities are in the base frame (z up). Forces in N, torques in N m.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 import pinocchio as pin
@@ -67,6 +67,16 @@ __all__ = [
 ]
 
 
+DENSITY_RANGE: tuple[float, float] = (0.0, 2000.0)
+"""kg/m^3: the allowed water density, exclusive of 0 (:func:`density_setting`)."""
+
+
+def density_setting(default: float, what: str) -> Any:
+    """The one definition of a water density setting (kg/m^3, in (0, 2000]): ``Water.rho`` of a
+    fixed arm or a vehicle run, and the replay's ``water_density`` (the tank's water)."""
+    return pydantic.Field(default, gt=DENSITY_RANGE[0], le=DENSITY_RANGE[1], description=f"{what} (kg/m^3)")
+
+
 class Water(FrozenModel):
     """Water properties and the quadrature of the strip integrals.
 
@@ -79,7 +89,7 @@ class Water(FrozenModel):
     ``added_mass_model`` choose their forms.
     """
 
-    rho: float = pydantic.Field(1000.0, gt=0.0, le=2000.0, description="water density (kg/m^3)")
+    rho: float = density_setting(1000.0, "water density")
     cd: float = pydantic.Field(
         1.0, ge=0.0, le=10.0, description="Morison drag coefficient C_d of every cylinder (-), the paper's C_r"
     )

@@ -197,10 +197,29 @@ integrates by its own settings (``vehicle.plant.*``). A value away from its defa
 (:func:`check_vehicle_settings`), never validated and then ignored."""
 
 
+VEHICLE_HOMES: dict[str, str] = {
+    "water.current": "vehicle.current",
+    "water.quadrature_points": "vehicle.plant.drag_points",
+}
+"""Water settings that a vehicle run takes from its own section, fixed-base key -> its home on
+a vehicle: the floating plant's current is ``vehicle.current`` (a uniform current along world
+x) and its arm's Gauss points ``vehicle.plant.drag_points``. Given away from its default on a
+vehicle run, the fixed-base key is refused naming its home (:func:`check_vehicle_settings`),
+never validated and then replaced."""
+
+
 def check_vehicle_settings(config: Any) -> None:
-    """Raise :class:`ConfigError` naming the first fixed-base setting (:data:`FIXED_BASE_ONLY_SECTIONS`)
-    that a vehicle run (``vehicle.name`` set) was given away from its default. ``config``: an
-    :class:`~hydroarm.sim.experiment.ExperimentConfig`."""
+    """Raise :class:`ConfigError` naming the first fixed-base setting (:data:`FIXED_BASE_ONLY_SECTIONS`,
+    :data:`VEHICLE_HOMES`) that a vehicle run (``vehicle.name`` set) was given away from its
+    default. ``config``: an :class:`~hydroarm.sim.experiment.ExperimentConfig`."""
+    for key, home in VEHICLE_HOMES.items():
+        section, name = key.split(".")
+        value, default = getattr(getattr(config, section), name), getattr(type(getattr(config, section))(), name)
+        if value != default:
+            raise ConfigError(
+                f"{key} = {shown(value)}: not used on a vehicle run (vehicle.name = {config.vehicle.name!r}): "
+                f"a vehicle run's is {home}. Set {home}, and leave {key} at its default ({shown(default)})"
+            )
     for section in FIXED_BASE_ONLY_SECTIONS:
         value, default = getattr(config, section), type(getattr(config, section))()
         for key in type(value).model_fields:

@@ -26,13 +26,13 @@ import pinocchio as pin
 import pydantic
 
 from hydroarm.config import ConfigError, FrozenModel
-from hydroarm.model.integrator import inner_steps
+from hydroarm.model.integrator import inner_step_setting, inner_steps
 from hydroarm.model.loading import load_arm
 from hydroarm.model.uvms import build_uvms
 from hydroarm.model.uvms_plant import UVMSPlantConfig
 from hydroarm.model.uvms_prescribed import PrescribedUVMSPlant
 from hydroarm.model.vehicle import VehicleSpec, build_vehicle, load_vehicle_spec
-from hydroarm.model.water import Water
+from hydroarm.model.water import Water, density_setting
 from hydroarm.sim.files import atomic_write
 from hydroarm.sim.logs import CleaningConfig, TrialLog, clean_attitude, joint_motion, roll_pitch_yaw
 from hydroarm.sim.trials import load_trial
@@ -43,8 +43,8 @@ AXES = ("roll", "pitch")
 class ReplayConfig(FrozenModel):
     """How a replay runs (the physics is the vehicle and arm files')."""
 
-    water_density: float = pydantic.Field(997.0, gt=0.0, le=2000.0, description="kg/m^3 (the tank's fresh water)")
-    inner_step: float = pydantic.Field(0.05, ge=1e-4, le=0.1, description="s: the vehicle's longest RK4 step")
+    water_density: float = density_setting(997.0, "the tank's fresh water: the replay's water.rho")
+    inner_step: float = inner_step_setting(0.05, "the replayed vehicle")
     output_period: float = pydantic.Field(0.05, ge=1e-3, le=1.0, description="s: the attitude.csv grid")
     rate_window: float = pydantic.Field(
         0.25, ge=0.0, le=5.0, description="s: the initial body rates are the IMU's mean over this window"

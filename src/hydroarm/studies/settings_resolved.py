@@ -50,8 +50,35 @@ PRECEDENCE: tuple[tuple[str, tuple[str, ...]], ...] = (
             "in a replay: the replay setting `inner_step`",
         ),
     ),
+    (
+        "the water current",
+        (
+            "on a fixed base: `water.current`",
+            "on a vehicle: `vehicle.current` (uniform along world x; `water.current` refused)",
+            "in a replay: none (the tank's still water)",
+        ),
+    ),
+    (
+        "Gauss points per cylinder of the drag integral",
+        (
+            "on a fixed base: `plant.drag_points` (compiled plant), else `water.quadrature_points`",
+            "on a vehicle: `vehicle.plant.drag_points` (`water.quadrature_points` refused)",
+        ),
+    ),
+    (
+        "the arm's drag, added mass, buoyancy on a vehicle",
+        (
+            "on only where both switches are: `water.drag` / `water.added_mass` / `water.buoyancy` "
+            "(the hull's too) and `vehicle.plant.arm_drag` / `arm_added_mass` / `arm_buoyancy` (the arm's alone)",
+        ),
+    ),
+    (
+        "the water density",
+        ("on a fixed base or a vehicle: `water.rho`", "in a replay: the replay setting `water_density`"),
+    ),
 )
-"""(what, its sources in order: the first one given wins); the inner step's rows are one per system."""
+"""(what, its sources in order: the first one given wins); the rows that name a system (the inner
+step, the current, the Gauss points, the density) give each system's one home instead."""
 
 
 @dataclass(frozen=True)
