@@ -193,7 +193,7 @@ def test_a_plant_mismatch_is_a_run_setting(tmp_path):
     assert runs["light"].meta["mismatch"]["mass_scale"] == 0.8
     assert not np.allclose(runs["light"].u, runs["nominal"].u)
     line = _one_error_line(RUNNER.invoke(app, ["run", "--set", "mismatch.mass_scal=0.8"]))
-    assert "did you mean 'mass_scale'" in line
+    assert "did you mean 'mismatch.mass_scale'" in line
 
 
 def test_a_controller_setting_on_a_vehicle_run_says_what_the_vehicle_run_takes():

@@ -112,3 +112,71 @@ def test_every_water_density_is_the_one_setting():
         low = next(item.gt for item in field.metadata if getattr(item, "gt", None) is not None)
         high = next(item.le for item in field.metadata if getattr(item, "le", None) is not None)
         assert (low, high) == (0.0, 2000.0) and field.description.endswith("(kg/m^3)")
+
+
+# --- the plant mismatch: a section of the settings ------------------------------------------------
+
+
+def test_the_mismatch_is_a_validated_section_with_its_ranges():
+    from hydroarm.sim.mismatch import Mismatch
+
+    assert with_overrides(ExperimentConfig(), {"mismatch.mass_scale": 0.8}).mismatch == Mismatch(mass_scale=0.8)
+    for key, value, words in (("mismatch.mass_scale", 0.0, "greater than 0"), ("mismatch.payload_kg", -1.0, ">= 0")):
+        with pytest.raises(ConfigError) as error:
+            with_overrides(ExperimentConfig(), {key: value})
+        assert f"settings: {key} = {value!r}" in str(error.value) and "\n" not in str(error.value)
+        assert words in str(error.value) or "greater than or equal to 0" in str(error.value)
+    with pytest.raises(ConfigError, match="mismatch.mass_scale = 0.8: not used on a vehicle run"):
+        with_overrides(ExperimentConfig(), {"vehicle.name": VEHICLE, "mismatch.mass_scale": 0.8})
+
+
+def test_a_settings_file_mismatch_and_set_give_the_same_run(tmp_path):
+    """--set mismatch.mass_scale=0.8 (split off by the CLI before), the same in a --config file's
+    [mismatch], and the plant built on perturbed_arm by hand: the same torques, bit for bit; a
+    mismatch away from its defaults names the run (its digest), none leaves the digest as it was."""
+    import numpy as np
+
+    from hydroarm.model.loading import load_arm
+    from hydroarm.sim.mismatch import Mismatch, perturbed_arm
+    from hydroarm.sim.runner import Trajectory
+
+    file = tmp_path / "light.toml"
+    file.write_text("duration = 0.1\n[mismatch]\nmass_scale = 0.8\n")
+    runs = {}
+    for label, args in (
+        ("set", ["--set", "duration=0.1", "--set", "mismatch.mass_scale=0.8"]),
+        ("file", ["--config", str(file)]),
+    ):
+        result = CliRunner().invoke(app, ["run", "--controller", "smc", *args, "--out", str(tmp_path / label)])
+        assert result.exit_code == 0, result.output
+        runs[label] = Trajectory.load(tmp_path / label / "trajectory.npz")
+    config = with_overrides(ExperimentConfig(duration=0.1), {"mismatch.mass_scale": 0.8})
+    arm = load_arm("paper")
+    plant_arm = perturbed_arm(arm, Mismatch(mass_scale=0.8))
+    by_hand = build_experiment(config.model_copy(update={"mismatch": Mismatch()}), "SMC", arm=arm, plant_arm=plant_arm)
+    reference = by_hand.run(0)
+    for traj in runs.values():
+        np.testing.assert_array_equal(traj.u, reference.u)
+        assert traj.meta["mismatch"]["mass_scale"] == 0.8
+    assert config.digest() != ExperimentConfig(duration=0.1).digest()
+    assert "mismatch" not in ExperimentConfig().canonical()
+    bad = CliRunner().invoke(app, ["run", "--set", "mismatch.mass_scale=0", "--out", str(tmp_path / "bad")])
+    assert bad.exit_code == 2 and "mismatch.mass_scale = 0" in bad.output and "Traceback" not in bad.output
+
+
+def test_a_mismatch_sweep_keeps_its_run_ids():
+    """The sweep's [mismatch] and swept mismatch.* now set the settings' section; the run ids are
+    the ones made before (pinned: computed with the code before the move)."""
+    from hydroarm.studies.sweep import plan_sweep, validate_sweep
+
+    config = validate_sweep(
+        {"controllers": ["MPC"], "base": {"duration": 0.3}, "mismatch": {"payload_kg": 0.5},
+         "parameters": {"mismatch.mass_scale": [1.0, 2.0]}}
+    )  # fmt: skip
+    plan = plan_sweep(config)
+    assert [row.id for row in plan.rows] == ["mpc__seed0__0abce41b7399831c", "mpc__seed0__6a8fc91115670926"]
+    assert [row.config.mismatch.mass_scale for row in plan.rows] == [1.0, 2.0]
+    assert all(row.config.mismatch.payload_kg == 0.5 for row in plan.rows)
+    with pytest.raises(ConfigError, match="give it once"):
+        plan_sweep(validate_sweep({"controllers": ["MPC"], "base": {"mismatch": {"payload_kg": 0.1}},
+                                   "mismatch": {"payload_kg": 0.5}}))  # fmt: skip

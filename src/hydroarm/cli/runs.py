@@ -74,10 +74,9 @@ def run(
 
     _check_out(out)
     try:
-        settings, mismatch = _split_mismatch(overrides or [])
         request = RunRequest(
-            _experiment_config(config_file, settings, tuned, arm, vehicle), controller, arm, noise, vehicle, seed,
-            mismatch, model, save_model,
+            _experiment_config(config_file, overrides or [], tuned, arm, vehicle), controller, arm, noise, vehicle,
+            seed, model, save_model,
         )  # fmt: skip
         prepared = prepare_run(request)
         claim_output(out, "run", prepared.what, description=prepared.made_by, overwrite=overwrite)
@@ -117,23 +116,6 @@ def _print_summary(metrics: dict, out: Path) -> None:
             f"attitude RMS {kept['attitude_rms_deg']:.3f} deg"
         )
     console.print(f"files in {out}")
-
-
-def _split_mismatch(overrides: list[str]):
-    """``--set`` items into the experiment's and the plant mismatch's (``mismatch.mass_scale``,
-    ``mismatch.payload_kg``: :class:`~hydroarm.studies.sweep.Mismatch`, as in sweep files)."""
-    from hydroarm.cli._common import _parse_value
-    from hydroarm.config import validate
-    from hydroarm.studies.sweep.schema import MISMATCH_PREFIX, Mismatch
-
-    settings, mismatch = [], {}
-    for item in overrides:
-        key = item.split("=", 1)[0].strip()
-        if "=" in item and key.startswith(MISMATCH_PREFIX):
-            mismatch[key.removeprefix(MISMATCH_PREFIX)] = _parse_value(item.split("=", 1)[1].strip())
-        else:
-            settings.append(item)
-    return settings, validate(Mismatch, mismatch, "mismatch")
 
 
 @app.command()

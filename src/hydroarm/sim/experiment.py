@@ -52,6 +52,7 @@ from hydroarm.model.sensing import ActuatorConfig, SensorConfig
 from hydroarm.model.task import SinusoidReference
 from hydroarm.model.task_file import SplineReference, TaskConfig, reference_for
 from hydroarm.model.water import Water
+from hydroarm.sim.mismatch import Mismatch, perturbed_arm
 from hydroarm.sim.plant import Plant
 from hydroarm.sim.runner import Trajectory, run_closed_loop
 from hydroarm.sim.settings_rules import check_one_system, compact_declared, declared_section_of, split_declared
@@ -199,6 +200,9 @@ class ExperimentConfig(FrozenModel):
     )
     vehicle: VehicleRun = pydantic.Field(
         VehicleRun(), description="the arm on a vehicle holding station (section; off unless vehicle.name is set)"
+    )
+    mismatch: Mismatch = pydantic.Field(
+        Mismatch(), description="the true plant's rigid body away from the arm file the controllers know (section)"
     )
 
     _declared: dict[str, pydantic.BaseModel] = pydantic.PrivateAttr(default_factory=dict)
@@ -475,7 +479,8 @@ def build_experiment(
     ``controller``: any spelling of a registered controller (``"gp-mpc"``, ``"GP-MPC"``), or
     None for no controller (the torques come from outside: the Gymnasium env).
     ``arm``: the arm, if already loaded (default: ``load_arm(config.arm)``); ``plant_arm``:
-    a different arm for the true plant only (default: ``arm``). The settings are checked
+    a different arm for the true plant only (default: ``arm`` perturbed by ``config.mismatch``,
+    :func:`~hydroarm.sim.mismatch.perturbed_arm`). The settings are checked
     against the arm first (:func:`check_settings_for_arm`); the reference and start are
     :func:`start_for_arm`'s.
 
@@ -489,7 +494,7 @@ def build_experiment(
         return _build_vehicle_experiment(config, controller, arm)
     arm = (load_arm(config.arm) if arm is None else arm).with_torque_limit(config.torque_limit)
     check_settings_for_arm(config, arm, controllers=() if controller is None else (controller,))
-    plant = make_plant(arm if plant_arm is None else plant_arm, config)
+    plant = make_plant(perturbed_arm(arm, config.mismatch) if plant_arm is None else plant_arm, config)
     reference, x0 = start_for_arm(arm, config)
     built = None if controller is None else build_controller(controller, arm, config)
     return Experiment(config, arm, plant, built, reference, x0)

@@ -220,6 +220,14 @@ def check_vehicle_settings(config: Any) -> None:
                 f"{key} = {shown(value)}: not used on a vehicle run (vehicle.name = {config.vehicle.name!r}): "
                 f"a vehicle run's is {home}. Set {home}, and leave {key} at its default ({shown(default)})"
             )
+    for key, value in config.mismatch:
+        default = type(config.mismatch).model_fields[key].default
+        if value != default:
+            raise ConfigError(
+                f"mismatch.{key} = {shown(value)}: not used on a vehicle run (vehicle.name = {config.vehicle.name!r}): "
+                f"the floating plant's arm is the arm file's; leave it at its default ({shown(default)}) "
+                "or run the arm on a fixed base"
+            )
     for section in FIXED_BASE_ONLY_SECTIONS:
         value, default = getattr(config, section), type(getattr(config, section))()
         for key in type(value).model_fields:

@@ -249,25 +249,18 @@ def settings_text(
 
 
 def other_settings_text(columns: int | None = None) -> str:
-    """The settings beside a run's, as :func:`settings_text` prints them: the sweep's model
-    mismatch (``mismatch.*``) and the replay's (``hydroarm replay`` / ``calibrate --set``, and a
-    calibrated vehicle file's ``[replay]`` table), so that plain ``hydroarm settings`` lists every
-    section that ``--markdown`` does."""
+    """The settings beside a run's, as :func:`settings_text` prints them: the replay's (``hydroarm
+    replay`` / ``calibrate --set``, and a calibrated vehicle file's ``[replay]`` table), so that
+    plain ``hydroarm settings`` lists every section that ``--markdown`` does (the plant mismatch,
+    ``mismatch.*``, is a section of the run's settings)."""
     from hydroarm.studies.replay import ReplayConfig
-    from hydroarm.studies.sweep.schema import Mismatch
 
-    mismatch = settings_text(
-        settings_table(Mismatch, "mismatch."),
-        columns,
-        titles={"mismatch": "the true plant's model mismatch: sweep files and hydroarm run --set (not --config)"},
-    )
-    replay = settings_text(
+    return settings_text(
         settings_table(ReplayConfig),
         columns,
         titles=section_descriptions(ReplayConfig),
         top="replay: hydroarm replay / calibrate --set key=value, or a calibrated vehicle file's [replay] table",
     )
-    return mismatch + "\n" + replay
 
 
 def settings_json(rows: list[SettingRow]) -> str:
@@ -307,8 +300,10 @@ def settings_markdown() -> str:
         lines.append(f"| {name} (`{name.lower()}`) | {', '.join(f'`{s}`' for s in (*spec.sections, 'estimator'))} |")
     lines += [
         "",
-        "Every run also reads the top-level keys and `water`, `plant`, `sensor`, `actuator`, `friction` and "
-        "`initial_state`; a run on a vehicle (`vehicle.name` set) reads `vehicle` too.",
+        "Every run on a fixed base also reads the top-level keys and `water`, `plant`, `sensor`, `actuator`, "
+        "`friction`, `initial_state` and `mismatch`; a run on a vehicle (`vehicle.name` set) reads `vehicle` and "
+        "refuses `plant`, `sensor`, `actuator`, `friction`, `mismatch`, `water.current` and "
+        "`water.quadrature_points` (see the precedence table).",
         "",
     ]
     for section, members in _sections(settings_table()).items():
@@ -320,21 +315,6 @@ def settings_markdown() -> str:
                 f"| `{row.key}` | `{_cell(_shown(row.default))}` | {_cell(allowed)} | {_cell(row.description)} |"
             )
         lines.append("")
-    lines += [
-        "## Plant mismatch: `mismatch`",
-        "",
-        "`hydroarm run --set mismatch.mass_scale=0.8` and a sweep file's `[mismatch]` (or swept",
-        "`mismatch.*` keys) change the true plant's rigid body only; the controllers keep the arm file.",
-        "(Not a key of `--config` settings files: a run's settings describe the arm the controllers know.)",
-        "",
-        "| key | default | allowed | description |",
-        "|---|---|---|---|",
-    ]
-    from hydroarm.studies.sweep.schema import Mismatch
-
-    for row in settings_table(Mismatch, "mismatch."):
-        allowed = f"{row.kind}; {row.allowed}" if row.allowed else row.kind
-        lines.append(f"| `{row.key}` | `{_cell(_shown(row.default))}` | {_cell(allowed)} | {_cell(row.description)} |")
     from hydroarm.studies.replay import ReplayConfig
 
     lines += [

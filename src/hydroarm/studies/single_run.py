@@ -15,7 +15,6 @@ from hydroarm.control.interface import ModelLearner, learner_of
 from hydroarm.sim.experiment import Experiment, ExperimentConfig, build_experiment, canonical_name, with_overrides
 from hydroarm.sim.runner import Trajectory, tracking_metrics
 from hydroarm.studies.compare import STEADY_AFTER
-from hydroarm.studies.sweep.schema import Mismatch
 
 __all__ = ["STEADY_AFTER", "PreparedRun", "RunRequest", "prepare_run", "write_run"]
 
@@ -23,8 +22,8 @@ __all__ = ["STEADY_AFTER", "PreparedRun", "RunRequest", "prepare_run", "write_ru
 @dataclass(frozen=True)
 class RunRequest:
     """What ``hydroarm run`` was asked: ``config`` (the settings file, --tuned and --set applied),
-    the options that override it (None: not given), the plant ``mismatch`` and the learner's
-    model files (PI-IDMPC: ``model`` to start from, ``save_model`` to write)."""
+    the options that override it (None: not given; the plant mismatch is the settings'
+    ``mismatch`` section) and the learner's model files (PI-IDMPC: ``model`` to start from, ``save_model`` to write)."""
 
     config: ExperimentConfig
     controller: str | None = None
@@ -32,7 +31,6 @@ class RunRequest:
     noise: float | None = None
     vehicle: str | None = None
     seed: int = 0
-    mismatch: Mismatch = Mismatch()
     model: Path | None = None
     save_model: Path | None = None
 
@@ -58,9 +56,6 @@ def prepare_run(request: RunRequest) -> PreparedRun:
     vehicle file mounts unless --arm), the controller (default GP-MPC; on a vehicle the arm's
     SMC), the plant's arm perturbed by the mismatch, the learner's model loaded. Raises
     :class:`ConfigError` naming the option that cannot apply."""
-    from hydroarm.model.loading import load_arm
-    from hydroarm.studies.sweep.plan import perturbed_arm
-
     on_vehicle = request.vehicle is not None or request.config.vehicle.name is not None
     if on_vehicle and request.noise is not None:
         raise ConfigError("--noise does not apply on a vehicle: the floating plant gives its true state")
@@ -76,22 +71,20 @@ def prepare_run(request: RunRequest) -> PreparedRun:
         )
     if request.model is not None and not request.model.is_file():
         raise ConfigError(f"--model '{request.model}': no such file")
-    mismatch = request.mismatch
-    if on_vehicle:
-        if not mismatch.is_identity:
-            raise ConfigError("mismatch.*: not on a vehicle run (the floating plant's arm is the arm file's)")
-        experiment = build_experiment(config, name)
-    else:
-        arm_model = load_arm(config.arm)
-        experiment = build_experiment(config, name, arm=arm_model, plant_arm=perturbed_arm(arm_model, mismatch))
+    experiment = build_experiment(config, name)  # the plant on the arm the settings' mismatch perturbs
     learner = learner_of(experiment.controller) if files else None
     if files and learner is None:  # pragma: no cover - PI-IDMPC is a ModelLearner (tests/test_ports.py)
         raise ConfigError(f"--model / --save-model: controller {experiment.controller.name} has no model to load")
     if request.model is not None:
         learner.load_model(request.model)
-    what = {"experiment": config.model_dump(mode="json"), "controller": name, "seed": request.seed}
-    if not mismatch.is_identity:
-        what["mismatch"] = mismatch.model_dump()
+    # the mismatch beside the settings, where given, as before it joined them (old folders still match)
+    what = {
+        "experiment": config.model_dump(mode="json", exclude={"mismatch"}),
+        "controller": name,
+        "seed": request.seed,
+    }
+    if not config.mismatch.is_identity:
+        what["mismatch"] = config.mismatch.model_dump()
     made_by = f"hydroarm run --controller {name.lower()} --seed {request.seed} --arm {config.arm}"
     if on_vehicle:
         made_by += f" --vehicle {config.vehicle.name}"
@@ -105,7 +98,7 @@ def write_run(run: PreparedRun, traj: Trajectory, out: Path) -> dict:
     from hydroarm.studies import figures
     from hydroarm.studies.outputs import dumps
 
-    traj.meta["mismatch"] = run.request.mismatch.model_dump()
+    traj.meta["mismatch"] = run.config.mismatch.model_dump()
     if run.request.save_model is not None:
         run.learner.save_model(run.request.save_model)
         traj.meta["model_saved"] = str(run.request.save_model)

@@ -66,12 +66,12 @@ Modules: :mod:`~hydroarm.studies.sweep.schema` (the sweep file),
 :mod:`~hydroarm.studies.sweep.summary` and :mod:`~hydroarm.studies.sweep.plots`.
 """
 
+from hydroarm.sim.mismatch import Mismatch, perturbed_arm
 from hydroarm.studies.sweep.plan import (
     Plan,
     PlanRow,
     RunTask,
     arm_digest,
-    perturbed_arm,
     plan_sweep,
     run_id,
     sample_points,
@@ -80,7 +80,6 @@ from hydroarm.studies.sweep.results import ResultsTable, RunFiles, assess, read_
 from hydroarm.studies.sweep.run import claim_sweep_folder, run_sweep
 from hydroarm.studies.sweep.schema import (
     METRICS,
-    Mismatch,
     Range,
     Robustness,
     SweepConfig,

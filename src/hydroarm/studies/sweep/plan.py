@@ -5,7 +5,8 @@
 before any run starts. A row's run id (:func:`run_id`) is a hash of everything that
 determines the run, so rows that differ only in settings their controller does not read
 share one run, and a finished run is found again by the next call (the resume cache).
-:func:`perturbed_arm` is the true plant's arm under a :class:`Mismatch`.
+:func:`~hydroarm.sim.mismatch.perturbed_arm` (what the experiment builds its plant on) is the true
+plant's arm under a :class:`Mismatch`.
 """
 
 from __future__ import annotations
@@ -18,9 +19,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import pinocchio as pin
 
-from hydroarm.config import ConfigError, dotted_keys, unknown_key_message, validate
+from hydroarm.config import ConfigError, dotted_keys, unknown_key_message
 from hydroarm.control.registry import controller_sections, settings_read_by
 from hydroarm.model.arm import Arm
 from hydroarm.model.loading import BUILTIN_ARMS, load_arm
@@ -118,6 +118,7 @@ def run_id(config: ExperimentConfig, controller: str, seed: int, mismatch: Misma
     ``controller`` reads, the mismatch, the controller and the seed:
     ``gp-mpc__seed0__3f2a9c0d1e4b5a67``."""
     settings = config.canonical()
+    settings.pop("mismatch", None)  # hashed beside the settings, as before it joined them: the same ids
     settings["arm"] = arm_key
     read = settings_read_by(controller)
     for section in controller_sections():
@@ -214,20 +215,19 @@ def plan_sweep(config: SweepConfig, folder: Path | None = None, source: str = "s
 
 
 def _point_settings(config: SweepConfig, point: dict[str, Any], source: str) -> tuple[ExperimentConfig, Mismatch]:
-    """A parameter point's experiment settings (the base with the point's overrides) and plant
-    mismatch (the sweep's with the point's ``mismatch.*``); :class:`ConfigError` naming the key."""
-    overrides = {k: v for k, v in point.items() if not k.startswith(MISMATCH_PREFIX)}
-    mismatch_values = {k.removeprefix(MISMATCH_PREFIX): v for k, v in point.items() if k.startswith(MISMATCH_PREFIX)}
+    """A parameter point's experiment settings (the base with the sweep's ``[mismatch]`` and the
+    point's overrides, ``mismatch.*`` among them: the settings' ``mismatch`` section) and its plant
+    mismatch; :class:`ConfigError` naming the key."""
     where = ", ".join(f"{k} = {value_label(v)}" for k, v in point.items()) or "base"
     try:
-        experiment = with_overrides(config.base, overrides) if overrides else config.base
+        base = _base_with_mismatch(config, source)
+        experiment = with_overrides(base, dict(point)) if point else base
     except ConfigError as error:
         message = str(error).removeprefix("settings: ")
         if message.startswith("unknown setting"):
             bad = message.split("'")[1] if "'" in message else message
             mismatch_keys = [MISMATCH_PREFIX + f for f in Mismatch.model_fields]
-            known = dotted_keys(ExperimentConfig) + mismatch_keys
-            text = unknown_key_message(bad, known, None, moved=ExperimentConfig.moved_settings)
+            text = unknown_key_message(bad, dotted_keys(ExperimentConfig), None, moved=ExperimentConfig.moved_settings)
             raise ConfigError(
                 f"{source}: parameters.{bad}: {text.replace('unknown key', 'unknown setting', 1)} "
                 f"(a dotted key of the experiment settings, which `hydroarm settings` lists, "
@@ -235,18 +235,17 @@ def _point_settings(config: SweepConfig, point: dict[str, Any], source: str) -> 
             ) from None
         lines = [line.removeprefix("settings: ") for line in message.splitlines()]
         raise ConfigError("\n".join(f"{source}: parameters ({where}): {line}" for line in lines)) from None
-    unknown = set(mismatch_values) - set(Mismatch.model_fields)
-    if unknown:
-        bad = sorted(unknown)[0]
-        text = unknown_key_message(bad, list(Mismatch.model_fields), None, MISMATCH_PREFIX)
-        raise ConfigError(
-            f"{source}: parameters.{MISMATCH_PREFIX}{bad}: {text.replace('unknown key', 'unknown setting', 1)} "
-            f"(mismatch keys: {', '.join(MISMATCH_PREFIX + f for f in Mismatch.model_fields)})"
-        )
-    mismatch = validate(
-        Mismatch, {**config.mismatch.model_dump(), **mismatch_values}, f"{source}: parameters ({where}): mismatch"
-    )
-    return experiment, mismatch
+    return experiment, experiment.mismatch
+
+
+def _base_with_mismatch(config: SweepConfig, source: str) -> ExperimentConfig:
+    """The sweep's base settings with its ``[mismatch]`` (the settings' ``mismatch`` section: the
+    one home; a sweep gives it at the top level or in ``[base.mismatch]``, not both)."""
+    if config.mismatch.is_identity:
+        return config.base
+    if not config.base.mismatch.is_identity:
+        raise ConfigError(f"{source}: mismatch: given both as [mismatch] and [base.mismatch]: give it once")
+    return with_overrides(config.base, {"mismatch": config.mismatch.model_dump()})
 
 
 def _check_for_arms(rows: list[PlanRow], tasks: dict[str, RunTask], arms: dict[str, Arm], source: str) -> None:
@@ -261,32 +260,3 @@ def _check_for_arms(rows: list[PlanRow], tasks: dict[str, RunTask], arms: dict[s
         where = ", ".join(f"{key} = {value!r}" for key, value in row.params.items())
         what = f"{source}: the runs with {where}" if where else f"{source}: base"
         check_settings_for_arm(row.config, arms[arm_key], what, controllers=(row.controller,))
-
-
-def perturbed_arm(arm: Arm, mismatch: Mismatch) -> Arm:
-    """The plant's arm: ``arm`` with its masses scaled and a payload added (see
-    :class:`Mismatch`); ``arm`` itself if there is no mismatch. The geometry, the
-    wetted cylinders and the limits are the nominal arm's."""
-    if mismatch.is_identity:
-        return arm
-    model = arm.model.copy()
-    scale = mismatch.mass_scale
-    for joint in range(1, model.njoints):
-        inertia = model.inertias[joint]
-        model.inertias[joint] = pin.Inertia(inertia.mass * scale, inertia.lever.copy(), inertia.inertia * scale)
-    if mismatch.payload_kg > 0.0:
-        last = model.njoints - 1
-        where = model.inertias[last].lever.copy()
-        if model.existFrame("flange"):
-            frame = model.frames[model.getFrameId("flange")]
-            if frame.parentJoint == last:
-                where = frame.placement.translation.copy()
-        model.inertias[last] = model.inertias[last] + pin.Inertia(mismatch.payload_kg, where, np.zeros((3, 3)))
-    return Arm(
-        name=f"{arm.name} (plant: mass x{scale:g}, payload {mismatch.payload_kg:g} kg)",
-        model=model,
-        cylinders=arm.cylinders,
-        torque_limit=arm.torque_limit,
-        spec=None,
-        position_limit=arm.position_limit,
-    )

@@ -20,31 +20,11 @@ import pydantic
 from hydroarm.config import ConfigError, FrozenModel, read_mapping, validate
 from hydroarm.control.registry import canonical_name, controller_names
 from hydroarm.sim.experiment import ExperimentConfig
+from hydroarm.sim.mismatch import Mismatch
 from hydroarm.sim.settings_schema import migrated
 
 MAX_RUNS = 100_000
 MISMATCH_PREFIX = "mismatch."
-
-
-class Mismatch(FrozenModel):
-    """How the true plant's rigid body differs from the arm file the controllers use.
-
-    ``mass_scale``: every link's mass and rotational inertia (about its centre
-    of gravity) times this factor, centres of gravity unchanged; ``payload_kg``:
-    a point mass at the flange (DH arms) or at the last link's centre of gravity
-    (URDF arms), in the plant only.
-    """
-
-    mass_scale: float = pydantic.Field(
-        1.0, gt=0.0, le=100.0, description="factor on every link's mass and inertia, in the plant only (-)"
-    )
-    payload_kg: float = pydantic.Field(
-        0.0, ge=0.0, le=1000.0, description="a point mass at the flange, in the plant only (kg)"
-    )
-
-    @property
-    def is_identity(self) -> bool:
-        return self.mass_scale == 1.0 and self.payload_kg == 0.0
 
 
 class Robustness(FrozenModel):

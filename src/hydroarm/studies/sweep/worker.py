@@ -2,7 +2,7 @@
 
 The worker builds the experiment with the one builder
 (:func:`~hydroarm.sim.experiment.build_experiment`): the controller gets the nominal
-arm, the true plant the perturbed one (:func:`~hydroarm.studies.sweep.plan.perturbed_arm`).
+arm, the true plant the perturbed one (:func:`~hydroarm.sim.mismatch.perturbed_arm`).
 It returns the run file's content (settings, metrics, one number per metric, fault counts
 and the error envelope, as strict JSON) and, on request, the trajectory's ``.npz`` bytes;
 the driver writes both.
@@ -22,8 +22,7 @@ from hydroarm.sim.files import file_bytes
 from hydroarm.sim.runner import Trajectory, fault_counts, stop_reason, tracking_metrics
 from hydroarm.sim.settings_schema import SCHEMA
 from hydroarm.studies.executor import StepHook
-from hydroarm.studies.sweep.plan import FORMAT, RunTask, perturbed_arm
-from hydroarm.studies.sweep.schema import Mismatch
+from hydroarm.studies.sweep.plan import FORMAT, RunTask
 
 ENVELOPE_WINDOW = 0.1
 """s: a run file keeps the largest |q_r - q| over joints per window of this length (at
@@ -76,7 +75,7 @@ def _scalars(metrics: dict, traj: Trajectory) -> dict:
 
 def execute_run(task: RunTask, arm: Arm, progress: StepHook | None = None) -> dict:
     """Run one task on ``arm`` (the nominal arm: the controller's; the plant gets
-    :func:`~hydroarm.studies.sweep.plan.perturbed_arm`'s), from
+    :func:`~hydroarm.sim.mismatch.perturbed_arm`'s), from
     :func:`~hydroarm.sim.experiment.start_for_arm`'s state; ``progress(k, total)``.
 
     Returns ``{"record": <the run file's content>, "trajectory": <.npz bytes or None>}``;
@@ -86,8 +85,7 @@ def execute_run(task: RunTask, arm: Arm, progress: StepHook | None = None) -> di
 
     start = time.perf_counter()
     config = settings_from_record(task.settings, f"run {task.id}", missing=SCHEMA)  # the compact form
-    mismatch = Mismatch.model_validate(task.mismatch)
-    experiment = build_experiment(config, task.controller, arm=arm, plant_arm=perturbed_arm(arm, mismatch))
+    experiment = build_experiment(config, task.controller, arm=arm)  # the plant on the arm its mismatch perturbs
     traj: Trajectory = experiment.run(task.seed, progress)
     metrics = tracking_metrics(traj)
     record = {
