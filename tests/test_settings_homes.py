@@ -180,3 +180,82 @@ def test_a_mismatch_sweep_keeps_its_run_ids():
     with pytest.raises(ConfigError, match="give it once"):
         plan_sweep(validate_sweep({"controllers": ["MPC"], "base": {"mismatch": {"payload_kg": 0.1}},
                                    "mismatch": {"payload_kg": 0.5}}))  # fmt: skip
+
+
+def test_gp_and_vehicle_gp_each_reach_their_own_learner():
+    """Two GPs on a vehicle run: the arm controller's (GP-MPC) reads `gp`, the station keeper's
+    feed-forward (vehicle.aware) reads `vehicle.gp`; neither setting reaches the other learner."""
+    config = with_overrides(
+        ExperimentConfig(duration=0.1),
+        {"vehicle.name": VEHICLE, "arm": "mount", "vehicle.aware": True, "gp.window": 17, "vehicle.gp.window": 23},
+    )
+    controller = build_experiment(config, "GP-MPC").controller
+    assert controller.gp.config.window == 23
+    arm_gps = [c.gp for c in _chain(controller.arm) if hasattr(c, "gp")]
+    assert arm_gps and all(gp.config.window == 17 for gp in arm_gps)
+
+
+def _chain(controller):
+    """A controller and those it wraps (an estimator or observer wrapper's ``inner``)."""
+    out = [controller]
+    while hasattr(out[-1], "inner"):
+        out.append(out[-1].inner)
+    return out
+
+
+# --- one system per run: every key the other system alone reads is refused ---------------------
+
+
+def _leaves(prefix: str) -> list[str]:
+    from hydroarm.config import dotted_keys, leaf_keys
+
+    keys = leaf_keys(dotted_keys(ExperimentConfig))
+    return [k for k in keys if k == prefix or k.startswith(prefix + ".")]
+
+
+def _a_valid_change(key: str, base: dict):
+    """A value of ``key`` away from its default that the system of ``base`` accepts, or None."""
+    default = with_overrides(ExperimentConfig(), base)
+    for part in key.split("."):
+        default = getattr(default, part)
+    candidates = (
+        [not default] if isinstance(default, bool)
+        else [default + 1, 2 * default, default / 2, default + 0.1] if isinstance(default, (int, float))
+        else [[v * 1.1 + 0.1 for v in default]] if isinstance(default, list)
+        else ["uniform", "reynolds", "kirchhoff", "mpc", "pid", "encoder", "hold"] if isinstance(default, str)
+        else [1, 0.5, 2]
+    )  # fmt: skip
+    for value in candidates:
+        try:
+            if isinstance(default, int) and not isinstance(default, bool):
+                value = int(value)
+            with_overrides(ExperimentConfig(), {**base, key: value})
+        except (ConfigError, TypeError, ValueError):
+            continue
+        if value != default:
+            return value
+    return None
+
+
+@pytest.mark.parametrize(("system", "other"), [("fixed arm", {"vehicle.name": VEHICLE}), ("arm on a vehicle", {})])
+def test_every_key_one_system_alone_reads_is_refused_on_the_other(system, other):
+    """Exhaustive over sim.settings_rules.SYSTEM_ONLY: each key that the system alone reads, set
+    to a value its system accepts, fails validation on the other with one line naming the key."""
+    from hydroarm.sim.settings_rules import SYSTEM_ONLY
+
+    own = {} if system == "fixed arm" else {"vehicle.name": VEHICLE}
+    tried = 0
+    for entry in SYSTEM_ONLY[system]:
+        for key in _leaves(entry):
+            if key == "vehicle.name":
+                continue
+            value = _a_valid_change(key, own)
+            if value is None:
+                continue
+            tried += 1
+            with pytest.raises(ConfigError) as error:
+                with_overrides(ExperimentConfig(), {**other, key: value})
+            message = str(error.value)
+            named = key if not key.startswith("water.current.") else "water.current"
+            assert f"settings: {named}" in message and "\n" not in message, (key, message)
+    assert tried >= (29 if system == "fixed arm" else 33)  # of 31 and 39 keys (the rest: no simple valid value)

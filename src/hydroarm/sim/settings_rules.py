@@ -21,9 +21,25 @@ import pydantic
 
 from hydroarm.config import ConfigError, field_error, shown
 from hydroarm.control import registry
-from hydroarm.sim.vehicle import VehicleRun, check_vehicle_settings
+from hydroarm.sim.vehicle import FIXED_BASE_ONLY_SECTIONS, VEHICLE_HOMES, VehicleRun, check_vehicle_settings
 
-__all__ = ["check_one_system", "compact_declared", "declared_section_of", "first_change", "split_declared"]
+__all__ = [
+    "SYSTEM_ONLY",
+    "check_one_system",
+    "compact_declared",
+    "declared_section_of",
+    "first_change",
+    "split_declared",
+]
+
+SYSTEM_ONLY: dict[str, tuple[str, ...]] = {
+    "fixed arm": (*FIXED_BASE_ONLY_SECTIONS, "mismatch", *VEHICLE_HOMES),
+    "arm on a vehicle": ("vehicle",),
+}
+"""The sections and keys only one system reads, by system (a replay is its own settings,
+:class:`~hydroarm.studies.replay.ReplayConfig`, which refuses the real loop's sections): any of
+them away from its default on the other system fails validation with one message naming it
+(:func:`check_one_system`). Every other section is read by both."""
 
 
 def first_change(value: pydantic.BaseModel, default: pydantic.BaseModel, prefix: str) -> tuple[str, Any, Any] | None:

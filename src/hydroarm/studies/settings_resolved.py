@@ -73,6 +73,13 @@ PRECEDENCE: tuple[tuple[str, tuple[str, ...]], ...] = (
         ),
     ),
     (
+        "the GP's settings (two learners, one model: `GPConfig`)",
+        (
+            "the arm controller's GP (GP-MPC, GP-IDMPC), on either system: `gp`",
+            "the vehicle's feed-forward GP (`vehicle.aware`): `vehicle.gp` (`gp` does not reach it)",
+        ),
+    ),
+    (
         "the water density",
         ("on a fixed base or a vehicle: `water.rho`", "in a replay: the replay setting `water_density`"),
     ),
