@@ -259,3 +259,19 @@ def test_every_key_one_system_alone_reads_is_refused_on_the_other(system, other)
             named = key if not key.startswith("water.current.") else "water.current"
             assert f"settings: {named}" in message and "\n" not in message, (key, message)
     assert tried >= (29 if system == "fixed arm" else 33)  # of 31 and 39 keys (the rest: no simple valid value)
+
+
+def test_every_torque_limit_is_the_one_setting():
+    """The settings', a DH arm file's and a hydrodynamics file's torque_limit: one definition
+    (model.arm.TorqueLimit, (0, 1e12] N m); a limit outside it is refused in each."""
+    from hydroarm.model.arm import TORQUE_LIMIT_MAX, ArmSpec
+    from hydroarm.model.hydro_spec import HydroSpec
+
+    for model in (ExperimentConfig, ArmSpec, HydroSpec):
+        field = pydantic.TypeAdapter(model.model_fields["torque_limit"].annotation)
+        assert field.validate_python(TORQUE_LIMIT_MAX) == TORQUE_LIMIT_MAX  # an arm file's floor was 1e7
+        for bad in (2 * TORQUE_LIMIT_MAX, 0.0, [1.0, -1.0]):
+            with pytest.raises(pydantic.ValidationError):
+                field.validate_python(bad)
+    with pytest.raises(ConfigError, match="torque_limit = 0"):
+        with_overrides(ExperimentConfig(), {"torque_limit": 0.0})

@@ -39,7 +39,13 @@ Coordinate = Annotated[float, pydantic.Field(ge=-MAX_LENGTH, le=MAX_LENGTH)]
 Vector3 = Annotated[list[Coordinate], pydantic.Field(min_length=3, max_length=3)]
 InertiaEntry = Annotated[float, pydantic.Field(ge=-1e6, le=1e6)]
 Inertia = Annotated[float, pydantic.Field(gt=0.0, le=1e6)]
-TorqueLimit = Annotated[float, pydantic.Field(gt=0.0, le=1e7)]
+TORQUE_LIMIT_MAX = 1e12
+"""N m: the largest torque limit any file or setting may give (:data:`TorqueLimit`)."""
+
+TorqueLimit = Annotated[float, pydantic.Field(gt=0.0, le=TORQUE_LIMIT_MAX)]
+"""The one definition of an arm's torque limit (N m, in (0, 1e12]): a DH arm file's, a URDF arm's
+hydrodynamics file's and the settings' ``torque_limit``; which one wins:
+:meth:`Arm.with_torque_limit` (docs/settings.md's precedence table)."""
 Armature = Annotated[float, pydantic.Field(ge=0.0, le=1e4)]
 
 
@@ -151,7 +157,7 @@ class LinkSpec(FrozenModel):
 
 class ArmSpec(FrozenModel):
     """A whole arm file: 1 to 12 links with distinct names; ``gravity`` in (0, 100] m/s^2;
-    ``torque_limit`` in (0, 1e7] N m, one value or one per link; ``armature`` in [0, 1e4]
+    ``torque_limit`` in (0, 1e12] N m, one value or one per link; ``armature`` in [0, 1e4]
     kg m^2, one value or one per link: each joint's reflected rotor inertia (the motor rotor's
     inertia times the gear ratio squared, Pinocchio's ``model.armature``: added to M(q)'s
     diagonal, in the plant and in every model a controller builds from the arm)."""

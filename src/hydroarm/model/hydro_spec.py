@@ -8,12 +8,12 @@ import numpy as np
 import pydantic
 
 from hydroarm.config import FrozenModel, field_error
+from hydroarm.model.arm import TorqueLimit
 
 Coordinate = Annotated[float, pydantic.Field(ge=-100.0, le=100.0)]
 Vector3 = Annotated[list[Coordinate], pydantic.Field(min_length=3, max_length=3)]
 Coefficient = Annotated[float, pydantic.Field(ge=0.0, le=10.0)]
 Volume = Annotated[float, pydantic.Field(ge=0.0, le=1e3)]
-TorqueLimit = Annotated[float, pydantic.Field(gt=0.0, le=1e7)]
 Armature = Annotated[float, pydantic.Field(ge=0.0, le=1e4)]
 
 HYDRO_SUFFIXES = (".hydro.toml", ".hydro.yaml", ".hydro.yml")

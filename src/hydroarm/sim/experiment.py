@@ -16,7 +16,7 @@ import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 import pydantic
@@ -44,7 +44,7 @@ from hydroarm.control.pi_idmpc import PIIDMPCConfig
 from hydroarm.control.registry import CONTROLLERS, canonical_name, controller_sections, controller_spec
 from hydroarm.control.smc import SMCConfig
 from hydroarm.control.water_model import WaterModelConfig
-from hydroarm.model.arm import Arm
+from hydroarm.model.arm import Arm, TorqueLimit
 from hydroarm.model.friction import FrictionConfig
 from hydroarm.model.loading import BUILTIN_ARMS, load_arm
 from hydroarm.model.plant import PlantConfig, UnderwaterPlant
@@ -65,8 +65,6 @@ from hydroarm.sim.vehicle import (
     station_keeping_metrics,
     vehicle_parts,
 )
-
-TorqueLimit = Annotated[float, pydantic.Field(gt=0.0, le=1e12)]
 
 if TYPE_CHECKING:
     from hydroarm.model.uvms import UVMS

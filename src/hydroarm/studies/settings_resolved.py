@@ -36,7 +36,11 @@ PRECEDENCE: tuple[tuple[str, tuple[str, ...]], ...] = (
     ),
     (
         "torque limit of the arm (the controllers' torque box)",
-        ("the settings' `torque_limit`", "the arm file's `torque_limit`"),
+        (
+            "the settings' `torque_limit`",
+            "the arm file's `torque_limit` (a DH arm file, or a URDF arm's hydrodynamics file)",
+            "a URDF's `<limit effort>`",
+        ),
     ),
     (
         "the drives' torque clip (`actuator.torque_limit`)",
