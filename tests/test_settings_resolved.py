@@ -95,3 +95,27 @@ def test_cylinder_over_link_over_water(tmp_path):
     geometry = StripGeometry(arm, config.water)
     k = arm.cylinders.index(forearm)
     assert np.isclose(geometry.drag_per_length[k], 0.5 * config.water.rho * 1.7 * forearm.diameter, rtol=1e-12)
+
+
+def test_the_resolved_system_rows_are_what_each_plant_reads():
+    """The inner step, the current and the Gauss points, as `--resolved` gives them per system,
+    are the floating plant's and the fixed-base plant's own (compiled or not)."""
+    vehicle = with_overrides(
+        ExperimentConfig(duration=0.1),
+        {"vehicle.name": "bluerov2-heavy", "arm": "mount", "vehicle.current": 0.3, "vehicle.plant.drag_points": 4},
+    )
+    built = build_experiment(vehicle, None)
+    rows = {row.setting: row for row in resolve_settings(vehicle, built.arm)}
+    assert float(rows["vehicle.plant.inner_step"].value) == built.plant.config.inner_step
+    assert float(rows["vehicle.current"].value) == built.plant.water.current.mean[0]
+    assert int(rows["vehicle.plant.drag_points"].value) == built.plant.fast.geometry.nodes.shape[0] == 4
+    for overrides, key, points in (
+        ({"water.quadrature_points": 6}, "water.quadrature_points", 6),
+        ({"plant.compiled": True, "plant.drag_points": 3}, "plant.drag_points", 3),
+    ):
+        fixed = with_overrides(ExperimentConfig(duration=0.1), overrides)
+        plant = build_experiment(fixed, None).plant
+        rows = {row.setting: row for row in resolve_settings(fixed, load_arm(fixed.arm))}
+        water = plant.fast.water if plant.fast is not None else plant.water
+        assert int(rows[key].value) == water.quadrature_points == points
+        assert rows["water.current"].value == plant.water.current.model

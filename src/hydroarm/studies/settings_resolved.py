@@ -132,17 +132,33 @@ def resolve_settings(config: ExperimentConfig, arm: Arm) -> list[Resolved]:
             "settings actuator.torque_limit" if drives is not None else "not set: the drives apply the command",
         )
     )
-    if config.vehicle.name is not None:
-        rows.append(
-            Resolved("vehicle.plant.inner_step", "the floating plant (s)", _number(config.vehicle.plant.inner_step),
-                     "settings vehicle.plant.inner_step (on a vehicle)")
-        )  # fmt: skip
-    else:
-        rows.append(
-            Resolved("plant.inner_step", "the fixed-base plant (s)", _number(config.plant.inner_step),
-                     "settings plant.inner_step (on a fixed base)")
-        )  # fmt: skip
-    return rows
+    return rows + _system_rows(config)
+
+
+def _system_rows(config: ExperimentConfig) -> list[Resolved]:
+    """The rows of :data:`PRECEDENCE` with one home per system: the inner step, the current and
+    the Gauss points of the drag integral, as the plant of ``config``'s system reads them."""
+    vehicle = config.vehicle
+    if vehicle.name is not None:
+        return [
+            Resolved("vehicle.plant.inner_step", "the floating plant (s)", _number(vehicle.plant.inner_step),
+                     "settings vehicle.plant.inner_step (on a vehicle)"),
+            Resolved("vehicle.current", "the water (m/s, uniform along world x)", _number(vehicle.current),
+                     "settings vehicle.current (on a vehicle)"),
+            Resolved("vehicle.plant.drag_points", "the arm's cylinders (Gauss points)",
+                     str(vehicle.plant.drag_points), "settings vehicle.plant.drag_points (on a vehicle)"),
+        ]  # fmt: skip
+    plant = config.plant
+    compiled = plant.compiled and plant.drag_points is not None
+    return [
+        Resolved("plant.inner_step", "the fixed-base plant (s)", _number(plant.inner_step),
+                 "settings plant.inner_step (on a fixed base)"),
+        Resolved("water.current", "the water", config.water.current.model, "settings water.current (on a fixed base)"),
+        Resolved("plant.drag_points" if compiled else "water.quadrature_points", "the arm's cylinders (Gauss points)",
+                 str(plant.drag_points if compiled else config.water.quadrature_points),
+                 "settings plant.drag_points (the compiled plant)" if compiled
+                 else "settings water.quadrature_points (on a fixed base)"),
+    ]  # fmt: skip
 
 
 def precedence_markdown() -> list[str]:
