@@ -275,3 +275,21 @@ def test_every_torque_limit_is_the_one_setting():
                 field.validate_python(bad)
     with pytest.raises(ConfigError, match="torque_limit = 0"):
         with_overrides(ExperimentConfig(), {"torque_limit": 0.0})
+
+
+def test_a_run_folder_made_before_the_move_is_the_same_run():
+    """What `hydroarm run` records of its settings in the output folder (to tell a folder of other
+    settings): unchanged by the mismatch's move into the settings, with and without one (pinned:
+    computed with the code before the move), so re-running into an old folder is not refused."""
+    import hashlib
+    import json
+
+    from hydroarm.studies.single_run import RunRequest, prepare_run
+
+    def digest(config):
+        what = prepare_run(RunRequest(config, "smc")).what
+        return hashlib.sha256(json.dumps(what, sort_keys=True).encode()).hexdigest()[:16]
+
+    base = ExperimentConfig(duration=0.1)
+    assert digest(base) == "bb11a7888c10b1b1"
+    assert digest(with_overrides(base, {"mismatch.mass_scale": 0.8})) == "5b017e799af2b391"
