@@ -50,7 +50,7 @@ def inner_step_setting(default: float, plant: str) -> Any:
         default,
         ge=low,
         le=high,
-        description=f"longest RK4 step of {plant}; each period is split into equal steps no longer (s)",
+        description=f"longest RK4 step of {plant}: each period is split into the fewest equal steps no longer (s)",
     )
 
 

@@ -46,9 +46,15 @@ class FastUVMSConfig(FrozenModel):
 
     inner_step: float = inner_step_setting(5e-3, "the floating plant")
     drag_points: int = pydantic.Field(3, ge=1, le=16, description="Gauss points per drag piece on each cylinder (-)")
-    arm_drag: bool = pydantic.Field(True, description="switch: drag on the arm (on/off)")
-    arm_added_mass: bool = pydantic.Field(True, description="switch: added mass of the arm (on/off)")
-    arm_buoyancy: bool = pydantic.Field(True, description="switch: buoyancy of the arm (on/off)")
+    arm_drag: bool = pydantic.Field(
+        True, description="switch: drag on the arm alone (on/off); on only where water.drag is too"
+    )
+    arm_added_mass: bool = pydantic.Field(
+        True, description="switch: added mass of the arm alone (on/off); on only where water.added_mass is too"
+    )
+    arm_buoyancy: bool = pydantic.Field(
+        True, description="switch: buoyancy of the arm alone (on/off); on only where water.buoyancy is too"
+    )
     arm_current: bool = pydantic.Field(True, description="switch: the current seen by the arm's drag (on/off)")
 
 
