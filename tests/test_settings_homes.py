@@ -293,3 +293,15 @@ def test_a_run_folder_made_before_the_move_is_the_same_run():
     base = ExperimentConfig(duration=0.1)
     assert digest(base) == "bb11a7888c10b1b1"
     assert digest(with_overrides(base, {"mismatch.mass_scale": 0.8})) == "5b017e799af2b391"
+
+
+@pytest.mark.parametrize(
+    ("overrides", "arm_on", "hull_on"),
+    [({}, True, True), ({"vehicle.plant.arm_drag": False}, False, True), ({"water.drag": False}, False, False)],
+)
+def test_the_arm_drag_on_a_vehicle_is_on_only_where_both_switches_are(overrides, arm_on, hull_on):
+    """The precedence table's row: water.drag switches the hull's drag and the arm's,
+    vehicle.plant.arm_drag the arm's alone (the floating plant's one place that combines them)."""
+    config = with_overrides(ExperimentConfig(duration=0.1), {"vehicle.name": VEHICLE, "arm": "mount", **overrides})
+    fast = build_experiment(config, None).plant.fast
+    assert fast.geometry.drag is arm_on and fast.water.drag is hull_on  # the hull: vehicle_water(vehicle, water)
