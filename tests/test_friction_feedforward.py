@@ -120,3 +120,17 @@ def test_the_feedforward_waits_for_the_joint_to_track_with_hysteresis():
         assert tau == (pytest.approx(0.4 * np.tanh(1.0 / 0.2), rel=1e-14) if on else 0.0)
     wrapped.reset()
     assert wrapped.compute(1.0, np.array([1.0 - 0.5 * (GATE_ON + GATE_OFF), 1.0]), reference).tau[0] == 0.0
+
+
+def test_the_feedforward_holds_the_light_wrist_against_the_published_friction():
+    """Paper arm, q and v measured, the published friction, IDMPC, 2 s: after the start-up (1 s on)
+    the wrist (1.2e-4 kg m^2 against 0.15 N m) tracks 31x better with the feed-forward (measured
+    2026-12-04: E_p 1.0e-3 against 3.1e-2 rad^2; all joints 1.1e-3 against 6.5e-3)."""
+    errors = {}
+    for setting in ("arm", 0):
+        overrides = {"friction.scale": 1.0, "idmpc.friction_feedforward": setting}
+        traj = build_experiment(with_overrides(ExperimentConfig(duration=2.0), overrides), "IDMPC").run(0)
+        late = traj.t >= 1.0
+        errors[setting] = np.mean((traj.q_ref - traj.q)[late] ** 2, axis=0)
+    assert errors["arm"][5] < 0.1 * errors[0][5]
+    assert errors["arm"].mean() < 0.3 * errors[0].mean()
