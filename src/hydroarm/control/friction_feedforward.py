@@ -62,13 +62,14 @@ def told_friction(friction: FrictionConfig | None, setting: float | str) -> Fric
 GATE_ON = 0.05
 """A joint's feed-forward starts once its position error is at most this (rad)."""
 
-GATE_OFF = 0.5
-"""... and stops once its position error exceeds this (rad): the campaign's band (a joint within
-it keeps its feed-forward); the span between is the hysteresis that keeps the gate from switching
-with every step. Measured (paper arm, GP-IDMPC, 16-bit encoder, two periods of sensor delay,
-published friction, 10 s, seed 0, 2026-12-04): 0.2 let the wrist drop its feed-forward when it
-lagged and limit-cycle against the friction (worst error after 2 s 0.57 rad, out of the band);
-0.5 gives 0.32 rad (E_p 0.0674), with GATE_ON = 0.05 or 0.2 alike."""
+GATE_OFF = 0.2
+"""... and stops once its position error exceeds this (rad); the span between is the hysteresis
+that keeps the gate from switching with every step. Measured (paper arm, GP-IDMPC, 16-bit encoder,
+published friction, 10 s, seed 0, 2026-12-04): with 0.5 instead the wrist keeps a feed-forward
+it lags behind and limit-cycles in the target world (one period of delay: E_p 0.0437, worst error
+after 2 s 0.52 rad, against 0.0304 and 0.27 rad with 0.2), though with two periods of delay 0.5
+held the wrist and 0.2 did not (0.32 against 0.57 rad): the light wrist against its friction
+is marginal either way (docs/robustness.md, section 6)."""
 
 
 class FrictionFeedforward:
