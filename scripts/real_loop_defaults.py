@@ -14,6 +14,7 @@ issue's bar: at most 1.5). Writes ``--out`` (JSON) and the Markdown table beside
 which docs/robustness.md quotes (tests/test_doc_figures.py ties them).
 
 Usage: python scripts/real_loop_defaults.py [--out docs/data/real_loop_defaults.json] [--workers 2]
+[--loops real] (``--loops real``: rerun the real loops only, keeping the file's ideal-loop runs)
 """
 
 from __future__ import annotations
@@ -120,10 +121,15 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--out", type=Path, default=ROOT / "docs" / "data" / "real_loop_defaults.json")
     parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument(
+        "--loops", nargs="*", default=["real", "ideal"], help="run only these loops and keep --out's runs of the others"
+    )
     args = parser.parse_args()
-    todo = [(label, c, loop) for label in ARMS for c in CONTROLLERS for loop in ("real", "ideal")]
+    todo = [(label, c, loop) for label in ARMS for c in CONTROLLERS for loop in ("real", "ideal") if loop in args.loops]
     start = time.perf_counter()
     results = []
+    if set(args.loops) != {"real", "ideal"}:  # merge: the stored runs of the other loop
+        results = [r for r in json.loads(args.out.read_text())["runs"] if r["loop"] not in args.loops]
     with ProcessPoolExecutor(args.workers) as pool:
         for k, result in enumerate(pool.map(run, todo), 1):
             results.append(result)
@@ -136,6 +142,7 @@ def main() -> None:
         "rows": table_rows,
         "runs": results,
         "wall_time_s": time.perf_counter() - start,
+        "loops_run": args.loops,
         "machine": {"cpus": os.cpu_count(), "python": platform.python_version()},
     }
     args.out.parent.mkdir(parents=True, exist_ok=True)

@@ -36,6 +36,13 @@ weight whose loop, predicted across d periods on the dry model, keeps a spectral
 0.95 on a plant up to ``inertia_margin`` times heavier than the dry arm plus its own added mass
 (:mod:`hydroarm.control.delay_design`). At d = 0 nothing changes.
 
+Joint friction (``friction_feedforward``, issue 32): the arm's friction model (the ``friction``
+section's values at the scale the controller is told: ``"arm"``, the nominal model whenever the
+arm has joint friction, never the plant's ``friction.scale``) is fed forward at the reference
+velocity by :class:`~hydroarm.control.friction_feedforward.FrictionFeedforward`, which the
+registry puts around every ID-MPC (IDMPC, GP-IDMPC, PI-IDMPC and the observer variants); a
+frictionless arm gets none, so the ideal loop and the paper mode are unchanged.
+
 In the error e = x - x_r and move u = a - a_r the model is ``e_{k+1} = A e_k + B u_k + c_k``
 with the reference's one-step defect ``c_k = x_r,k+1 - A x_r,k - B a_r,k`` (zero for a
 reference of constant acceleration). With the DARE terminal weight, the unconstrained optimum
@@ -126,6 +133,12 @@ class IDMPCConfig(FrozenModel):
         le=10.0,
         description="at the told loop delay each joint stays stable on a plant up to this many times heavier than "
         "the dry arm plus its own Morison added mass (1-10; docs/robustness.md)",
+    )
+    friction_feedforward: NonNegativeFloat | Literal["arm"] = pydantic.Field(
+        "arm",
+        description="scale (0-1e8) of the arm's friction model (the friction section's values) fed forward at the "
+        "reference velocity; arm = 1 when the arm has joint friction (friction.scale > 0), else 0: never the "
+        "plant's scale (hydroarm.control.friction_feedforward)",
     )
     r_floor: PositiveFloat = pydantic.Field(
         1e-6, description="lower bound of the authority-scaled R_a (s^4/rad^2), in (0, 1e8]"

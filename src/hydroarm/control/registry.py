@@ -20,9 +20,10 @@ from typing import Any
 
 import pydantic
 
-from hydroarm.config import ConfigError
+from hydroarm.config import ConfigError, per_joint
 from hydroarm.control.delay_design import delayed_observer_gain
 from hydroarm.control.estimator import EstimatorConfig, FilteredController, JointKalmanFilter
+from hydroarm.control.friction_feedforward import FrictionFeedforward, told_friction
 from hydroarm.control.gpmpc import GPMPC, feature_size
 from hydroarm.control.idmpc import InverseDynamicsMPC, gp_input_size
 from hydroarm.control.interface import Controller
@@ -31,6 +32,7 @@ from hydroarm.control.observers import DisturbanceObserver, ObservedController
 from hydroarm.control.pi_idmpc import PhysicsInformedIDMPC
 from hydroarm.control.smc import SlidingModeController
 from hydroarm.model.arm import Arm
+from hydroarm.model.friction import FrictionConfig
 from hydroarm.model.nominal import NominalModel
 from hydroarm.model.sensing import ActuatorConfig, SensorConfig
 
@@ -286,6 +288,7 @@ def build_controller(
     sensor: SensorConfig | None = None,
     loop_delay: int = 0,
     actuator: ActuatorConfig | None = None,
+    friction: FrictionConfig | None = None,
 ) -> Controller:
     """Controller ``name`` on ``arm`` from its config ``sections`` (section name -> config
     model, e.g. ``{"mpc": MPCConfig()}``) with the control period (s), behind the state
@@ -299,7 +302,10 @@ def build_controller(
     what ``estimator.measurement_variance = "plant"`` stands for; needed only then. ``sensor``:
     the plant's sensor (None: q and v measured) and ``loop_delay`` (periods, ``sensor.delay +
     actuator.delay``): what ``estimator.measures`` and ``estimator.delay = "plant"`` stand for;
-    ``actuator``: the drives (their clip, lag and rate limit go into the filter's prediction)."""
+    ``actuator``: the drives (their clip, lag and rate limit go into the filter's prediction);
+    ``friction``: the arm's joint friction model (the ``friction`` section), fed forward under an
+    ID-MPC at the scale ``idmpc.friction_feedforward`` tells it
+    (:class:`~hydroarm.control.friction_feedforward.FrictionFeedforward`; never the plant's scale)."""
     spec = controller_spec(name)
     estimator = sections.get("estimator")
     filtered = estimator_kind(spec.name, estimator, sensor, loop_delay) == "kalman"
@@ -315,6 +321,11 @@ def build_controller(
                 f"an observer runs under {takes} (or set observer.kind = 'none')"
             )
         controller = ObservedController(controller, DisturbanceObserver(arm, control_period, observer))
+    idmpc = sections.get("idmpc") if "idmpc" in spec.sections else None
+    told = told_friction(friction, idmpc.friction_feedforward) if idmpc is not None else None
+    if told is not None:
+        limit = per_joint(arm.torque_limit, arm.n_joints, "torque_limit")
+        controller = FrictionFeedforward(controller, told, arm.n_joints, limit)
     if filtered:
         if sensor_variance is not None:
             config = config.for_sensor(sensor_variance)

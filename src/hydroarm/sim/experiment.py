@@ -409,6 +409,7 @@ def build_controller(name: str, arm: Arm, config: ExperimentConfig) -> Controlle
         sensor=config.sensor,
         loop_delay=config.sensor.delay + config.actuator.delay,
         actuator=config.actuator,
+        friction=config.friction,
     )
 
 
