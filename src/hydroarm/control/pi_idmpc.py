@@ -208,10 +208,14 @@ class PhysicsInformedIDMPC:
         self.rejected = 0  # plans refused (planner_deviation, PLAN_TRUST)
         self._step = 0  # control steps this run (plan_latency's clock)
         self._pending: deque[tuple[int, tuple | None]] = deque()  # (the step a plan starts at, plan or None)
-        self._launched: tuple[int, tuple | None] | None = None  # the newest plan solved, its start step
+        self._launched_at: int | None = None  # the step the newest plan launched starts at
+        self._chain = False  # plans are being launched (auto: until one has no active torque row)
+        self._in_flight: deque[int] = deque()  # the steps of the plans the worker is solving
         self._history: deque[tuple[int, tuple | None]] = deque(maxlen=self.config.plan_latency + 1)
-        self._replan_time = 0.0
+        self._replan_time = self._replan_cpu = self._wait_time = 0.0
         self.close()  # a worker's copy holds the run that ends here
+        if self.planner is not None and self.config.plan_worker == "process":
+            self._start_worker()
 
     # --- the controller interface ---------------------------------------------------
     def _along_plan(self, q: np.ndarray, v: np.ndarray, a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -342,7 +346,12 @@ class PhysicsInformedIDMPC:
             "total": end - start,
         }
         if latency > 0:
-            timings["replan"] = self._replan_time  # beside the loop: what the control step does not wait for
+            # the plan's solve: inline, within this step; with the worker, its own time on the job
+            # answered this step, and what this step waited for it (in "total")
+            timings["replan"] = self._replan_time
+            if self._worker is not None:
+                timings["wait"] = self._wait_time
+                timings["replan_cpu"] = self._replan_cpu
             timings["torque"] = t_torque - t_model
         return ControlOutput(
             tau=tau,
@@ -375,12 +384,17 @@ class PhysicsInformedIDMPC:
     # --- the planner beside the loop (plan_latency > 0) ------------------------------------
     def _latent_planned_torque(self, q, v, mass, bias):
         """``(tau, a, saturated)`` following the plan solved ``plan_latency`` steps ago for this
-        step (or the one before it, within ``planner_hold`` steps), or ``(None, None, None)``."""
+        step (or the one before it, within ``planner_hold`` steps), or ``(None, None, None)``.
+        ``"auto"``: a plan with no active torque row (or refused) ends the chain of launches."""
         k = self._step
-        if self._worker is not None and k >= self.config.plan_latency:
-            self._receive()  # the job of step k - L: blocks only while the worker is late
+        self._replan_time = self._wait_time = self._replan_cpu = 0.0
+        if self._in_flight and self._in_flight[0] == k:
+            self._in_flight.popleft()
+            self._receive()  # the job launched L steps ago: blocks only while the worker is late
         if self._pending and self._pending[0][0] == k:
             self._plan, self._plan_step = self._pending.popleft()[1], 0
+            if self.config.planner == "auto" and (self._plan is None or not self._plan[5]):
+                self._chain = False
         elif self._plan is not None:
             self._plan_step += 1
             if self._plan_step >= self.config.planner_hold:
@@ -390,43 +404,53 @@ class PhysicsInformedIDMPC:
         return allocate(mass, bias, self._follow_plan(q, v), self.torque_limit)
 
     def _launch(self, t, y, reference, realised, fits) -> None:
-        """After step k's torque: the job of step k (:meth:`_plan_job`), solved here
-        (``plan_worker = "inline"``) or handed to the worker process (``"process"``), whose answer
-        step k + L takes. The job's inputs are the step's (state, realised acceleration, the water
-        model's estimate and the remainder's of now), so the run is the same either way."""
+        """After step k's torque: launch the plan of step k + L (:meth:`_plan_job`) if one is
+        due (the newest launched covers k + L within ``planner_hold`` no more) and wanted
+        (``"always"``; ``"auto"``: the chain runs, or the IDMPC's own move of this step does not fit
+        the limits, ``fits`` False). It is solved here (``plan_worker = "inline"``) or handed to
+        the worker process (``"process"``), and step k + L takes it. The job's inputs are the
+        step's (state, realised acceleration, the water model's estimate and the remainder's of
+        now), so the run is the same either way."""
         k = self._step
         self._step += 1
-        self._replan_time = 0.0
+        target, last = k + self.config.plan_latency, self._launched_at
+        if last is not None and target < last + self.config.planner_hold:
+            return  # the newest plan launched still covers step k + L
+        if self.config.planner == "auto" and not self._chain and fits:
+            return  # the limits do not bind: the IDMPC's own plan
+        shift = target - last if (self._chain and last is not None) else None  # warm from the newest, or cold
+        self._chain, self._launched_at = True, target
         if self.config.plan_worker == "inline":
             start = time.perf_counter()
-            self._pending_job(self._plan_job(k, t, y, reference, realised, fits))
+            self._pending.append(self._plan_job(k, t, y, reference, realised, shift))
             self._replan_time = time.perf_counter() - start
             return
-        if self._worker is None or self._worker_reference is not reference:
-            self._start_worker(reference)
-        job = (k, t, np.asarray(y, dtype=float), np.asarray(realised, dtype=float), fits, self.model.theta, self._rest)
-        self._worker[1].send(job)
-
-    def _pending_job(self, launched) -> None:
-        if launched is not None:
-            self._pending.append(launched)
+        if self._worker is None:
+            self._start_worker()
+        sent = None if reference is self._worker_reference else reference  # pickled once per reference
+        self._worker_reference = reference
+        job = (k, t, np.asarray(y, dtype=float), np.asarray(realised, dtype=float), shift, self.model.theta, self._rest)
+        self._worker[1].send((*job, sent))
+        self._in_flight.append(target)
 
     def _receive(self) -> None:
-        """The worker's answer to the oldest job: its plan (if it launched one), its counts and time."""
+        """The worker's answer to the oldest job: its plan, its counts and its time."""
+        start = time.perf_counter()
         launched, plans, rejected, seconds = self._worker[1].recv()
-        self._pending_job(launched)
+        self._wait_time = time.perf_counter() - start
+        self._pending.append(launched)
         self.plans += plans
         self.rejected += rejected
-        self._replan_time = seconds  # the worker's own time on this job (it ran beside the loop)
+        self._replan_time, self._replan_cpu = seconds  # the worker's own time on this solve, wall and CPU
 
-    def _start_worker(self, reference) -> None:
+    def _start_worker(self) -> None:
         """Fork the worker: a copy of this controller (the plans launched so far included) that
-        answers jobs in order (:func:`_serve_plans`)."""
+        answers jobs in order (:func:`_serve_plans`); at :meth:`reset`, before the loop runs."""
         self.close()
         context = multiprocessing.get_context("fork")
         mine, theirs = context.Pipe()
-        self._worker_reference = reference
-        process = context.Process(target=_serve_plans, args=(self, theirs, reference), daemon=True)
+        self._worker_reference = None
+        process = context.Process(target=_serve_plans, args=(self, theirs), daemon=True)
         process.start()
         theirs.close()
         self._worker = (process, mine)
@@ -445,23 +469,13 @@ class PhysicsInformedIDMPC:
             if process.is_alive():
                 process.terminate()
 
-    def _plan_job(self, k, t, y, reference, realised, fits) -> tuple[int, tuple | None] | None:
+    def _plan_job(self, k, t, y, reference, realised, shift) -> tuple[int, tuple | None]:
         """Step k's job: ``(k + L, plan or None)``, the plan of step k + L (L = ``plan_latency``)
         from the state predicted for it (this step's realised acceleration ``realised`` (n,),
         then the plans already launched for the steps between, on the model's double
-        integrator), warm-started from the newest plan shifted; or None when no plan is due (the
-        newest covers k + L within ``planner_hold``, or ``"auto"`` stops: the newest plan has no
-        active torque row and the IDMPC's own move of step k fits the limits, ``fits``). Its
-        result depends on its inputs only, not on when it ends."""
+        integrator), warm-started from the newest plan launched, ``shift`` steps before this one
+        (None: cold). Its result depends on its inputs only, not on when it ends."""
         n, period, latency = self.n, self.control_period, self.config.plan_latency
-        target = k + latency
-        last = self._launched
-        if last is not None and target < last[0] + self.config.planner_hold:
-            return None  # the newest plan still covers step k + L
-        newest_active = last is not None and last[1] is not None and last[1][5]
-        if self.config.planner == "auto" and not newest_active and fits:
-            self._launched = None  # the limits do not bind: the IDMPC's own plan
-            return None
         q, v = y[:n].copy(), y[n:].copy()
         a = np.asarray(realised, dtype=float)
         for j in range(1, latency + 1):
@@ -472,12 +486,11 @@ class PhysicsInformedIDMPC:
         t_hat = t + latency * period
         idmpc = self.mpc.planned_acceleration(t_hat, y_hat, reference, remember=False)
         warm = None
-        if last is not None and last[1] is not None:
-            warm = (last[1][3], last[1][4], target - last[0])
+        if shift is not None and self._history and self._history[-1][1] is not None:
+            warm = (self._history[-1][1][3], self._history[-1][1][4], shift)
         plan = self._replan(t_hat, y_hat, reference, idmpc, warm)
-        self._launched = (target, plan)
-        self._history.append(self._launched)
-        return self._launched
+        self._history.append((k + latency, plan))
+        return k + latency, plan
 
     def _predicted_move(self, step, t, q, v, reference) -> np.ndarray:
         """The acceleration (n,) a later step ``step`` will follow at the predicted state (q, v):
@@ -503,10 +516,11 @@ class PhysicsInformedIDMPC:
         self._learn_time = time.perf_counter() - start
 
 
-def _serve_plans(controller: PhysicsInformedIDMPC, connection, reference) -> None:  # pragma: no cover - a child
+def _serve_plans(controller: PhysicsInformedIDMPC, connection) -> None:  # pragma: no cover - a child
     """The worker process of ``plan_worker = "process"``: for each job of the control loop (in
     order) the water model's and the remainder's estimate of its step, then
-    :meth:`PhysicsInformedIDMPC._plan_job`; answers ``(launched, plans, rejected, seconds)``."""
+    :meth:`PhysicsInformedIDMPC._plan_job`; answers ``(launched, plans, rejected, (wall s, CPU s))``."""
+    reference = None
     while True:
         try:
             job = connection.recv()
@@ -514,10 +528,11 @@ def _serve_plans(controller: PhysicsInformedIDMPC, connection, reference) -> Non
             return
         if job is None:
             return
-        k, t, y, realised, fits, theta, rest = job
+        k, t, y, realised, shift, theta, rest, sent = job
+        reference = sent if sent is not None else reference
         controller.model.theta, controller._rest = theta, rest
         plans, rejected = controller.plans, controller.rejected
-        start = time.perf_counter()
-        launched = controller._plan_job(k, t, y, reference, realised, fits)
-        seconds = time.perf_counter() - start
+        start, start_cpu = time.perf_counter(), time.process_time()
+        launched = controller._plan_job(k, t, y, reference, realised, shift)
+        seconds = (time.perf_counter() - start, time.process_time() - start_cpu)
         connection.send((launched, controller.plans - plans, controller.rejected - rejected, seconds))
