@@ -29,6 +29,11 @@ this check 31 of the 200 stress-study worlds diverged), or its accelerations exc
 IDMPC's LQR gains on the deviation from it; ``"auto"`` stops at the first plan with no active
 torque row. Measured: docs/controllers.md, "PI-IDMPC".
 
+Beside the loop (``plan_latency`` L > 0): the plan of step k is solved at step k - L from the state
+predicted for step k (:meth:`_plan_job`), in the step (``plan_worker = "inline"``) or by a forked
+worker process (``"process"``) whose answer step k takes: the same run either way, since a job's
+inputs are its step's, not the time it takes.
+
 After the step (``observe``) the model learns the transition (recursive least squares) and the
 remainder observer takes ``r - model(midpoint)``. A model saved by :meth:`save_model` and given
 back with :meth:`load_model` (``hydroarm run --model FILE``) starts a run knowing the water;
