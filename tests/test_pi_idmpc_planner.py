@@ -219,3 +219,19 @@ def test_a_plan_solved_by_the_worker_process_gives_the_inline_run_exactly():
     assert first.plans > 10 and (second.plans, second.rejected) == (first.plans, first.rejected)
     np.testing.assert_array_equal(beside.q, inline.q)
     np.testing.assert_array_equal(beside.u, inline.u)
+
+
+def test_a_failing_worker_process_stops_the_run_with_its_cause():
+    """A job that raises in the worker is raised by the control step that waits for its plan
+    (not a hang, not a silent fallback): the runner stops with the cause."""
+    experiment = _experiment(**{"pi_idmpc.plan_latency": 1, "pi_idmpc.plan_worker": "process", "duration": 0.2})
+    controller = experiment.controller.controller
+
+    def failing(*_args):
+        raise ZeroDivisionError("a zero pivot")
+
+    controller._plan_job = failing  # the worker forked at the run's reset holds it
+    traj = experiment.run(seed=0)
+    assert traj.meta["stopped"] == "controller_error" and traj.meta["steps"] == 1  # the first plan's step
+    assert "planner worker process failed: ZeroDivisionError: a zero pivot" in traj.meta["error"]
+    assert controller._worker is None

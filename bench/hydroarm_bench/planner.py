@@ -157,44 +157,54 @@ LATENCY = 2
 
 def bench_planner_beside(quick: bool) -> dict:
     """PI-IDMPC with its planner beside the loop (module docstring, ``beside``): per case (the
-    paper scenario, and the paper arm with the UR5's torque limits), ``step`` (wall, compute +
-    observe in the control process), ``step_cpu``, ``waited`` (steps that waited > 0.1 ms for
-    the worker), ``plan`` / ``plan_cpu`` (the worker's own time per plan) and ``plans_over_budget``."""
-    runs = 2 if quick else 11
+    paper scenario, and the paper arm with the UR5's torque limits) and planner solver, ``step``
+    (wall, compute + observe in the control process), ``step_cpu``, ``waited`` (steps that waited
+    > 0.1 ms for the worker), ``plan`` / ``plan_cpu`` (the worker's own time per plan) and
+    ``plans_over_budget``. Quick mode (CI): one run, the paper scenario only."""
+    runs = 1 if quick else 11
     cases = {"paper": {}, "paper, UR5 limits": {"torque_limit": [150.0, 150.0, 150.0, 28.0, 28.0, 28.0]}}
-    out: dict = {"latency_periods": LATENCY, "runs": runs, "duration_s": DURATION_S}
+    if quick:
+        cases.pop("paper, UR5 limits")
+    out: dict = {"latency_periods": LATENCY, "runs": runs, "duration_s": DURATION_S, "cases": {}}
     for case, overrides in cases.items():
-        settings = {"pi_idmpc.plan_latency": LATENCY, "pi_idmpc.plan_worker": "process", **overrides}
-        step, cpu, wait, plan, plan_cpu = [], [], [], [], []
-        for seed in range(-1, runs):  # -1: a 0.3 s warm-up run
-            experiment = paper_experiment(NAME, 0.3 if seed < 0 else DURATION_S, settings)
-            timed = TimedController(experiment.controller)
-            experiment.controller = timed
-            traj = experiment.run(max(seed, 0))
-            _planner_controller(timed.inner).close()
-            if seed < 0:
-                continue
-            steps = len(timed.observe_s)
-            timings = {key: np.asarray(value[:steps], dtype=float) for key, value in traj.timings.items()}
-            step.append(timings["total"] + np.asarray(timed.observe_s))
-            cpu.append(np.asarray(timed.cpu_s[:steps]))
-            wait.append(timings["wait"])
-            solved = timings["replan"] > 0
-            plan.append(timings["replan"][solved])
-            plan_cpu.append(timings["replan_cpu"][solved])
-        plan_all, budget = np.concatenate(plan), LATENCY * experiment.config.control_period
-        row = {
-            "step": stats_ms(np.concatenate(step)),
-            "step_cpu": stats_ms(np.concatenate(cpu)),
-            "waited": int((np.concatenate(wait) > 1e-4).sum()),
-            "plan": stats_ms(plan_all),
-            "plan_cpu": stats_ms(np.concatenate(plan_cpu)),
-            "plans_over_budget": int((plan_all > budget).sum()),
-        }
-        row["meets"] = {key: row["step"][key] <= limit for key, limit in TARGETS_MS.items()}
-        row["meets_cpu"] = {key: row["step_cpu"][key] <= limit for key, limit in TARGETS_MS.items()}
-        out[case] = row
+        out["cases"][case] = {}
+        for solver in SOLVERS:
+            settings = {"pi_idmpc.plan_latency": LATENCY, "pi_idmpc.plan_worker": "process", **overrides}
+            out["cases"][case][solver] = _beside_row({**settings, "pi_idmpc.planner_solver": solver}, runs)
     return out
+
+
+def _beside_row(settings: dict, runs: int) -> dict:
+    """One row of :func:`bench_planner_beside`: ``runs`` 10 s runs after a 0.3 s warm-up run."""
+    step, cpu, wait, plan, plan_cpu = [], [], [], [], []
+    for seed in range(-1, runs):  # -1: the warm-up run
+        experiment = paper_experiment(NAME, 0.3 if seed < 0 else DURATION_S, settings)
+        timed = TimedController(experiment.controller)
+        experiment.controller = timed
+        traj = experiment.run(max(seed, 0))
+        _planner_controller(timed.inner).close()
+        if seed < 0:
+            continue
+        steps = len(timed.observe_s)
+        timings = {key: np.asarray(value[:steps], dtype=float) for key, value in traj.timings.items()}
+        step.append(timings["total"] + np.asarray(timed.observe_s))
+        cpu.append(np.asarray(timed.cpu_s[:steps]))
+        wait.append(timings["wait"])
+        solved = timings["replan"] > 0
+        plan.append(timings["replan"][solved])
+        plan_cpu.append(timings["replan_cpu"][solved])
+    plan_all, budget = np.concatenate(plan), LATENCY * experiment.config.control_period
+    row = {
+        "step": stats_ms(np.concatenate(step)),
+        "step_cpu": stats_ms(np.concatenate(cpu)),
+        "waited": int((np.concatenate(wait) > 1e-4).sum()),
+        "plan": stats_ms(plan_all),
+        "plan_cpu": stats_ms(np.concatenate(plan_cpu)),
+        "plans_over_budget": int((plan_all > budget).sum()),
+    }
+    row["meets"] = {key: row["step"][key] <= limit for key, limit in TARGETS_MS.items()}
+    row["meets_cpu"] = {key: row["step_cpu"][key] <= limit for key, limit in TARGETS_MS.items()}
+    return row
 
 
 def bench_planner_arms() -> dict:
@@ -345,20 +355,20 @@ def _render_beside(beside: dict | None) -> list[str]:
         f"{beside['runs']} runs of {beside['duration_s']:.0f} s per case: the control step (compute + observe "
         "in the control process, waiting only for a late worker) in wall and CPU time, and the worker's own "
         f"time per plan against its budget of {latency} periods, ms:\n",
-        "| case | steps | median | p99 | max | CPU median / p99 / max | steps that waited | plans | "
+        "| case | solver | steps | median | p99 | max | CPU median / p99 / max | steps that waited | plans | "
         "plan median / p99 / max | plan CPU median / p99 / max | plans over budget |",
-        "|---|---|---|---|---|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
-    for case, row in beside.items():
-        if not isinstance(row, dict):
-            continue
-        s, c, p, pc = row["step"], row["step_cpu"], row["plan"], row["plan_cpu"]
-        lines.append(
-            f"| {case} | {s['n']} | {s['median']:.3f} | {s['p99']:.3f} | {s['max']:.3f} | "
-            f"{c['median']:.3f} / {c['p99']:.3f} / {c['max']:.3f} | {row['waited']} | {p['n']} | "
-            f"{p['median']:.2f} / {p['p99']:.2f} / {p['max']:.2f} | "
-            f"{pc['median']:.2f} / {pc['p99']:.2f} / {pc['max']:.2f} | {row['plans_over_budget']} |"
-        )
+    for case, rows in beside["cases"].items():
+        for solver, row in rows.items():
+            s, c, p, pc = row["step"], row["step_cpu"], row["plan"], row["plan_cpu"]
+            plans = "-" if p["n"] == 0 else f"{p['median']:.2f} / {p['p99']:.2f} / {p['max']:.2f}"
+            plans_cpu = "-" if pc["n"] == 0 else f"{pc['median']:.2f} / {pc['p99']:.2f} / {pc['max']:.2f}"
+            lines.append(
+                f"| {case} | {solver} | {s['n']} | {s['median']:.3f} | {s['p99']:.3f} | {s['max']:.3f} | "
+                f"{c['median']:.3f} / {c['p99']:.3f} / {c['max']:.3f} | {row['waited']} | {p['n']} | "
+                f"{plans} | {plans_cpu} | {row['plans_over_budget']} |"
+            )
     return [*lines, ""]
 
 

@@ -441,8 +441,15 @@ class PhysicsInformedIDMPC:
     def _receive(self) -> None:
         """The worker's answer to the oldest job: its plan, its counts and its time."""
         start = time.perf_counter()
-        launched, plans, rejected, seconds = self._worker[1].recv()
+        try:
+            answer = self._worker[1].recv()
+        except EOFError:
+            answer = ("error", "it ended")
         self._wait_time = time.perf_counter() - start
+        if answer[0] == "error":
+            self.close()
+            raise RuntimeError(f"PI-IDMPC's planner worker process failed: {answer[1]}")
+        launched, plans, rejected, seconds = answer
         self._pending.append(launched)
         self.plans += plans
         self.rejected += rejected
@@ -538,6 +545,10 @@ def _serve_plans(controller: PhysicsInformedIDMPC, connection) -> None:  # pragm
         controller.model.theta, controller._rest = theta, rest
         plans, rejected = controller.plans, controller.rejected
         start, start_cpu = time.perf_counter(), time.process_time()
-        launched = controller._plan_job(k, t, y, reference, realised, shift)
+        try:
+            launched = controller._plan_job(k, t, y, reference, realised, shift)
+        except Exception as error:  # the control loop raises it, with its cause
+            connection.send(("error", f"{type(error).__name__}: {error}"))
+            return
         seconds = (time.perf_counter() - start, time.process_time() - start_cpu)
         connection.send((launched, controller.plans - plans, controller.rejected - rejected, seconds))
