@@ -5,7 +5,8 @@ flagship candidate PI-IDMPC, 10 s of the paper task, clean) in fresh processes u
 joint, rms and max error, torque rms) and the whole joint trajectory to 1e-9 relative
 (issue 32; issue 29's rule: no BLAS / CPU-dispatched NumPy on the paths a closed loop amplifies).
 
-    python scripts/blas_independence.py [--controller PI-IDMPC] [--duration 10] [--out FILE.json] [--check]
+    python scripts/blas_independence.py [--controller PI-IDMPC] [--duration 10] [--noise 0] [--seed 0]
+        [--set KEY=VALUE ...] [--out FILE.json] [--check]
 
 ``--check``: exit 1 if a number differs by more than 1e-9 relative. OpenBLAS honours
 ``OPENBLAS_CORETYPE`` only in its DYNAMIC_ARCH builds (NumPy's wheels are); the kernel each
@@ -34,9 +35,11 @@ try:
     from threadpoolctl import threadpool_info
 except ImportError:  # the bench extra's; without it the kernel is not recorded
     threadpool_info = list
-from hydroarm.sim.experiment import ExperimentConfig, run_experiment
+from hydroarm.sim.experiment import ExperimentConfig, run_experiment, with_overrides
 from hydroarm.sim.runner import tracking_metrics
-traj = run_experiment(ExperimentConfig(duration=float(sys.argv[2])), sys.argv[1])
+settings = json.loads(sys.argv[3])
+config = with_overrides(ExperimentConfig(duration=float(sys.argv[2])), settings)
+traj = run_experiment(config, sys.argv[1], seed=int(sys.argv[4]))
 metrics = tracking_metrics(traj)
 metrics.pop("time_to_band")  # a sample time, not a measured number
 kernels = sorted({str(lib.get("architecture")) for lib in threadpool_info() if lib.get("internal_api") == "openblas"})
@@ -44,12 +47,12 @@ print(json.dumps({"metrics": metrics, "q": np.asarray(traj.q).tolist(), "openbla
 """
 
 
-def run_variant(controller: str, duration: float, env: dict[str, str]) -> dict:
-    """One run in a fresh process with ``env`` added: its metrics, trajectory q and OpenBLAS kernel."""
+def run_variant(controller: str, duration: float, env: dict[str, str], settings: dict | None = None, seed: int = 0):
+    """One run in a fresh process with ``env`` added (``settings``: overrides, dotted keys; ``seed``:
+    the noise's): its metrics, trajectory q and OpenBLAS kernel."""
     full = {**os.environ, "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", **env}
-    done = subprocess.run(
-        [sys.executable, "-c", CHILD, controller, str(duration)], env=full, capture_output=True, text=True, check=False
-    )
+    argv = [sys.executable, "-c", CHILD, controller, str(duration), json.dumps(settings or {}), str(seed)]
+    done = subprocess.run(argv, env=full, capture_output=True, text=True, check=False)
     if done.returncode != 0:
         raise SystemExit(f"the run under {env} failed:\n{done.stderr[-2000:]}")
     return json.loads(done.stdout.strip().splitlines()[-1])
@@ -81,15 +84,29 @@ def main() -> int:
     parser.add_argument("--controller", default="PI-IDMPC")
     parser.add_argument("--duration", type=float, default=10.0)
     parser.add_argument("--out", type=Path)
+    parser.add_argument("--noise", type=float, default=0.0, help="measurement noise variance (plant.noise_variance)")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="a setting (JSON value)")
     parser.add_argument("--check", action="store_true")
     args = parser.parse_args()
-    runs = {label: run_variant(args.controller, args.duration, env) for label, env in VARIANTS.items()}
+    settings = {"plant.noise_variance": args.noise} if args.noise else {}
+    for item in args.set:
+        key, _, value = item.partition("=")
+        try:
+            settings[key] = json.loads(value)
+        except json.JSONDecodeError:
+            settings[key] = value
+    runs = {
+        label: run_variant(args.controller, args.duration, env, settings, args.seed) for label, env in VARIANTS.items()
+    }
     (ref_label, reference), (label, other) = runs.items()
     rows = compare(reference, other)
     ep = reference["metrics"]["Ep"]
     report = {
         "controller": args.controller,
         "duration_s": args.duration,
+        "settings": settings,
+        "seed": args.seed,
         "reference": {"label": ref_label, "env": VARIANTS[ref_label], "openblas": reference["openblas"]},
         "variant": {"label": label, "env": VARIANTS[label], "openblas": other["openblas"]},
         "Ep_mean": sum(ep) / len(ep),

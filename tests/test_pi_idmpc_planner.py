@@ -53,8 +53,8 @@ def test_the_plan_honours_the_torque_limits_with_the_models_water():
 
     def recording(t, *args):
         made = replan(t, *args)
-        if made:
-            q_p, v_p, a_p, _ = controller._plan
+        if made is not None:
+            q_p, v_p, a_p = made[:3]
             water, _ = controller._along_plan(q_p, v_p, a_p)
             plans.append((t, q_p.copy(), v_p.copy(), a_p.copy(), water))
         return made
@@ -93,6 +93,11 @@ def test_a_constant_reference_at_rest_needs_no_plan_in_auto_mode():
         ({"planner_iterations": 11}, "planner_iterations"),
         ({"planner_deviation": -1.0}, "planner_deviation"),
         ({"planner_horizon": 10, "planner_hold": 11}, "planner_hold"),
+        ({"plan_latency": -1}, "plan_latency"),
+        ({"plan_latency": 11}, "plan_latency"),
+        ({"planner_horizon": 10, "planner_hold": 5, "plan_latency": 6}, "plan_latency"),
+        ({"plan_worker": "thread"}, "plan_worker"),
+        ({"plan_worker": "process"}, "plan_worker"),
     ],
 )
 def test_planner_settings_are_validated(settings, field):
@@ -165,3 +170,68 @@ def test_the_deviation_check_keeps_a_lighter_plant_from_diverging():
     plans ask the wrists for 1e4-4e5 rad/s^2 and the run diverges (31 of the 200 worlds did)."""
     assert not _stress_world(500.0).diverged
     assert _stress_world(1e8).diverged
+
+
+def _recorded_run(duration, **overrides):
+    """A PI-IDMPC run recording, per step, the measured state, the realised acceleration and the
+    plan followed with its step: ``(trajectory, records, controller)``."""
+    experiment = build_experiment(with_overrides(ExperimentConfig(duration=duration), overrides), "PI-IDMPC")
+    controller = experiment.controller.controller
+    records = []
+    compute = controller.compute
+
+    def recording(t, y, reference):
+        out = compute(t, y, reference)
+        records.append((np.array(y, dtype=float), np.array(out.acceleration), controller._plan, controller._plan_step))
+        return out
+
+    controller.compute = recording
+    return experiment.run(seed=0), records, controller
+
+
+def test_a_plan_with_latency_starts_at_the_state_predicted_a_period_before():
+    """``plan_latency = 1``: the plan followed from step k + 1 was solved at step k from the
+    state the model's double integrator predicts with step k's realised acceleration, not from
+    the state measured at k + 1 (the plant's water differs from the model's: they differ)."""
+    traj, records, controller = _recorded_run(0.3, **{"pi_idmpc.plan_latency": 1})
+    period, n = controller.control_period, controller.n
+    checked = 0
+    for (y, a, _, _), (y_next, _, plan, step) in zip(records, records[1:]):
+        if plan is None or step != 0:
+            continue
+        q, v = y[:n], y[n:]
+        predicted = np.concatenate([q + period * v + 0.5 * period**2 * a, v + period * a])
+        start = np.concatenate([plan[0][0], plan[1][0]])
+        np.testing.assert_allclose(start, predicted, rtol=0, atol=1e-12 * (1 + np.abs(predicted).max()))
+        assert np.abs(start - y_next).max() > 1e-9
+        checked += 1
+    assert checked >= 10 and not traj.diverged
+
+
+def test_a_plan_solved_by_the_worker_process_gives_the_inline_run_exactly():
+    """``plan_worker = "process"``: the plans come from a forked worker beside the loop, the run is
+    the inline one bit for bit (the job's inputs are the step's, not the time it takes), L = 2."""
+    latency = {"pi_idmpc.plan_latency": 2}
+    inline, _, first = _recorded_run(0.3, **latency)
+    beside, _, second = _recorded_run(0.3, **latency, **{"pi_idmpc.plan_worker": "process"})
+    assert second._worker is not None and second._worker[0].is_alive()
+    second.close()
+    assert first.plans > 10 and (second.plans, second.rejected) == (first.plans, first.rejected)
+    np.testing.assert_array_equal(beside.q, inline.q)
+    np.testing.assert_array_equal(beside.u, inline.u)
+
+
+def test_a_failing_worker_process_stops_the_run_with_its_cause():
+    """A job that raises in the worker is raised by the control step that waits for its plan
+    (not a hang, not a silent fallback): the runner stops with the cause."""
+    experiment = _experiment(**{"pi_idmpc.plan_latency": 1, "pi_idmpc.plan_worker": "process", "duration": 0.2})
+    controller = experiment.controller.controller
+
+    def failing(*_args):
+        raise ZeroDivisionError("a zero pivot")
+
+    controller._plan_job = failing  # the worker forked at the run's reset holds it
+    traj = experiment.run(seed=0)
+    assert traj.meta["stopped"] == "controller_error" and traj.meta["steps"] == 1  # the first plan's step
+    assert "planner worker process failed: ZeroDivisionError: a zero pivot" in traj.meta["error"]
+    assert controller._worker is None

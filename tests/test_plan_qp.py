@@ -216,3 +216,27 @@ def test_a_solve_that_does_not_settle_goes_to_daqp(monkeypatch):
     expected, expected_lam = reference(hessian, gradient, rows, upper, lower)
     np.testing.assert_array_equal(moves, expected)
     assert np.count_nonzero(expected_lam) > 0
+
+
+def test_a_zero_pivot_in_the_structured_solver_goes_to_daqp(monkeypatch):
+    """A ZeroDivisionError inside the compiled solver (met by a plan two periods ahead on the paper
+    arm with the UR5's limits) hands the problem to DAQP (counted) instead of ending the run."""
+    import hydroarm.control.idmpc_limits as limits
+
+    rng = np.random.default_rng(12)
+    arm = load_arm("paper")
+    n, horizon = arm.n_joints, 6
+    p_mats = np.array([joint_lqr(0.01, 300.0, 0.01, 1e-5)[0] for _ in range(n)])
+    qp = HorizonQP(arm, 0.01, horizon, np.full(n, 300.0), np.full(n, 0.01), np.full(n, 1e-5), p_mats,
+                   np.full(n, 40.0), 0, solver="structured")  # fmt: skip
+    gradient = rng.normal(0.0, 1e4, horizon * n)
+    rows = np.kron(np.eye(horizon), arm.mass_matrix(np.zeros(n)))
+    upper, lower = np.full(horizon * n, 40.0), np.full(horizon * n, -40.0)
+
+    def zero_pivot(*_args):
+        raise ZeroDivisionError("division by zero")
+
+    monkeypatch.setattr(limits, "solve_plan_qp", zero_pivot)
+    moves, _, ok = qp._solve_qp(gradient, rows, upper, lower)
+    assert ok and qp.fallbacks == 1
+    np.testing.assert_array_equal(moves, reference(qp.hessian, gradient, rows, upper, lower)[0])

@@ -132,9 +132,10 @@ def test_a_newer_schema_gets_one_message(tmp_path):
 
 def test_migrations_apply_in_order_and_only_after_the_records_schema():
     data = {"water_model": {"planner_hold": 2}}
-    assert migrate(data, 7)["pi_idmpc"] == {"planner_hold": 2}
+    assert migrate(data, 7)["pi_idmpc"] == {"planner_hold": 2, "plan_latency": 0, "plan_worker": "inline"}  # 13 filled
     at_8 = migrate(data, 8)  # written at schema 8: water_model.planner_hold is a mistake, not moved
-    assert at_8["water_model"] == {"planner_hold": 2} and "pi_idmpc" not in at_8
+    assert at_8["water_model"] == {"planner_hold": 2}
+    assert at_8["pi_idmpc"] == {"plan_latency": 0, "plan_worker": "inline"}  # only 13's keys
     assert at_8["idmpc"] == {"delay_margin": 0, "loop_delay": "plant", "inertia_margin": 1.5}  # 9 to 11 filled
     assert migrate({}, 1)["estimator"] == {"measures": "plant", "delay": "plant", "repeated": "skip"}
 

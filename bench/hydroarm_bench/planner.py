@@ -7,6 +7,10 @@ solver against DAQP side by side.
   planner's QP solvers (``pi_idmpc.planner_solver``) in the same process; the steps that replanned
   are also given apart (``replan_steps``). Targets of issue 32: median <= 0.3 ms, p99 <= 1 ms,
   max <= 5 ms.
+- ``beside``: the planner beside the loop (``pi_idmpc.plan_latency`` = :data:`LATENCY`,
+  ``plan_worker = "process"``): the control step (compute + observe in the control process; it
+  waits only when the worker is late) over the same runs, in wall and CPU time, and the worker's
+  own time per plan against its budget of L periods.
 - ``solver``: the planner's own QPs, recorded in one run, solved again by DAQP and by the
   structured solver (:mod:`hydroarm.control.plan_qp`) from the same warm starts: per-solve
   median / p99 / max, their ratios (DAQP over structured: > 1 is faster), and the largest
@@ -147,6 +151,62 @@ def bench_planner_step(quick: bool) -> dict:
     return out
 
 
+LATENCY = 2
+"""The plan latency (periods) of the ``beside`` rows (docs/controllers.md, "The planner beside the loop")."""
+
+
+def bench_planner_beside(quick: bool) -> dict:
+    """PI-IDMPC with its planner beside the loop (module docstring, ``beside``): per case (the
+    paper scenario, and the paper arm with the UR5's torque limits) and planner solver, ``step``
+    (wall, compute + observe in the control process), ``step_cpu``, ``waited`` (steps that waited
+    > 0.1 ms for the worker), ``plan`` / ``plan_cpu`` (the worker's own time per plan) and
+    ``plans_over_budget``. Quick mode (CI): one run, the paper scenario only."""
+    runs = 1 if quick else 11
+    cases = {"paper": {}, "paper, UR5 limits": {"torque_limit": [150.0, 150.0, 150.0, 28.0, 28.0, 28.0]}}
+    if quick:
+        cases.pop("paper, UR5 limits")
+    out: dict = {"latency_periods": LATENCY, "runs": runs, "duration_s": DURATION_S, "cases": {}}
+    for case, overrides in cases.items():
+        out["cases"][case] = {}
+        for solver in SOLVERS:
+            settings = {"pi_idmpc.plan_latency": LATENCY, "pi_idmpc.plan_worker": "process", **overrides}
+            out["cases"][case][solver] = _beside_row({**settings, "pi_idmpc.planner_solver": solver}, runs)
+    return out
+
+
+def _beside_row(settings: dict, runs: int) -> dict:
+    """One row of :func:`bench_planner_beside`: ``runs`` 10 s runs after a 0.3 s warm-up run."""
+    step, cpu, wait, plan, plan_cpu = [], [], [], [], []
+    for seed in range(-1, runs):  # -1: the warm-up run
+        experiment = paper_experiment(NAME, 0.3 if seed < 0 else DURATION_S, settings)
+        timed = TimedController(experiment.controller)
+        experiment.controller = timed
+        traj = experiment.run(max(seed, 0))
+        _planner_controller(timed.inner).close()
+        if seed < 0:
+            continue
+        steps = len(timed.observe_s)
+        timings = {key: np.asarray(value[:steps], dtype=float) for key, value in traj.timings.items()}
+        step.append(timings["total"] + np.asarray(timed.observe_s))
+        cpu.append(np.asarray(timed.cpu_s[:steps]))
+        wait.append(timings["wait"])
+        solved = timings["replan"] > 0
+        plan.append(timings["replan"][solved])
+        plan_cpu.append(timings["replan_cpu"][solved])
+    plan_all, budget = np.concatenate(plan), LATENCY * experiment.config.control_period
+    row = {
+        "step": stats_ms(np.concatenate(step)),
+        "step_cpu": stats_ms(np.concatenate(cpu)),
+        "waited": int((np.concatenate(wait) > 1e-4).sum()),
+        "plan": stats_ms(plan_all),
+        "plan_cpu": stats_ms(np.concatenate(plan_cpu)),
+        "plans_over_budget": int((plan_all > budget).sum()),
+    }
+    row["meets"] = {key: row["step"][key] <= limit for key, limit in TARGETS_MS.items()}
+    row["meets_cpu"] = {key: row["step_cpu"][key] <= limit for key, limit in TARGETS_MS.items()}
+    return row
+
+
 def bench_planner_arms() -> dict:
     """PI-IDMPC's whole step on the other arms (:data:`ARMS`), one 10 s run per solver each
     (after a 0.3 s warm-up run): ``{arm: {solver: {"step", "replan_steps", "replans", "meets"}}}``."""
@@ -230,8 +290,9 @@ def bench_plan_solver(quick: bool) -> dict:
 
 
 def bench_planner(quick: bool) -> dict:
-    """The section: ``{"step": ..., "solver": ...}``."""
-    return {"step": bench_planner_step(quick), "solver": bench_plan_solver(quick)}
+    """The section: ``{"step": ..., "beside": ..., "solver": ...}``."""
+    step, beside = bench_planner_step(quick), bench_planner_beside(quick)
+    return {"step": step, "beside": beside, "solver": bench_plan_solver(quick)}
 
 
 def _render_breakdown(breakdown: dict) -> list[str]:
@@ -284,6 +345,33 @@ def _render_arms(arms: dict) -> list[str]:
     return [*lines, ""]
 
 
+def _render_beside(beside: dict | None) -> list[str]:
+    """bench.md lines: the planner beside the loop."""
+    if not beside:
+        return []
+    latency = beside["latency_periods"]
+    lines = [
+        f'The planner beside the loop (`pi_idmpc.plan_latency = {latency}`, `plan_worker = "process"`), '
+        f"{beside['runs']} runs of {beside['duration_s']:.0f} s per case: the control step (compute + observe "
+        "in the control process, waiting only for a late worker) in wall and CPU time, and the worker's own "
+        f"time per plan against its budget of {latency} periods, ms:\n",
+        "| case | solver | steps | median | p99 | max | CPU median / p99 / max | steps that waited | plans | "
+        "plan median / p99 / max | plan CPU median / p99 / max | plans over budget |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for case, rows in beside["cases"].items():
+        for solver, row in rows.items():
+            s, c, p, pc = row["step"], row["step_cpu"], row["plan"], row["plan_cpu"]
+            plans = "-" if p["n"] == 0 else f"{p['median']:.2f} / {p['p99']:.2f} / {p['max']:.2f}"
+            plans_cpu = "-" if pc["n"] == 0 else f"{pc['median']:.2f} / {pc['p99']:.2f} / {pc['max']:.2f}"
+            lines.append(
+                f"| {case} | {solver} | {s['n']} | {s['median']:.3f} | {s['p99']:.3f} | {s['max']:.3f} | "
+                f"{c['median']:.3f} / {c['p99']:.3f} / {c['max']:.3f} | {row['waited']} | {p['n']} | "
+                f"{plans} | {plans_cpu} | {row['plans_over_budget']} |"
+            )
+    return [*lines, ""]
+
+
 def render_planner(section: dict) -> str:
     """The section of bench.md."""
     step, solver = section["step"], section["solver"]
@@ -313,6 +401,7 @@ def render_planner(section: dict) -> str:
         *_render_cpu(step),
         *_render_breakdown(step["structured"]["replan_breakdown"]),
         *_render_arms(step.get("arms", {})),
+        *_render_beside(section.get("beside")),
         f"The planner's {solver['problems']} QPs of one run ({solver['size']['variables']} moves, "
         f"{solver['size']['rows']} torque rows), ms per solve:\n",
         "| solver | median | p99 | max |",

@@ -208,9 +208,12 @@ class HorizonQP:
         the longest solves took 3x DAQP's; on the paper arm no solve takes more than 112."""
         if self._factors is not None:
             size = gradient.shape[0]
-            moves, new_lam, flag, _ = solve_plan_qp(
-                self._factors, gradient, rows, upper, lower, warm_set(lam, size), PRIMAL_TOL, DUAL_TOL, size
-            )
+            try:
+                moves, new_lam, flag, _ = solve_plan_qp(
+                    self._factors, gradient, rows, upper, lower, warm_set(lam, size), PRIMAL_TOL, DUAL_TOL, size
+                )
+            except ZeroDivisionError:  # a zero pivot: met on the paper arm with the UR5's limits, a plan 2 steps ahead
+                flag = 0
             if int(flag) == 1 and np.all(np.isfinite(moves)) and np.all(np.isfinite(new_lam)):
                 return moves, new_lam, True
             self.fallbacks += 1  # not settled, or a working set too close to dependent rows

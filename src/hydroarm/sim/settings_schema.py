@@ -100,6 +100,11 @@ MIGRATIONS: tuple[Migration, ...] = (
         keys={"idmpc.loop_delay": "plant", "idmpc.inertia_margin": 1.5},
     ),
     Migration(12, "the plant mismatch (mismatch.*) inside the settings", sections=("mismatch",)),
+    Migration(
+        13,
+        "PI-IDMPC's planner beside the loop: a plan latency and its worker",
+        keys={"pi_idmpc.plan_latency": 0, "pi_idmpc.plan_worker": "inline"},
+    ),
 )
 """Every migration, in order: ``MIGRATIONS[k - 2]`` leads from schema k - 1 to k. The numbers
 before 11 were given after the fact (no record carried one), in the order the features came."""
