@@ -136,7 +136,12 @@ def test_migrations_apply_in_order_and_only_after_the_records_schema():
     at_8 = migrate(data, 8)  # written at schema 8: water_model.planner_hold is a mistake, not moved
     assert at_8["water_model"] == {"planner_hold": 2}
     assert at_8["pi_idmpc"] == {"plan_latency": 0, "plan_worker": "inline"}  # only 13's keys
-    assert at_8["idmpc"] == {"delay_margin": 0, "loop_delay": "plant", "inertia_margin": 1.5}  # 9 to 11 filled
+    assert at_8["idmpc"] == {
+        "delay_margin": 0,
+        "loop_delay": "plant",
+        "inertia_margin": 1.5,
+        "friction_feedforward": "arm",
+    }  # 9 to 11 and 14 filled
     assert migrate({}, 1)["estimator"] == {"measures": "plant", "delay": "plant", "repeated": "skip"}
 
 

@@ -105,6 +105,11 @@ MIGRATIONS: tuple[Migration, ...] = (
         "PI-IDMPC's planner beside the loop: a plan latency and its worker",
         keys={"pi_idmpc.plan_latency": 0, "pi_idmpc.plan_worker": "inline"},
     ),
+    Migration(
+        14,
+        "the arm's friction model fed forward under the ID-MPCs",
+        keys={"idmpc.friction_feedforward": "arm"},
+    ),
 )
 """Every migration, in order: ``MIGRATIONS[k - 2]`` leads from schema k - 1 to k. The numbers
 before 11 were given after the fact (no record carried one), in the order the features came."""
