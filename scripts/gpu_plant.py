@@ -149,6 +149,8 @@ def run(path: Path, counts: list[int], steps: int, out: Path | None, budget: flo
                 s = period(np.full(count, j * PERIOD), s, tau)[0]
             check["after_periods"] = {"state": _relative(np.asarray(s)[:k], data["refk_x"][:k])}
             result["check"] = check
+            print(json.dumps({"check": check, "compile_s": compile_s}), file=sys.stderr, flush=True)
+            save()
         wall = time.perf_counter()
         for j in range(steps):
             state = period(np.full(count, j * PERIOD), state, tau)[0]
