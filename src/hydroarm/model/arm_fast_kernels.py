@@ -82,24 +82,27 @@ def new_fast_arm(tree, gravity, strips, uniform, friction_on, friction):  # prag
 def scratch(arm):  # pragma: no cover - compiled
     """The work arrays of :func:`evaluate` for ``arm``: (rot, pos, rot_world (nj, 3, 3|3)), vel,
     acc, force, water, drag (nj, 6), the composite inertias and a spare (nj, 6, 6),
-    a 6 x 6, three (6,) and a (6, 6), the body frame, a joint rotation (3, 3), the joints' world
-    positions (nj, 3) and a spare (nj, 6); then :func:`evaluate`'s (n,) current
+    a 6 x 6, three (6,) and a (6, 6), the body frame, a joint rotation (3, 3), a spare
+    (nj, 3) and a spare (nj, 6); then :func:`evaluate`'s (n,) current
     acceleration, nle, water force, applied torque and right-hand side, its (n, n) matrix and the
     water's velocity (3,); last, the arrays of ``arm`` (its tree, strips and friction), taken out of
     the structure once here rather than at every use (each read of a structure's array field
     costs a reference count)."""
     nj = arm.parents.shape[0]
+    n = nj - 1
     strips = arm.strips
     frame = new_frame(6, True, strips.nodes, strips.weights, strips.curve_log_re, strips.curve_cd)
-    rot_world = np.zeros((nj, 3, 3))
+    # a dozen allocations instead of thirty: the arrays of one shape are rows of one block (integer
+    # indexing keeps them C-contiguous, the same types as separate arrays)
+    rotations, points, motions = np.zeros((2, nj, 3, 3)), np.zeros((2, nj, 3)), np.zeros((6, nj, 6))
+    inertias, small, vectors, joint = np.zeros((2, nj, 6, 6)), np.zeros((2, 6, 6)), np.zeros((3, 6)), np.zeros((5, n))
+    rot_world = rotations[1]
     for a in range(3):
         rot_world[0, a, a] = 1.0
     return (
-        np.zeros((nj, 3, 3)), np.zeros((nj, 3)), rot_world, np.zeros((nj, 6)), np.zeros((nj, 6)),
-        np.zeros((nj, 6)), np.zeros((nj, 6)), np.zeros((nj, 6)), np.zeros((nj, 6, 6)), np.zeros((nj, 6, 6)),
-        np.zeros((6, 6)), np.zeros(6), np.zeros(6), np.zeros(6), np.zeros((6, 6)), frame, np.zeros((3, 3)),
-        np.zeros((nj, 3)), np.zeros((nj, 6)), np.zeros(nj - 1), np.zeros(nj - 1), np.zeros(nj - 1),
-        np.zeros(nj - 1), np.zeros(nj - 1), np.zeros((nj - 1, nj - 1)), np.zeros(3),
+        rotations[0], points[0], rot_world, motions[0], motions[1], motions[2], motions[3], motions[4],
+        inertias[0], inertias[1], small[0], vectors[0], vectors[1], vectors[2], small[1], frame, np.zeros((3, 3)),
+        points[1], motions[5], joint[0], joint[1], joint[2], joint[3], joint[4], np.zeros((n, n)), np.zeros(3),
         (arm.parents, arm.place_rotation, arm.place_translation, arm.axes, arm.rigid, arm.total, arm.gravity),
         (strips.joint_ids, strips.start, strips.axis, strips.table, strips.current_joint, strips.current_world),
         (arm.coulomb, arm.breakaway, arm.viscous, arm.stribeck_velocity, arm.width),
@@ -111,14 +114,11 @@ def _forward(q, v, arm, work):  # pragma: no cover - compiled
     """Forward pass: joint placements, world rotations, body twists and velocity-product
     accelerations (revolute joint i moves coordinate i - 1)."""
     rot, pos, rot_world, vel, acc = work[0], work[1], work[2], work[3], work[4]
-    rj, pos_world = work[16], work[17]
+    rj = work[16]
     parents, place_rotation, place_translation, axes = work[26][0], work[26][1], work[26][2], work[26][3]
     for i in range(1, parents.shape[0]):
         par = parents[i]
         place_joint(i, par, q[i - 1], place_rotation, place_translation, axes, rot, pos, rot_world, rj)
-        for a in range(3):
-            pos_world[i, a] = pos_world[par, a] + (rot_world[par, a, 0] * pos[i, 0] + rot_world[par, a, 1] * pos[i, 1]
-                                                   + rot_world[par, a, 2] * pos[i, 2])  # fmt: skip
         joint_motion(i, par, v[i - 1], axes, rot, pos, vel, acc)
 
 
@@ -182,7 +182,8 @@ def _add_to_world(inertia, rot, p, out, scratch):  # pragma: no cover - compiled
     """out (6, 6) += X^T inertia X: a body's inertia (about its origin, its axes; the body placed
     at rotation ``rot`` and origin ``p`` in the outer frame) about the outer frame's origin, in
     its axes. X maps the outer frame's motion to the body's: ``(R^T (v - p x w), R^T w)``; the
-    block structure of X spares half of the two 6 x 6 products."""
+    block structure of X spares half of the two 6 x 6 products, the symmetry of the result
+    (``inertia`` symmetric) a third of the second."""
     for a in range(6):  # scratch = inertia X
         for b in range(3):
             scratch[a, b] = inertia[a, 0] * rot[b, 0] + inertia[a, 1] * rot[b, 1] + inertia[a, 2] * rot[b, 2]
@@ -193,19 +194,37 @@ def _add_to_world(inertia, rot, p, out, scratch):  # pragma: no cover - compiled
         scratch[a, 3] += -(l1 * p[2] - l2 * p[1])
         scratch[a, 4] += -(l2 * p[0] - l0 * p[2])
         scratch[a, 5] += -(l0 * p[1] - l1 * p[0])
-    for b in range(6):  # out += X^T scratch
+    # out += X^T scratch, symmetric: the upper triangle computed, mirrored into the lower (the
+    # top-left block's columns need only their top rows, the bottom-left block is the top-right's
+    # transpose): 21 of the 36 three-term sums
+    for b in range(3):
+        for a in range(b + 1):
+            s = rot[a, 0] * scratch[0, b] + rot[a, 1] * scratch[1, b] + rot[a, 2] * scratch[2, b]
+            out[a, b] += s
+            if a != b:
+                out[b, a] += s
+    for b in range(3, 6):
         s0 = rot[0, 0] * scratch[0, b] + rot[0, 1] * scratch[1, b] + rot[0, 2] * scratch[2, b]
         s1 = rot[1, 0] * scratch[0, b] + rot[1, 1] * scratch[1, b] + rot[1, 2] * scratch[2, b]
         s2 = rot[2, 0] * scratch[0, b] + rot[2, 1] * scratch[1, b] + rot[2, 2] * scratch[2, b]
         out[0, b] += s0
         out[1, b] += s1
         out[2, b] += s2
-        t0 = rot[0, 0] * scratch[3, b] + rot[0, 1] * scratch[4, b] + rot[0, 2] * scratch[5, b]
-        t1 = rot[1, 0] * scratch[3, b] + rot[1, 1] * scratch[4, b] + rot[1, 2] * scratch[5, b]
-        t2 = rot[2, 0] * scratch[3, b] + rot[2, 1] * scratch[4, b] + rot[2, 2] * scratch[5, b]
-        out[3, b] += t0 + (p[1] * s2 - p[2] * s1)
-        out[4, b] += t1 + (p[2] * s0 - p[0] * s2)
-        out[5, b] += t2 + (p[0] * s1 - p[1] * s0)
+        out[b, 0] += s0
+        out[b, 1] += s1
+        out[b, 2] += s2
+        t = rot[0, 0] * scratch[3, b] + rot[0, 1] * scratch[4, b] + rot[0, 2] * scratch[5, b]
+        t += p[1] * s2 - p[2] * s1
+        out[3, b] += t
+        if b > 3:
+            out[b, 3] += t
+            t = rot[1, 0] * scratch[3, b] + rot[1, 1] * scratch[4, b] + rot[1, 2] * scratch[5, b]
+            t += p[2] * s0 - p[0] * s2
+            out[4, b] += t
+            if b > 4:
+                out[b, 4] += t
+                t = rot[2, 0] * scratch[3, b] + rot[2, 1] * scratch[4, b] + rot[2, 2] * scratch[5, b]
+                out[5, 5] += t + (p[0] * s1 - p[1] * s0)
 
 
 @numba.njit(cache=True, inline="always")
