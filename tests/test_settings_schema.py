@@ -135,7 +135,8 @@ def test_migrations_apply_in_order_and_only_after_the_records_schema():
     assert migrate(data, 7)["pi_idmpc"] == {"planner_hold": 2}
     at_8 = migrate(data, 8)  # written at schema 8: water_model.planner_hold is a mistake, not moved
     assert at_8["water_model"] == {"planner_hold": 2} and "pi_idmpc" not in at_8
-    assert at_8["idmpc"] == {"delay_margin": 0, "loop_delay": "plant", "inertia_margin": 1.5}  # 9 to 11 filled
+    filled = {"delay_margin": 0, "loop_delay": "plant", "inertia_margin": 1.5, "friction_feedforward": "arm"}
+    assert at_8["idmpc"] == filled  # 9 to 12 filled
     assert migrate({}, 1)["estimator"] == {"measures": "plant", "delay": "plant", "repeated": "skip"}
 
 

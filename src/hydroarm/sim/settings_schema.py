@@ -99,6 +99,7 @@ MIGRATIONS: tuple[Migration, ...] = (
         "the ID-MPCs told the loop delay, and their inertia margin",
         keys={"idmpc.loop_delay": "plant", "idmpc.inertia_margin": 1.5},
     ),
+    Migration(12, "the ID-MPCs told the arm's joint friction model", keys={"idmpc.friction_feedforward": "arm"}),
 )
 """Every migration, in order: ``MIGRATIONS[k - 2]`` leads from schema k - 1 to k. The numbers
 before 11 were given after the fact (no record carried one), in the order the features came."""
