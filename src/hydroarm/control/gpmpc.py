@@ -92,6 +92,7 @@ class GPMPC:
         self.mpc = mpc
         self.n = arm.n_joints
         self.gp = SlidingWindowGP(feature_size(self.config.features, self.n), self.n, gp_config)
+        self.estimator = self.gp  # interface.DisturbanceEstimator
         self.control_period = mpc.control_period
         self.nominal = NominalModel(arm, inner_step=None)  # own workspace; one RK4 step per period
         self.reset()
@@ -158,4 +159,4 @@ class GPMPC:
         if not (np.all(np.isfinite(residual)) and np.all(np.isfinite(features))):
             self._pending_events.append("gp_sample_rejected")  # e.g. a blown-up step: not learned
             return
-        self.gp.add(features, residual)  # meets no GP fault (SlidingWindowGP.add)
+        self.gp.update(features, residual)  # meets no GP fault (SlidingWindowGP.update)

@@ -341,12 +341,13 @@ class InverseDynamicsMPC:
             )
         self.n_gp_inputs = gp_input_size(cfg.gp_features, n)
         self.gp = SlidingWindowGP(self.n_gp_inputs, n, gp_config) if gp_config is not None else None
+        self.estimator = self.gp  # interface.DisturbanceEstimator (None: no GP)
         # load the compiled code now, not in the first control steps (a throwaway GP: same config)
         unconstrained_move(np.zeros((n, 2)), np.zeros((1, n, 2)), self.P, self.K, self._g, self.control_period)
         if gp_config is not None:
             warm = SlidingWindowGP(self.n_gp_inputs, n, gp_config)
             for k in range(2):
-                warm.add(np.full(self.n_gp_inputs, 0.1 * k), np.full(n, 0.1 * k))
+                warm.update(np.full(self.n_gp_inputs, 0.1 * k), np.full(n, 0.1 * k))
             warm.update_hyperparameters()
             warm.predict(np.zeros(self.n_gp_inputs))
         self.reset()
@@ -489,4 +490,4 @@ class InverseDynamicsMPC:
         if not (np.all(np.isfinite(residual)) and np.all(np.isfinite(gp_input))):
             self._pending_events.append("gp_sample_rejected")
             return
-        self.gp.add(gp_input, residual)
+        self.gp.update(gp_input, residual)

@@ -129,6 +129,7 @@ class PhysicsInformedIDMPC:
         self.control_period = self.mpc.control_period
         self.torque_limit = self.mpc.torque_limit
         self.model = PhysicsInformedModel(arm, model_config)
+        self.estimator = self.model  # interface.DisturbanceEstimator
         remainder = self.model.config.remainder
         self.remainder = None if remainder.kind == "none" else DisturbanceObserver(arm, self.control_period, remainder)
         self._loaded: tuple[np.ndarray, np.ndarray, int] | None = None
@@ -339,5 +340,5 @@ class PhysicsInformedIDMPC:
         if residual is not None and self.remainder is not None:
             y, y_next = np.asarray(y, dtype=float), np.asarray(y_next, dtype=float)
             q_mid, v_mid, a = self.model.transition_features(y, y_next, self.control_period)
-            self.remainder.update_residual(residual - self.model.predict(q_mid, v_mid, a), self._saturated)
+            self.remainder.update(None, residual - self.model.predict(q_mid, v_mid, a), self._saturated)
         self._learn_time = time.perf_counter() - start

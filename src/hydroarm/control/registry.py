@@ -314,7 +314,7 @@ def build_controller(
                 f"observer.kind = {observer.kind!r}: {spec.name} learns the disturbance itself; "
                 f"an observer runs under {takes} (or set observer.kind = 'none')"
             )
-        controller = ObservedController(controller, DisturbanceObserver(arm, control_period, observer))
+        controller = ObservedController(controller, DisturbanceObserver(arm, control_period, observer), arm)
     if filtered:
         if sensor_variance is not None:
             config = config.for_sensor(sensor_variance)

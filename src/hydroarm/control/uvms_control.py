@@ -60,6 +60,7 @@ class UVMSController:
         self.vehicle = make_vehicle_controller(uvms.vehicle, vehicle, self.control_period)
         self.aware = aware
         self.gp = SlidingWindowGP(3 * self.n_arm, 6, gp if gp is not None else GPConfig(window=60)) if aware else None
+        self.estimator = self.gp  # interface.DisturbanceEstimator of the body wrench (None: unaware)
         self.name = f"{arm_controller.name}+{self.vehicle.config.kind.upper()}{'+GP' if aware else ''}"
         self._features = None
         self._pending_events: list[str] = []
@@ -145,6 +146,6 @@ class UVMSController:
         if not np.all(np.isfinite(target)):
             self._pending_events.append("gp_sample_rejected")
             return
-        self.gp.add(self._features, target)
+        self.gp.update(self._features, target)
         _, events = self.gp.update_hyperparameters(return_events=True)
         self._pending_events.extend(events)

@@ -138,9 +138,27 @@ class PhysicsInformedModel:
         """:meth:`terms` at the N states of a plan, q, v (N, n): ``(M_A (N, n, n), f (N, n))``."""
         return self.regressor.terms_along(self.theta, q, v)
 
-    def variance(self, q: np.ndarray, v: np.ndarray, a: np.ndarray) -> np.ndarray:
-        """The predicted force's variance (n,) (N m)^2 under the belief on theta."""
-        phi = self.regressor.basis(q, v, a)
+    # --- the estimator protocol (hydroarm.control.interface.DisturbanceEstimator) -----
+    @property
+    def n_samples(self) -> int:
+        """The transitions learned since the last reset."""
+        return self.samples
+
+    def _split(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(q, v, a)`` (n,) each of the input ``x = [q, v, a]`` (3n,)."""
+        x = np.asarray(x, dtype=float)
+        if x.shape != (3 * self.n,):
+            raise ValueError(f"the water model's input is [q, v, a]: {3 * self.n} values, got shape {x.shape}")
+        n = self.n
+        return x[:n], x[n : 2 * n], x[2 * n :]
+
+    def mean(self, x: np.ndarray) -> np.ndarray:
+        """The water's generalised force (n,) N m at ``x = [q, v, a]`` (3n,) (:meth:`predict`)."""
+        return self.predict(*self._split(x))
+
+    def variance(self, x: np.ndarray) -> np.ndarray:
+        """The predicted force's variance (n,) (N m)^2 at ``x = [q, v, a]`` (3n,) under the belief on theta."""
+        phi = self.regressor.basis(*self._split(x))
         return np.einsum("ip,pq,iq->i", phi, self.covariance, phi)
 
     def coefficients(self) -> dict[str, np.ndarray]:
@@ -158,7 +176,12 @@ class PhysicsInformedModel:
         n = self.n
         return 0.5 * (y[:n] + y_next[:n]), 0.5 * (y[n:] + y_next[n:]), (y_next[n:] - y[n:]) / period
 
-    def update(self, phi: np.ndarray, target: np.ndarray) -> bool:
+    def update(self, x: np.ndarray, r: np.ndarray) -> bool:
+        """Learn the observed force r (n,) N m at ``x = [q, v, a]`` (3n,): one RLS step on the
+        Morison basis there (:meth:`rls_step`); False (nothing learned) as there."""
+        return self.rls_step(self.regressor.basis(*self._split(x)), r)
+
+    def rls_step(self, phi: np.ndarray, target: np.ndarray) -> bool:
         """One RLS step with the regressor ``phi`` (n, 3C) and the observed force ``target`` (n,)
         N m; False (nothing learned) for a non-finite sample, or if the innovation covariance is
         not positive definite (P has lost it)."""
@@ -202,7 +225,7 @@ class PhysicsInformedModel:
         if acceleration is not None:
             a = np.asarray(acceleration, dtype=float)
         r = self.residual(y, u, y_next, period)
-        return r if self.update(self.regressor.basis(q, v, a), r) else None
+        return r if self.update(np.concatenate([q, v, a]), r) else None
 
     # --- memory -------------------------------------------------------------------
     def save(self, path: str | Path) -> None:

@@ -17,7 +17,7 @@ One module per concept, in the style of scikit-learn's ``gaussian_process``:
 Usage at control step k::
 
     gp = SlidingWindowGP(n_inputs, n_outputs=6, config=GPConfig())
-    gp.add(x, y); gp.update_hyperparameters(); mean, var = gp.predict(x_star)
+    gp.update(x, y); gp.update_hyperparameters(); mean, var = gp.predict(x_star)
 
 Measured choices (defaults, scaling, compiled kernels, incremental window update) are in
 docs/controllers.md, "The GP: measured choices".

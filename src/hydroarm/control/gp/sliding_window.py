@@ -6,7 +6,7 @@ hyperparameters.
 Algorithm 1, made robust: hyperparameter steps in log space, capped, projected onto box
 bounds, warm-started and accepted only if the LML does not decrease
 (`SlidingWindowGP.update_hyperparameters`); the window's factor updated in O(N^2) when
-theta is unchanged (`SlidingWindowGP.add`, `_cholesky`).
+theta is unchanged (`SlidingWindowGP.update`, `_cholesky`).
 
 Faults: a failed Cholesky is retried with a growing diagonal jitter (at most
 ``max_jitter_retries``); if it still fails, the candidate hyperparameters are rejected
@@ -44,14 +44,18 @@ class SlidingWindowGP:
 
     Usage at control step k::
 
-        gp.add(x_prev, residual_prev)      # newest sample; the oldest drops out when full
+        gp.update(x_prev, residual_prev)   # newest sample; the oldest drops out when full
         gp.update_hyperparameters()        # <= hyper_steps safeguarded gradient steps
         mean, var = gp.predict(x_now)      # (n_outputs,), (n_outputs,)
 
     ``update_hyperparameters`` and ``predict`` meet the faults (jitter, failed Cholesky,
     prior prediction); with ``return_events=True`` they also return the fault events of
-    that call, a tuple of names from :data:`FAULTS`. ``add`` meets none: a failed O(N^2)
+    that call, a tuple of names from :data:`FAULTS`. ``update`` meets none: a failed O(N^2)
     update only leaves the factor to be recomputed by the next call that needs it.
+
+    It is a :class:`~hydroarm.control.interface.DisturbanceEstimator`: ``update(x, r)``, then
+    ``mean(x)`` and ``variance(x)`` (``predict``'s two halves, from one prediction per input and
+    state).
 
     Args:
         n_inputs: d, the input dimension (e.g. 12 for the state).
@@ -125,6 +129,7 @@ class SlidingWindowGP:
         self._window = None  # _Window cache for the current samples
         self._previous_gradient = None  # dL/dlog theta at the current theta, previous window
         self._invalidate_factor()
+        self._prediction = None  # (x, mean, var) of the last mean/variance call, this state
 
     def _invalidate_factor(self) -> None:
         self._linv = None  # (o, n, n) inverse Cholesky factors for the current theta and window
@@ -188,18 +193,21 @@ class SlidingWindowGP:
         self._log_theta = np.clip(log_theta, self._log_lower, self._log_upper)
         self._previous_gradient = None
         self._invalidate_factor()
+        self._prediction = None
 
     # ----- data ---------------------------------------------------------------
 
-    def add(self, x, y) -> None:
-        """Append one sample x (d,), y (n_outputs,); drop the oldest when the window is full.
+    def update(self, x, r) -> bool:
+        """Append one sample x (d,), r (n_outputs,); drop the oldest when the window is full.
+        Always True (a sample of the wrong size or non-finite raises ValueError).
 
         If the hyperparameters are unchanged since the last factorisation and
         the window is large enough (GPConfig.incremental_min_window), the
         factor is rank-updated in O(N^2); otherwise it is recomputed lazily.
         """
         x = _check_vector("x", x, self.n_inputs)
-        y = _check_vector("y", y, self.n_outputs)
+        y = _check_vector("y", r, self.n_outputs)
+        self._prediction = None
         x_scaled = x * self._inv_input_scale
         full = self.n_samples >= self.config.window
         n_new = self.n_samples if full else self.n_samples + 1
@@ -217,15 +225,16 @@ class SlidingWindowGP:
         self._alpha = None
         if not use_incremental:
             self._linv = None
-            return
+            return True
         linv = _drop_oldest(self._linv) if full else self._linv
         grown = self._append_to_factor(linv, x_scaled)
         if grown is None:
             self._invalidate_factor()
-            return
+            return True
         self._linv = grown
         self._n_incremental_since_full += 1
         self.stats.n_incremental_updates += 1
+        return True
 
     def _append_to_factor(self, linv: np.ndarray, x_scaled: np.ndarray):
         X_old = np.ascontiguousarray(self._X[:-1])
@@ -332,6 +341,7 @@ class SlidingWindowGP:
             see :data:`FAULTS`).
         """
         self._call_faults = [0] * len(FAULTS)
+        self._prediction = None
         trace = self._update_hyperparameters()
         return (trace, self._call_events()) if return_events else trace
 
@@ -446,6 +456,26 @@ class SlidingWindowGP:
         self._call_faults = [0] * len(FAULTS)
         mean, var = self._predict(x_star, include_noise)
         return (mean, var, self._call_events()) if return_events else (mean, var)
+
+    def mean(self, x) -> np.ndarray:
+        """The predictive mean (n_outputs,) at x (d,) (:meth:`predict`'s first half; the fault
+        events are counted in ``stats``)."""
+        return self._predicted(x)[0].copy()
+
+    def variance(self, x) -> np.ndarray:
+        """The predictive variance (n_outputs,) at x (d,), the noise included (:meth:`predict`'s
+        second half)."""
+        return self._predicted(x)[1].copy()
+
+    def _predicted(self, x) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`predict` at x (d,), computed once per input and state: ``mean(x)`` then
+        ``variance(x)`` is one prediction, the same numbers as ``predict(x)``."""
+        x = _check_vector("x_star", x, self.n_inputs)
+        cached = self._prediction
+        if cached is None or not np.array_equal(cached[0], x):
+            mean, var = self.predict(x)
+            cached = self._prediction = (x.copy(), mean, var)
+        return cached[1], cached[2]
 
     def _predict(self, x_star, include_noise: bool):
         """`predict` without the events: (mean, var)."""
