@@ -663,7 +663,8 @@ def test_gp_vectors_must_fit_every_gp_controller_that_runs():
     config = validate(ExperimentConfig, data, "settings")
     check_settings_for_arm(config, _arm("paper"), controllers=("GP-MPC", "SMC"))
     for controllers in (None, ("gp-idmpc",)):
-        with pytest.raises(ConfigError, match=r"gp\.theta0 = .*14 values: give 20 \(GP-IDMPC: idmpc\.gp_features"):
+        wanted = r"gp\.theta0 = .*14 values: give 20 \[sf2, sn2, l_1\.\.l_18\] .*\(GP-IDMPC: idmpc\.gp_features"
+        with pytest.raises(ConfigError, match=wanted):
             check_settings_for_arm(config, _arm("paper"), controllers=controllers)
     with pytest.raises(ConfigError, match=r"gp\.theta0"):
         run_experiment(config, "GP-IDMPC")

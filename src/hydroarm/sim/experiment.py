@@ -374,17 +374,9 @@ def check_settings_for_arm(
         if found is None:
             continue
         d, why = found
-        inputs = f"{why} gives d = {d} GP inputs on {n} joints"
-        for name, value, allowed in (
-            ("theta0", gp.theta0, (d + 2,)),
-            ("input_scale", gp.input_scale, (d,)),
-            ("output_scale", gp.output_scale, (1, n)),
-        ):
-            if value is not None and len(value) not in allowed:
-                wanted = " or ".join(str(k) for k in allowed)
-                raise ConfigError(
-                    f"{source}: gp.{name} = {shown(value)}: {len(value)} values: give {wanted} ({inputs})"
-                )
+        for name, problem in gp.size_problems(d, n).items():
+            inputs = f"{why} gives d = {d} GP inputs on {n} joints"
+            raise ConfigError(f"{source}: gp.{name} = {shown(getattr(gp, name))}: {problem} ({inputs})")
 
 
 def make_plant(arm: Arm, config: ExperimentConfig) -> UnderwaterPlant:

@@ -34,6 +34,7 @@ from hydroarm.control.gp._cholesky import _append_sample, _cholesky_inverse, _dr
 from hydroarm.control.gp._compiled import _NO_FACTOR, _evaluate_kernel, _kernel_column, _kernel_matrices
 from hydroarm.control.gp.config import GPConfig
 from hydroarm.control.gp.events import FAULTS, GPStats
+from hydroarm.control.gp.kernels import SF2, SN2, SEARDKernel
 from hydroarm.model.fixed_order import exp
 
 __all__ = ["SlidingWindowGP"]
@@ -62,7 +63,8 @@ class SlidingWindowGP:
         n_outputs: number of outputs / independent GPs (default 6 joints).
         config: GPConfig (defaults if None).
 
-    State (read-only from outside): ``config``, ``stats`` (GPStats),
+    State (read-only from outside): ``config``, ``kernel`` (its :class:`SEARDKernel`: the
+    hyperparameters described, names and bounds), ``stats`` (GPStats),
     ``n_samples``, ``theta`` (n_outputs, d+2) natural scale, ``log_theta``,
     ``window_inputs`` (n, d) in original units and ``window_targets``
     (n, n_outputs), oldest first.
@@ -76,27 +78,8 @@ class SlidingWindowGP:
         config = GPConfig() if config is None else config
         if not isinstance(config, GPConfig):
             raise ValueError(f"config must be a GPConfig; got {type(config).__name__}")
-        if config.theta0 is not None and len(config.theta0) != n_inputs + 2:
-            raise field_error(
-                "theta0",
-                config.theta0,
-                f"{len(config.theta0)} values: give d+2 = {n_inputs + 2} for {n_inputs} inputs",
-                prefix="GPConfig.",
-            )
-        if config.input_scale is not None and len(config.input_scale) != n_inputs:
-            raise field_error(
-                "input_scale",
-                config.input_scale,
-                f"{len(config.input_scale)} values: give one per input ({n_inputs})",
-                prefix="GPConfig.",
-            )
-        if config.output_scale is not None and len(config.output_scale) not in (1, n_outputs):
-            raise field_error(
-                "output_scale",
-                config.output_scale,
-                f"{len(config.output_scale)} values: give 1 or one per output ({n_outputs})",
-                prefix="GPConfig.",
-            )
+        for name, problem in config.size_problems(n_inputs, n_outputs).items():
+            raise field_error(name, getattr(config, name), problem, prefix="GPConfig.")
         self.n_inputs = int(n_inputs)
         self.n_outputs = int(n_outputs)
         self.config = config
@@ -108,11 +91,11 @@ class SlidingWindowGP:
         self._output_scale = np.ones(n_outputs)
         if config.output_scale is not None:
             self._output_scale = self._output_scale * np.asarray(config.output_scale, dtype=float)
-        lower = [config.log_sf2_bounds[0], config.log_sn2_bounds[0]] + [config.log_lengthscale_bounds[0]] * n_inputs
-        upper = [config.log_sf2_bounds[1], config.log_sn2_bounds[1]] + [config.log_lengthscale_bounds[1]] * n_inputs
-        self._log_lower = np.array(lower)
-        self._log_upper = np.array(upper)
-        theta0 = np.ones(n_inputs + 2) if config.theta0 is None else np.asarray(config.theta0, dtype=float)
+        self.kernel = SEARDKernel.for_config(config, n_inputs)
+        log_bounds = self.kernel.log_bounds
+        self._log_lower = log_bounds[:, 0].copy()
+        self._log_upper = log_bounds[:, 1].copy()
+        theta0 = np.ones(self.kernel.n_dims) if config.theta0 is None else np.asarray(config.theta0, dtype=float)
         self._log_theta0 = np.log(theta0)
         self.reset()
 
@@ -179,10 +162,10 @@ class SlidingWindowGP:
     def set_theta(self, theta) -> None:
         """Set hyperparameters: (d+2,) for every output or (n_outputs, d+2); within the bounds."""
         theta = np.asarray(theta, dtype=float)
-        if theta.shape == (self.n_inputs + 2,):
+        if theta.shape == (self.kernel.n_dims,):
             theta = np.tile(theta, (self.n_outputs, 1))
         theta = _check_thetas(theta, self.n_outputs, self.n_inputs)
-        if theta[:, 1].min() <= 0:
+        if theta[:, SN2].min() <= 0:
             raise ValueError("theta: sn2 (index 1) must be > 0 for SlidingWindowGP")
         log_theta = np.log(theta)
         tolerance = 1e-12
@@ -239,8 +222,8 @@ class SlidingWindowGP:
     def _append_to_factor(self, linv: np.ndarray, x_scaled: np.ndarray):
         X_old = np.ascontiguousarray(self._X[:-1])
         k_new = _kernel_column(np.ascontiguousarray(x_scaled, dtype=np.float64), X_old, self._log_theta)
-        noise = exp(self._log_theta[:, 1]) + self.config.jitter + self._extra_diag
-        kappa = exp(self._log_theta[:, 0]) + noise
+        noise = exp(self._log_theta[:, SN2]) + self.config.jitter + self._extra_diag
+        kappa = exp(self._log_theta[:, SF2]) + noise
         # The exact Schur complement is >= the diagonal noise; much less means round-off drift.
         return _append_sample(linv, k_new, kappa, 0.5 * noise)
 
@@ -273,7 +256,7 @@ class SlidingWindowGP:
         if cached is None:
             self.stats.n_full_factorizations += n_repeats
         return _evaluate(
-            window, Y_fit, log_theta, exp(log_theta[:, 1]), cfg.jitter, cfg.max_jitter_retries, True, cached
+            window, Y_fit, log_theta, exp(log_theta[:, SN2]), cfg.jitter, cfg.max_jitter_retries, True, cached
         )
 
     def _count_factorization_events(self, evaluation: _Evaluation, relevant: np.ndarray | None = None) -> None:
@@ -287,7 +270,7 @@ class SlidingWindowGP:
         if self._linv is not None:
             return
         n = window.n
-        sn2 = exp(self._log_theta[:, 1])
+        sn2 = exp(self._log_theta[:, SN2])
         compiled = _evaluate_kernel(
             np.ascontiguousarray(window.X), window.Y_fit, self._log_theta, sn2, float(self.config.jitter),
             _NO_FACTOR, False,
@@ -486,8 +469,8 @@ class SlidingWindowGP:
             X_star = _check_matrix("x_star", x_star, n_cols=self.n_inputs)
         X_star = X_star * self._inv_input_scale
         log_theta = self._log_theta
-        sn2 = exp(log_theta[:, 1])[:, None] if include_noise else 0.0
-        sf2 = exp(log_theta[:, 0])[:, None]
+        sn2 = exp(log_theta[:, SN2])[:, None] if include_noise else 0.0
+        sf2 = exp(log_theta[:, SF2])[:, None]
         if self.n_samples == 0:
             mean = np.zeros((self.n_outputs, X_star.shape[0]))
             var = np.broadcast_to(sf2 + sn2, mean.shape).copy()
