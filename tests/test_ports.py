@@ -121,5 +121,5 @@ def test_the_vehicle_controller_wraps_the_arm_controller():
     config = ExperimentConfig(arm="mount", duration=0.05, vehicle=VehicleRun(name="bluerov2_heavy"))
     controller = build_experiment(config, "smc").controller
     chain = controller_chain(controller)
-    assert isinstance(controller, WrapsController) and controller.controller is controller.arm
-    assert chain[1] is controller.arm and chain[-1].name == "SMC"
+    assert isinstance(controller, WrapsController) and controller.controller is controller.arm_controller
+    assert chain[1] is controller.arm_controller and chain[-1].name == "SMC"

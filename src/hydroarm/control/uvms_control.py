@@ -55,7 +55,8 @@ class UVMSController:
         self.uvms = uvms
         self.n_arm = uvms.n_arm
         self.control_period = require_period(control_period)
-        self.arm = arm_controller
+        self.arm_controller = arm_controller  # the port the arm's controller fills
+        self.layout = uvms.layout  # the floating state's parts by name
         self.target = np.asarray(target, dtype=float).copy()
         self.vehicle = make_vehicle_controller(uvms.vehicle, vehicle, self.control_period)
         self.aware = aware
@@ -68,11 +69,11 @@ class UVMSController:
     @property
     def controller(self) -> Controller:
         """The arm's controller: the one this one wraps (:class:`~hydroarm.control.interface.WrapsController`;
-        ``arm`` is the same object)."""
-        return self.arm
+        ``arm_controller`` is the same object)."""
+        return self.arm_controller
 
     def reset(self) -> None:
-        self.arm.reset()
+        self.arm_controller.reset()
         self.vehicle.reset()
         if self.gp is not None:
             self.gp.reset()
@@ -80,16 +81,15 @@ class UVMSController:
         self._pending_events = []
 
     def features(self, x: np.ndarray, reference: Reference, t: float) -> np.ndarray:
-        n, nq = self.n_arm, self.uvms.nq
-        return np.concatenate([x[7:nq], x[nq + 6 : nq + 6 + n], reference.sample(t)[2]])
+        parts = self.layout
+        return np.concatenate([x[parts.arm_q], x[parts.arm_v], reference.sample(t)[2]])
 
     def compute(self, t: float, y: np.ndarray, reference: Reference) -> ControlOutput:
         """The input ``[tau_arm, thrust]`` for the measured plant state ``y = [q, v, f]``;
         ``reference`` the arm's joint reference."""
         start = time.perf_counter()
-        n, nq = self.n_arm, self.uvms.nq
-        y_arm = np.concatenate([y[7:nq], y[nq + 6 : nq + 6 + n]])
-        arm_out = self.arm.compute(t, y_arm, reference)
+        parts = self.layout
+        arm_out = self.arm_controller.compute(t, parts.arm_state(y), reference)
         events = [*self._pending_events, *arm_out.events]
         self._pending_events = []
         d_hat = np.zeros(6)
@@ -103,7 +103,7 @@ class UVMSController:
             else:
                 events.append("gp_nonfinite_prediction")
             gp_time = time.perf_counter() - gp_start
-        thrust, wrench, saturated = self.vehicle.compute(y[:7], y[nq : nq + 6], self.target, d_hat)
+        thrust, wrench, saturated = self.vehicle.compute(y[parts.base_pose], y[parts.base_velocity], self.target, d_hat)
         self._features = self.features(y, reference, t) if self.gp is not None else None
         timings = {"gp": gp_time, "total": time.perf_counter() - start}
         record = {
@@ -124,8 +124,8 @@ class UVMSController:
 
     def residual(self, x: np.ndarray, u: np.ndarray, x_next: np.ndarray) -> np.ndarray:
         """What the vehicle-only model misses over the step (body wrench, N and N m)."""
-        vehicle, nq = self.uvms.vehicle, self.uvms.nq
-        nu, nu_next = x[nq : nq + 6], x_next[nq : nq + 6]
+        vehicle, twist = self.uvms.vehicle, self.layout.base_velocity
+        nu, nu_next = x[twist], x_next[twist]
         rot = body_rotation(x)
         thrust = vehicle.clip_thrust(u[self.n_arm :])
         damping = (vehicle.linear_damping + vehicle.quadratic_damping * np.abs(nu)) * nu
@@ -133,13 +133,7 @@ class UVMSController:
         return self.vehicle.inertia @ (nu_next - nu) / self.control_period - model
 
     def observe(self, t: float, y: np.ndarray, u: np.ndarray, y_next: np.ndarray) -> None:
-        n, nq = self.n_arm, self.uvms.nq
-        self.arm.observe(
-            t,
-            np.concatenate([y[7:nq], y[nq + 6 : nq + 6 + n]]),
-            u[:n],
-            np.concatenate([y_next[7:nq], y_next[nq + 6 : nq + 6 + n]]),
-        )
+        self.arm_controller.observe(t, self.layout.arm_state(y), u[: self.n_arm], self.layout.arm_state(y_next))
         if self.gp is None or self._features is None:
             return
         target = self.residual(y, u, y_next)

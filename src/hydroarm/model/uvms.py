@@ -51,6 +51,53 @@ ROOT_JOINT = 1
 """Pinocchio joint id of the free-flyer root (the vehicle)."""
 
 
+@dataclass(frozen=True)
+class StateLayout:
+    """Where each part of the floating system's state sits, by name: ``x = [q (nq = 7 + n),
+    v (nv = 6 + n), thrust (n_thr)]`` with ``q = [base position (3, world, m), quaternion
+    (x, y, z, w), q_arm (n, rad)]`` and ``v = [nu (6: body-frame twist), v_arm (n, rad/s)]``
+    (the prescribed-motion plant's state has no thrust: ``n_thrusters = 0``).
+
+    Every field but ``n_arm`` and ``n_thrusters`` is a slice of x: ``q``, ``v``, ``thrust``,
+    ``base_pose`` (7), ``arm_q`` (n), ``base_velocity`` (6), ``arm_v`` (n); ``nq``, ``nv`` and
+    ``size`` are lengths. :meth:`arm_state` is the arm's joint state ``[q_arm, v_arm]`` (2n,).
+    """
+
+    n_arm: int
+    n_thrusters: int = 0
+    nq: int = dataclasses.field(init=False)
+    nv: int = dataclasses.field(init=False)
+    size: int = dataclasses.field(init=False)
+    q: slice = dataclasses.field(init=False)
+    v: slice = dataclasses.field(init=False)
+    thrust: slice = dataclasses.field(init=False)
+    base_pose: slice = dataclasses.field(init=False)
+    arm_q: slice = dataclasses.field(init=False)
+    base_velocity: slice = dataclasses.field(init=False)
+    arm_v: slice = dataclasses.field(init=False)
+
+    def __post_init__(self) -> None:
+        n, nq, nv = self.n_arm, 7 + self.n_arm, 6 + self.n_arm
+        parts = {
+            "nq": nq,
+            "nv": nv,
+            "size": nq + nv + self.n_thrusters,
+            "q": slice(0, nq),
+            "v": slice(nq, nq + nv),
+            "thrust": slice(nq + nv, nq + nv + self.n_thrusters),
+            "base_pose": slice(0, 7),
+            "arm_q": slice(7, nq),
+            "base_velocity": slice(nq, nq + 6),
+            "arm_v": slice(nq + 6, nq + 6 + n),
+        }
+        for name, value in parts.items():
+            object.__setattr__(self, name, value)
+
+    def arm_state(self, x: np.ndarray) -> np.ndarray:
+        """The arm's joint state ``[q_arm, v_arm]`` (2n,) of a state (or measurement) x."""
+        return np.concatenate([x[self.arm_q], x[self.arm_v]])
+
+
 @dataclass
 class UVMS:
     """A vehicle with an arm (or none): constants only (Pinocchio model + arm + vehicle).
@@ -76,6 +123,11 @@ class UVMS:
     @property
     def nv(self) -> int:
         return int(self.model.nv)
+
+    @property
+    def layout(self) -> StateLayout:
+        """The floating plant's state layout (:class:`StateLayout`), its thrusters included."""
+        return StateLayout(self.n_arm, self.vehicle.n_thrusters)
 
     def create_data(self) -> pin.Data:
         return self.model.createData()

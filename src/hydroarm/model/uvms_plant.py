@@ -66,6 +66,7 @@ class UVMSPlant:
         self.n_arm = uvms.n_arm
         self.n_thr = uvms.vehicle.n_thrusters
         self.n_state = self.nq + self.nv + self.n_thr
+        self.layout = uvms.layout  # the state's parts by name
         self.n = self.n_arm  # the plant protocol's joints: the arm's
         self.n_inputs = self.n_arm + self.n_thr  # u = [tau_arm, thrust command]
         self.state_size = self.n_state
@@ -74,15 +75,18 @@ class UVMSPlant:
 
     def joint_state(self, x: np.ndarray) -> np.ndarray:
         """The arm's [q, v] (2 n_arm,) of a state [q, v, f]."""
-        nq, n = self.nq, self.n_arm
-        return np.concatenate([x[7:nq], x[nq + 6 : nq + 6 + n]])
+        return self.layout.arm_state(x)
 
     def state_record(self, x: np.ndarray) -> dict[str, np.ndarray]:
         """The vehicle's part of a state, for the trajectory: ``base_pose`` (7: position m,
         quaternion x y z w), ``base_velocity`` (6: body twist), ``thrust`` (n_thr: the
         thrusters' delivered forces, N)."""
-        nq, nv = self.nq, self.nv
-        return {"base_pose": x[:7].copy(), "base_velocity": x[nq : nq + 6].copy(), "thrust": x[nq + nv :].copy()}
+        parts = self.layout
+        return {
+            "base_pose": x[parts.base_pose].copy(),
+            "base_velocity": x[parts.base_velocity].copy(),
+            "thrust": x[parts.thrust].copy(),
+        }
 
     def measure(self, x: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """The measured state: the true state (no sensor model on the floating system; ``rng``
@@ -105,21 +109,22 @@ class UVMSPlant:
 
     def split(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(q, v, thrust)`` views of a state."""
-        return x[: self.nq], x[self.nq : self.nq + self.nv], x[self.nq + self.nv :]
+        parts = self.layout
+        return x[parts.q], x[parts.v], x[parts.thrust]
 
     def step(self, t: float, x: np.ndarray, u: np.ndarray, dt: float) -> tuple[np.ndarray, UVMSStepInfo]:
         """Integrate from (t, x) over dt (s) under the held input ``u = [tau_arm, f_cmd]``."""
-        nq, nv = self.nq, self.nv
         steps, h = inner_steps(dt, self.config.inner_step)
         vehicle = self.uvms.vehicle
         u = np.asarray(u, dtype=float)
         x = np.asarray(x, dtype=float)
         rkmk4 = self.rkmk4
-        qs, vs = rkmk4.start(x[:nq], x[nq : nq + nv])
+        parts = self.layout
+        qs, vs = rkmk4.start(x[parts.q], x[parts.v])
         rkmk4.tau[:] = 0.0
         rkmk4.tau[6:] = u[: self.n_arm]
         rkmk4.target[:] = np.clip(u[self.n_arm :], vehicle.thrust_min, vehicle.thrust_max)
-        rkmk4.thrust0[:] = x[nq + nv :]
+        rkmk4.thrust0[:] = x[parts.thrust]
         dyn = self.dynamics
         model, data = self.uvms.model, dyn.data
         strips, water, work = dyn.strips, dyn.vehicle, rkmk4.work

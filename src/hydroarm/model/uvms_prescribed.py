@@ -32,7 +32,7 @@ import numpy as np
 import pinocchio as pin
 
 from hydroarm.model.integrator import inner_steps
-from hydroarm.model.uvms import UVMS, UVMSDynamics
+from hydroarm.model.uvms import UVMS, StateLayout, UVMSDynamics
 from hydroarm.model.uvms_plant import RKMK4, UVMSPlantConfig, rkmk4_advance, stage_times
 from hydroarm.model.water import Water
 
@@ -84,6 +84,7 @@ class PrescribedUVMSPlant:
         self.n = self.n_arm
         self.n_inputs = 6
         self.state_size = self.nq + self.nv
+        self.layout = StateLayout(uvms.n_arm)  # the state's parts by name (no thrust)
         self._thrust = np.zeros(uvms.vehicle.n_thrusters)
         model = uvms.model
         for wrench in wrenches:
@@ -96,12 +97,12 @@ class PrescribedUVMSPlant:
 
     # --- the protocol -------------------------------------------------------------------
     def joint_state(self, x: np.ndarray) -> np.ndarray:
-        nq, n = self.nq, self.n_arm
-        return np.concatenate([x[7:nq], x[nq + 6 : nq + 6 + n]])
+        return self.layout.arm_state(x)
 
     def state_record(self, x: np.ndarray) -> dict[str, np.ndarray]:
         """``base_pose`` (7: position m, quaternion x y z w), ``base_velocity`` (6: body twist)."""
-        return {"base_pose": x[:7].copy(), "base_velocity": x[self.nq : self.nq + 6].copy()}
+        parts = self.layout
+        return {"base_pose": x[parts.base_pose].copy(), "base_velocity": x[parts.base_velocity].copy()}
 
     def measure(self, x: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """The true state (``rng`` is not drawn from)."""
@@ -118,7 +119,7 @@ class PrescribedUVMSPlant:
         default level at the origin) with body ``twist`` (6, default 0), the arm as prescribed."""
         q = self.uvms.neutral()
         if pose is not None:
-            q[:7] = pose
+            q[self.layout.base_pose] = pose
         v = np.zeros(self.nv)
         if twist is not None:
             v[:6] = twist
@@ -150,7 +151,7 @@ class PrescribedUVMSPlant:
         """The generalised force (nv,) on the system at state x (nq + nv,) with no thrust and no
         external wrench: gravity, buoyancy, the water and the bias terms, ``M nu' = free_force``
         for the unactuated system (the right-hand side of :meth:`UVMSDynamics.system`)."""
-        _, rhs = self.dynamics.system(t, x[: self.nq], x[self.nq :], np.zeros(self.nv), self._thrust)
+        _, rhs = self.dynamics.system(t, x[self.layout.q], x[self.layout.v], np.zeros(self.nv), self._thrust)
         return rhs
 
     def accelerations(
@@ -166,12 +167,11 @@ class PrescribedUVMSPlant:
 
     def step(self, t: float, x: np.ndarray, u: np.ndarray | None, dt: float) -> tuple[np.ndarray, PrescribedStepInfo]:
         """Integrate the vehicle from (t, x) over dt (s) under the held body wrench ``u`` (6,) or None."""
-        nq = self.nq
         steps, h = inner_steps(dt, self.config.inner_step)
         body_wrench = None if u is None else np.asarray(u, dtype=float)
         x = np.asarray(x, dtype=float)
         rkmk4 = self.rkmk4
-        qs, vs = rkmk4.start(x[:nq], x[nq:])
+        qs, vs = rkmk4.start(x[self.layout.q], x[self.layout.v])
         acc = np.empty(self.nv)
         torque = np.zeros(self.n_arm)
         time = t

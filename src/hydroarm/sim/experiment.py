@@ -451,7 +451,7 @@ class Experiment:
             arm = self.uvms.vehicle.mount_arm if self.config.arm == "mount" else self.config.arm
             traj.meta["arm"] = source_name(arm)
             traj.meta["vehicle"] = source_name(vehicle.name)
-            traj.meta["target_pose"] = self.x0[:7].tolist()
+            traj.meta["target_pose"] = self.x0[self.uvms.layout.base_pose].tolist()
             traj.meta["metrics"] = station_keeping_metrics(self.uvms, traj, self.reference)
         return traj
 

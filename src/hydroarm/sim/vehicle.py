@@ -131,7 +131,7 @@ def station_keeper(vehicle: VehicleRun, parts: VehicleParts, arm_controller, con
     from hydroarm.control.uvms_control import UVMSController
 
     return UVMSController(
-        parts.uvms, arm_controller, parts.x0[:7], vehicle=vehicle.control, gp=vehicle.gp,
+        parts.uvms, arm_controller, parts.x0[parts.uvms.layout.base_pose], vehicle=vehicle.control, gp=vehicle.gp,
         aware=vehicle.aware, control_period=control_period,
     )  # fmt: skip
 
@@ -157,10 +157,10 @@ def station_keeping_metrics(uvms: UVMS, traj, reference) -> dict:
     Over the K recorded instants t_k and the end of the run (``meta["final_state"]``), against
     the start pose (``extra["base_pose"][0]``, the station-keeping target) and the end effector
     where the target pose and the joint reference put it."""
-    n, nq = uvms.n_arm, uvms.nq
+    n, layout = uvms.n_arm, uvms.layout
     final = np.asarray(traj.meta["final_state"], dtype=float)
-    poses = np.vstack([traj.extra.get("base_pose", np.empty((0, 7))), final[:7]])
-    arm_q = np.vstack([traj.q, final[7:nq]])
+    poses = np.vstack([traj.extra.get("base_pose", np.empty((0, 7))), final[layout.base_pose]])
+    arm_q = np.vstack([traj.q, final[layout.arm_q]])
     period = float(traj.meta["control_period"])
     target = poses[0]
     drift = np.linalg.norm(poses[:, :3] - target[:3], axis=1)
