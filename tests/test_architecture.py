@@ -57,7 +57,7 @@ def test_the_dry_model_does_not_import_the_true_plant():
     """The controllers' dry model (model.nominal) shares the integrator with the true plant, not
     the plant itself (issue 20): no import chain from one to the other."""
     graph = grimp.build_graph("hydroarm")
-    assert not graph.chain_exists(importer="hydroarm.model.nominal", imported="hydroarm.model.plant")
+    assert not graph.chain_exists(importer="hydroarm.model.dynamics.nominal", imported="hydroarm.model.arm.plant")
 
 
 def test_the_architecture_page_names_every_module_under_its_layer():
@@ -162,13 +162,13 @@ def test_public_api_names_resolve():
 
 def test_every_true_plant_follows_the_plant_protocol():
     """The fixed-base arm, the vehicle with its arm and its compiled fast path are one protocol
-    (hydroarm.sim.plant.Plant): the one runner runs each of them."""
-    from hydroarm.model.loading import load_arm
-    from hydroarm.model.plant import UnderwaterPlant
-    from hydroarm.model.uvms import build_uvms
-    from hydroarm.model.uvms_fast import FastUVMSPlant
-    from hydroarm.model.uvms_plant import UVMSPlant
-    from hydroarm.sim.plant import Plant
+    (hydroarm.sim.plant_protocol.Plant): the one runner runs each of them."""
+    from hydroarm.model.arm.loading import load_arm
+    from hydroarm.model.arm.plant import UnderwaterPlant
+    from hydroarm.model.vehicle.fast import FastUVMSPlant
+    from hydroarm.model.vehicle.plant import UVMSPlant
+    from hydroarm.model.vehicle.system import build_uvms
+    from hydroarm.sim.plant_protocol import Plant
 
     uvms = build_uvms("bluerov2-heavy", "mount")
     for plant in (UnderwaterPlant(load_arm("paper")), UVMSPlant(uvms), FastUVMSPlant(uvms)):

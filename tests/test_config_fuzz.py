@@ -38,10 +38,10 @@ from typer.testing import CliRunner
 from hydroarm.cli import app
 from hydroarm.config import ConfigError, read_mapping, shown, validate
 from hydroarm.control.gp import GPConfig
-from hydroarm.model.loading import builtin_arm_path, load_arm
-from hydroarm.model.plant import PlantConfig, UnderwaterPlant
-from hydroarm.model.task import task_for_arm
-from hydroarm.model.water import CurrentConfig, Water
+from hydroarm.model.arm.loading import builtin_arm_path, load_arm
+from hydroarm.model.arm.plant import PlantConfig, UnderwaterPlant
+from hydroarm.model.task.references import task_for_arm
+from hydroarm.model.water.morison import CurrentConfig, Water
 from hydroarm.sim.experiment import (
     CONTROLLERS,
     ExperimentConfig,

@@ -16,9 +16,9 @@ from hydroarm.control.gp import GPConfig, SlidingWindowGP
 from hydroarm.control.interface import DisturbanceEstimator, estimator_of
 from hydroarm.control.observers import DisturbanceObserver, ObservedController, ObserverConfig
 from hydroarm.control.water_model import PhysicsInformedModel, WaterModelConfig
-from hydroarm.model.loading import load_arm
-from hydroarm.model.plant import PlantConfig, UnderwaterPlant
-from hydroarm.model.water import Water
+from hydroarm.model.arm.loading import load_arm
+from hydroarm.model.arm.plant import PlantConfig, UnderwaterPlant
+from hydroarm.model.water.morison import Water
 from hydroarm.sim.experiment import ExperimentConfig, build_experiment, with_overrides
 
 

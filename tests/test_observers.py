@@ -7,8 +7,8 @@ import pytest
 
 from hydroarm.config import ConfigError
 from hydroarm.control.observers import DisturbanceObserver, ObserverConfig
-from hydroarm.model.arm import ArmSpec, build_arm
-from hydroarm.model.nominal import NominalModel
+from hydroarm.model.arm.description import ArmSpec, build_arm
+from hydroarm.model.dynamics.nominal import NominalModel
 from hydroarm.sim.experiment import ExperimentConfig, build_experiment, with_overrides
 from hydroarm.sim.runner import tracking_metrics
 
@@ -59,7 +59,7 @@ def test_tde_recovers_a_constant_disturbance_after_one_step():
 
 def test_tde_on_a_full_arm_matches_the_dynamics_residual():
     """On the 6-joint paper arm the TDE residual is M (v+ - v)/T + h - u at the step's start."""
-    from hydroarm.model.loading import load_arm
+    from hydroarm.model.arm.loading import load_arm
 
     arm = load_arm("paper")
     rng = np.random.default_rng(3)

@@ -24,7 +24,7 @@ from hydroarm.control.interface import (
 from hydroarm.control.mpc import LinearMPC
 from hydroarm.control.observers import DisturbanceObserver, ObservedController, ObserverConfig
 from hydroarm.control.registry import REGISTRY, build_controller
-from hydroarm.model.loading import load_arm
+from hydroarm.model.arm.loading import load_arm
 from hydroarm.sim.experiment import ExperimentConfig, build_experiment, controller_settings
 from hydroarm.sim.vehicle import VehicleRun
 

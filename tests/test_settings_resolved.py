@@ -11,8 +11,8 @@ import numpy as np
 from typer.testing import CliRunner
 
 from hydroarm.cli import app
-from hydroarm.model.loading import load_arm
-from hydroarm.model.strips import StripGeometry
+from hydroarm.model.arm.loading import load_arm
+from hydroarm.model.water.strips import StripGeometry
 from hydroarm.sim.experiment import ExperimentConfig, build_experiment, with_overrides
 from hydroarm.studies.settings_resolved import PRECEDENCE, resolve_settings
 

@@ -19,8 +19,8 @@ from hydroarm.control.idmpc import joint_lqr
 from hydroarm.control.observers import DisturbanceObserver, ObservedController, ObserverConfig
 from hydroarm.control.smc import SlidingModeController
 from hydroarm.control.water_model import PhysicsInformedModel
-from hydroarm.model import fixed_order
-from hydroarm.model.nominal import NominalModel
+from hydroarm.model.dynamics import fixed_order
+from hydroarm.model.dynamics.nominal import NominalModel
 
 SOURCE = Path(hydroarm.__file__).parent
 CONTROL = SOURCE / "control"
@@ -80,8 +80,8 @@ def test_one_double_integrator():
 
 
 def test_one_upper_triangle_mirror():
-    """``np.triu(M) + np.triu(M, 1).T`` lives in model/fixed_order.py only."""
-    assert _modules(_hits(r"np\.triu\(", SOURCE)) == {"model/fixed_order.py"}
+    """``np.triu(M) + np.triu(M, 1).T`` lives in model/dynamics/fixed_order.py only."""
+    assert _modules(_hits(r"np\.triu\(", SOURCE)) == {"model/dynamics/fixed_order.py"}
 
 
 def test_one_residual():

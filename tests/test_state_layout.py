@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import hydroarm
-from hydroarm.model.uvms import StateLayout, build_uvms
+from hydroarm.model.vehicle.system import StateLayout, build_uvms
 from hydroarm.sim.experiment import ExperimentConfig, build_experiment
 from hydroarm.sim.vehicle import VehicleRun
 
@@ -58,5 +58,5 @@ def test_nothing_in_src_slices_the_floating_state_by_hand():
         for number, line in enumerate(path.read_text().splitlines(), 1)
         if pattern.search(line)
     }
-    assert {hit.rsplit(":", 1)[0] for hit in found} <= {"model/uvms.py"}, sorted(found)
+    assert {hit.rsplit(":", 1)[0] for hit in found} <= {"model/vehicle/system.py"}, sorted(found)
     assert not any(re.search(r"controller\.arm\b", p.read_text()) for p in SOURCE.rglob("*.py"))

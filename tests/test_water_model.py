@@ -11,10 +11,10 @@ import pytest
 from hydroarm.config import ConfigError
 from hydroarm.control.registry import canonical_name
 from hydroarm.control.water_model import PhysicsInformedModel, WaterModelConfig, fit_water
-from hydroarm.model.loading import load_arm
-from hydroarm.model.plant import PlantConfig, UnderwaterPlant
-from hydroarm.model.water import Water, WaterModel
-from hydroarm.model.water_regressor import WaterRegressor
+from hydroarm.model.arm.loading import load_arm
+from hydroarm.model.arm.plant import PlantConfig, UnderwaterPlant
+from hydroarm.model.water.morison import Water, WaterModel
+from hydroarm.model.water.regressor import WaterRegressor
 from hydroarm.sim.experiment import ExperimentConfig, build_experiment, with_overrides
 
 STILL = Water(current={"model": "none"})

@@ -36,9 +36,9 @@ import pydantic
 from hydroarm.config import FrozenModel
 from hydroarm.control.gp import GPConfig, SlidingWindowGP
 from hydroarm.control.interface import AccelerationFeedforward, ControlOutput, Reference, require_port
-from hydroarm.model import fixed_order
-from hydroarm.model.arm import Arm
-from hydroarm.model.nominal import NominalModel
+from hydroarm.model.arm.description import Arm
+from hydroarm.model.dynamics import fixed_order
+from hydroarm.model.dynamics.nominal import NominalModel
 
 Features = Literal["state", "state+nominal", "state+torque"]
 

@@ -60,7 +60,7 @@ torque and the acceleration the dynamics then gives. ``"clip"``: each torque cli
 (plain computed-torque saturation, for comparison).
 
 The GP (:class:`~hydroarm.control.gp.SlidingWindowGP`) learns the one-step residual of the
-dry model (:meth:`~hydroarm.model.nominal.NominalModel.residual`), n outputs, from the state
+dry model (:meth:`~hydroarm.model.dynamics.nominal.NominalModel.residual`), n outputs, from the state
 y (2n,) and, with ``gp_features = "state+acceleration"`` (default), the planned acceleration
 a_0 (n,) divided by ``acceleration_scale``: the water's added mass answers the acceleration,
 which the state alone does not tell. The outer plan does not depend on w_hat (only the torque
@@ -83,8 +83,8 @@ from hydroarm.control.gp import GPConfig, SlidingWindowGP
 from hydroarm.control.idmpc_limits import HorizonQP, allocate  # noqa: F401 (allocate: public here too)
 from hydroarm.control.interface import DEFAULT_CONTROL_PERIOD, ControlOutput, Reference, require_period, sample_times
 from hydroarm.control.linear import double_integrator, reference_defects, solve_dare
-from hydroarm.model.arm import Arm
-from hydroarm.model.nominal import NominalModel
+from hydroarm.model.arm.description import Arm
+from hydroarm.model.dynamics.nominal import NominalModel
 
 PositiveFloat = Annotated[float, pydantic.Field(gt=0.0, le=1e8)]
 NonNegativeFloat = Annotated[float, pydantic.Field(ge=0.0, le=1e8)]

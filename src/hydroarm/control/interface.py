@@ -28,7 +28,7 @@ class Reference(Protocol):
 
     Optionally, a reference that also accepts an array of times (shape (m,)) and then returns
     (m, n) arrays declares it with a class attribute ``vectorised = True``
-    (:class:`~hydroarm.model.task.SinusoidReference` does): controllers that need a whole
+    (:class:`~hydroarm.model.task.references.SinusoidReference` does): controllers that need a whole
     horizon then sample it in one call. Without it, :func:`sample_times` calls ``sample`` once
     per time.
     """

@@ -33,7 +33,7 @@ The observer itself still updates.
 whose ``compute`` takes a ``feedforward_torque`` (SMC, MPC, IDMPC): it feeds the estimate forward
 as the generalised force the controller compensates (sign: ``M q'' + h = tau + w``, so the
 controller plans with ``tau - w_hat``) and, in ``observe``, updates it with the transition's
-one-step residual (:meth:`~hydroarm.model.nominal.NominalModel.tde_residual`).
+one-step residual (:meth:`~hydroarm.model.dynamics.nominal.NominalModel.tde_residual`).
 """
 
 from __future__ import annotations
@@ -52,8 +52,8 @@ from hydroarm.control.interface import (
     TorqueFeedforward,
     require_port,
 )
-from hydroarm.model.arm import Arm
-from hydroarm.model.nominal import NominalModel
+from hydroarm.model.arm.description import Arm
+from hydroarm.model.dynamics.nominal import NominalModel
 
 ObserverKind = Literal["none", "tde", "ndob"]
 
@@ -89,7 +89,7 @@ class DisturbanceObserver:
     :class:`~hydroarm.control.interface.DisturbanceEstimator` without an input.
 
     :meth:`update` takes each residual (the one-step residual of a measured transition,
-    :meth:`~hydroarm.model.nominal.NominalModel.tde_residual`, or what a model left of it);
+    :meth:`~hydroarm.model.dynamics.nominal.NominalModel.tde_residual`, or what a model left of it);
     :meth:`mean` (n,) N m is the current w_hat (zero before the first residual) whatever its
     input; :meth:`variance` is NaN (an observer has no variance model); :meth:`feedforward` is
     what PI-IDMPC's remainder uses (zero on the step after a saturation when gated).
@@ -159,7 +159,7 @@ class ObservedController:
     y (2n,) (a :class:`DisturbanceObserver` ignores it; a
     :class:`~hydroarm.control.gp.SlidingWindowGP` with 2n inputs and n outputs learns on it);
     it is updated with the one-step residual of each transition
-    (:meth:`~hydroarm.model.nominal.NominalModel.tde_residual` on ``arm``'s dry model, NumPy's
+    (:meth:`~hydroarm.model.dynamics.nominal.NominalModel.tde_residual` on ``arm``'s dry model, NumPy's
     product as the observers always had it) and its mean at y is fed forward. ``gate``: feed
     zero on the step after a saturated one (default: the observer's ``config.gate``, else False).
     ``name``: the controller's with ``+TDE`` / ``+NDOB`` (``-gated``), or ``+label``.

@@ -52,8 +52,8 @@ from hydroarm.control.linear import reference_defects
 from hydroarm.control.observers import DisturbanceObserver
 from hydroarm.control.plan_rollout import rollout_step, water_along_plan
 from hydroarm.control.water_model import PhysicsInformedModel, WaterModelConfig
-from hydroarm.model import fixed_order
-from hydroarm.model.arm import Arm
+from hydroarm.model.arm.description import Arm
+from hydroarm.model.dynamics import fixed_order
 
 PLAN_TRUST = (20.0, 1000.0)
 """A plan is followed only if its accelerations over the held steps are within ``20 x`` the largest

@@ -30,9 +30,9 @@ from hydroarm.control.mpc import LinearMPC
 from hydroarm.control.observers import DisturbanceObserver, ObservedController
 from hydroarm.control.pi_idmpc import PhysicsInformedIDMPC
 from hydroarm.control.smc import SlidingModeController
-from hydroarm.model.arm import Arm
-from hydroarm.model.nominal import NominalModel
-from hydroarm.model.sensing import ActuatorConfig, SensorConfig
+from hydroarm.model.arm.description import Arm
+from hydroarm.model.dynamics.nominal import NominalModel
+from hydroarm.model.real_loop.sensing import ActuatorConfig, SensorConfig
 
 
 @dataclass(frozen=True)

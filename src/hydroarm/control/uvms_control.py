@@ -1,7 +1,7 @@
 """The whole vehicle-manipulator system's controller: an arm controller + a station keeper.
 
 * The arm: any controller of the registry (default ``SMC``) built on the arm alone, fixed-base,
-  seeing joint states only (on :func:`hydroarm.model.uvms.mounted_arm`: the arm's dry model
+  seeing joint states only (on :func:`hydroarm.model.vehicle.system.mounted_arm`: the arm's dry model
   with gravity turned into its base frame as mounted on a level vehicle; the vehicle's motion
   is a disturbance to it).
 * The vehicle: :class:`~hydroarm.control.vehicle_control.VehiclePID` or ``VehicleMPC``, blind
@@ -30,8 +30,8 @@ import numpy as np
 from hydroarm.control.gp import GPConfig, SlidingWindowGP
 from hydroarm.control.interface import DEFAULT_CONTROL_PERIOD, Controller, ControlOutput, Reference, require_period
 from hydroarm.control.vehicle_control import VehicleControlConfig, make_vehicle_controller, restoring_wrench
-from hydroarm.model.uvms import UVMS
-from hydroarm.model.vehicle import body_rotation
+from hydroarm.model.vehicle.description import body_rotation
+from hydroarm.model.vehicle.system import UVMS
 
 
 class UVMSController:

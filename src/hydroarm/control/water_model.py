@@ -1,7 +1,7 @@
 """A physics-informed model of the water, learned online: recursive least squares on the Morison basis.
 
 The water's generalised force is linear in three coefficients per wetted cylinder
-(:class:`~hydroarm.model.water_regressor.WaterRegressor`): ``w = Phi(q, v, a) theta``. The
+(:class:`~hydroarm.model.water.regressor.WaterRegressor`): ``w = Phi(q, v, a) theta``. The
 learner keeps a Gaussian belief ``theta ~ N(theta_hat, P)`` and updates it with each observed
 transition ``y -> y_next`` under the applied torque u (recursive least squares with exponential
 forgetting, i.e. Bayesian linear regression whose old evidence fades by lambda per step)::
@@ -47,11 +47,11 @@ from scipy.interpolate import make_smoothing_spline
 
 from hydroarm.config import ConfigError, FrozenModel
 from hydroarm.control.observers import ObserverConfig
-from hydroarm.model import fixed_order as fixed
-from hydroarm.model.arm import Arm
-from hydroarm.model.nominal import NominalModel
-from hydroarm.model.water import Water
-from hydroarm.model.water_regressor import WaterRegressor
+from hydroarm.model.arm.description import Arm
+from hydroarm.model.dynamics import fixed_order as fixed
+from hydroarm.model.dynamics.nominal import NominalModel
+from hydroarm.model.water.morison import Water
+from hydroarm.model.water.regressor import WaterRegressor
 
 MODEL_FORMAT = "hydroarm-water-model-1"
 
@@ -168,7 +168,7 @@ class PhysicsInformedModel:
     # --- learning -----------------------------------------------------------------
     def residual(self, y: np.ndarray, u: np.ndarray, y_next: np.ndarray, period: float) -> np.ndarray:
         """The TDE residual ``M(q) (v_next - v) / T + h(q, v) - u`` (n,) N m of a transition
-        (:meth:`~hydroarm.model.nominal.NominalModel.tde_residual`, fixed-order product)."""
+        (:meth:`~hydroarm.model.dynamics.nominal.NominalModel.tde_residual`, fixed-order product)."""
         return self.nominal.tde_residual(y, u, y_next, period)
 
     def transition_features(self, y: np.ndarray, y_next: np.ndarray, period: float):
@@ -187,7 +187,7 @@ class PhysicsInformedModel:
         not positive definite (P has lost it)."""
         if not (np.all(np.isfinite(phi)) and np.all(np.isfinite(target))):
             return False
-        # Fixed-order compiled products and a Cholesky solve (hydroarm.model.fixed_order): BLAS
+        # Fixed-order compiled products and a Cholesky solve (hydroarm.model.dynamics.fixed_order): BLAS
         # and LAPACK round by their CPU's kernel, and the plan built on theta amplifies that.
         phi = np.ascontiguousarray(phi, dtype=float)
         lam = self.config.forgetting

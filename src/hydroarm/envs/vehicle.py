@@ -2,7 +2,7 @@
 
 Built by the one experiment builder (:func:`hydroarm.sim.experiment.build_experiment` with the
 ``vehicle`` section set): the plant is the floating system's
-(:class:`~hydroarm.model.uvms_fast.FastUVMSPlant`, BlueROV2 Heavy + Alpha 5 by default, a
+(:class:`~hydroarm.model.vehicle.fast.FastUVMSPlant`, BlueROV2 Heavy + Alpha 5 by default, a
 uniform current along world x), the arm runs its reach-and-return task under the registry's
 arm controller inside the whole system's
 :class:`~hydroarm.control.uvms_control.UVMSController` (``SMC`` by default, as in the vehicle

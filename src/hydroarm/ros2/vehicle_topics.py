@@ -55,7 +55,7 @@ def _quaternion(xyzw) -> Quaternion:
 
 class VehicleState:
     """The vehicle's messages of the floating plant ``plant``
-    (:class:`~hydroarm.model.uvms_plant.UVMSPlant`: state ``[q (7 + n), v (6 + n), f]``) with the
+    (:class:`~hydroarm.model.vehicle.plant.UVMSPlant`: state ``[q (7 + n), v (6 + n), f]``) with the
     arm ``arm`` (the mounted arm the arm's URDF is exported from)."""
 
     def __init__(self, plant, arm):

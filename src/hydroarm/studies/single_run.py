@@ -58,7 +58,7 @@ def prepare_run(request: RunRequest) -> PreparedRun:
     vehicle file mounts unless --arm), the controller (default GP-MPC; on a vehicle the arm's
     SMC), the plant's arm perturbed by the mismatch, the learner's model loaded. Raises
     :class:`ConfigError` naming the option that cannot apply."""
-    from hydroarm.model.loading import load_arm
+    from hydroarm.model.arm.loading import load_arm
     from hydroarm.studies.sweep.plan import perturbed_arm
 
     on_vehicle = request.vehicle is not None or request.config.vehicle.name is not None

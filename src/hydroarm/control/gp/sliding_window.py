@@ -35,7 +35,7 @@ from hydroarm.control.gp._compiled import _NO_FACTOR, _evaluate_kernel, _kernel_
 from hydroarm.control.gp.config import GPConfig
 from hydroarm.control.gp.events import FAULTS, GPStats
 from hydroarm.control.gp.kernels import SF2, SN2, SEARDKernel
-from hydroarm.model.fixed_order import exp
+from hydroarm.model.dynamics.fixed_order import exp
 
 __all__ = ["SlidingWindowGP"]
 
