@@ -177,3 +177,47 @@ def test_every_true_plant_follows_the_plant_protocol():
         assert x.shape == (plant.state_size,) and plant.joint_state(x).shape == (2 * plant.n,)
         x_next, info = plant.step(0.0, x, np.zeros(plant.n_inputs), 0.01)
         assert x_next.shape == x.shape and info.disturbance.shape == (plant.n,)
+
+
+def _resolve(dotted: str) -> object:
+    """The module, class, function or attribute a dotted name names (ImportError/AttributeError if none)."""
+    import importlib
+
+    parts = dotted.split(".")
+    for cut in range(len(parts), 0, -1):
+        try:
+            target = importlib.import_module(".".join(parts[:cut]))
+        except ModuleNotFoundError:
+            continue
+        for name in parts[cut:]:
+            target = getattr(target, name)
+        return target
+    raise ImportError(dotted)
+
+
+def test_where_to_add_names_what_the_code_has():
+    """docs/architecture.md's "Where to add..." is checked against the code: every dotted name
+    there (a module, a class, a function, a registry) resolves, every test file and source folder
+    it points to exists, and the protocol members it lists for a plant, a sensor and a drive block
+    are the code's."""
+    section = ARCHITECTURE.read_text().split("## Where to add...", 1)[1].split("\n## ", 1)[0]
+    names = set(re.findall(r"`(hydroarm(?:\.\w+)+)`", section))
+    assert len(names) > 15
+    for name in sorted(names):
+        _resolve(name)
+    root = ARCHITECTURE.parents[1]
+    for test_file in set(re.findall(r"tests/test_\w+\.py", section)):
+        assert (root / test_file).is_file(), test_file
+    for folder in set(re.findall(r"`(hydroarm/[\w/]+/)`", section)):
+        assert (root / "src" / folder).is_dir(), folder
+    from hydroarm.model.real_loop.sensing import Actuator, Sensor
+    from hydroarm.model.vehicle.system import StateLayout
+    from hydroarm.sim.plant_protocol import Plant
+
+    plant_entry = section.split("- **A plant.**", 1)[1].split("\n- **", 1)[0]
+    members = {*Plant.__annotations__, *(m for m in vars(Plant) if not m.startswith("_"))}
+    for member in ("n", "n_inputs", "state_size", "step", "measure", "new_sensor", "new_actuator"):
+        assert f"`{member}`" in plant_entry and member in members, member
+    for part in ("base_pose", "arm_q", "base_velocity", "arm_v", "thrust"):
+        assert f"`{part}`" in plant_entry and part in StateLayout.__dataclass_fields__, part
+    assert callable(Sensor.sample) and callable(Actuator.apply)
