@@ -67,12 +67,12 @@ def time_window_update(window: int, n_inputs: int, incremental: bool, reps: int)
     gp = SlidingWindowGP(n_inputs, N_OUTPUTS, config)
     X, Y = arm_like_stream(window + reps + 2, n_inputs)
     for k in range(window):
-        gp.add(X[k], Y[k])
+        gp.update(X[k], Y[k])
     gp.predict(X[window])  # factorise the first full window
     times = np.empty(reps)
     for i, k in enumerate(range(window, window + reps)):
         start = time.perf_counter_ns()
-        gp.add(X[k], Y[k])
+        gp.update(X[k], Y[k])
         gp.predict(X[k + 1])
         times[i] = time.perf_counter_ns() - start
     linv = gp._linv.copy()
@@ -91,14 +91,14 @@ def time_control_step(n_inputs: int, hyper_steps: int, max_step_halvings: int, r
     gp = SlidingWindowGP(n_inputs, N_OUTPUTS, config)
     X, Y = arm_like_stream(warmup + reps + 2, n_inputs, seed=1)
     for k in range(1, warmup):
-        gp.add(X[k - 1], Y[k - 1])
+        gp.update(X[k - 1], Y[k - 1])
         gp.update_hyperparameters()
         gp.predict(X[k])
     total = np.empty(reps)
     update_predict = np.empty(reps)
     for i, k in enumerate(range(warmup, warmup + reps)):
         start = time.perf_counter_ns()
-        gp.add(X[k - 1], Y[k - 1])
+        gp.update(X[k - 1], Y[k - 1])
         middle = time.perf_counter_ns()
         gp.update_hyperparameters()
         gp.predict(X[k])

@@ -46,9 +46,9 @@ from hydroarm.control.mpc import (  # noqa: E402
     make_box_qp_solver,
     solve_riccati,
 )
-from hydroarm.model.nominal import NominalModel  # noqa: E402
-from hydroarm.model.plant import UnderwaterPlant  # noqa: E402
-from hydroarm.model.task import paper_reference  # noqa: E402
+from hydroarm.model.arm.plant import UnderwaterPlant  # noqa: E402
+from hydroarm.model.dynamics.nominal import NominalModel  # noqa: E402
+from hydroarm.model.task.references import paper_reference  # noqa: E402
 
 
 def percentiles(samples_ns) -> dict[str, float]:

@@ -1,6 +1,6 @@
 """A griffe extension for the docs site (mkdocs.yml): reST habits of hydroarm's docstrings in Markdown.
 
-The docstrings cross-reference with Sphinx roles (``:func:`~hydroarm.model.task.task_for_arm```,
+The docstrings cross-reference with Sphinx roles (``:func:`~hydroarm.model.task.references.task_for_arm```,
 ``:class:`ControllerPolicy```) and introduce code blocks with ``Example::``. mkdocstrings renders
 Markdown, so before rendering each role becomes an optional autorefs link (a link where the
 target is on the site, plain code where it is not: no warning either way; ``~`` keeps only the

@@ -20,8 +20,8 @@ import argparse
 import numpy as np
 
 import hydroarm
-from hydroarm.model.plant import PlantConfig, UnderwaterPlant
-from hydroarm.model.water import CurrentConfig, Water, WaterModel
+from hydroarm.model.arm.plant import PlantConfig, UnderwaterPlant
+from hydroarm.model.water.morison import CurrentConfig, Water, WaterModel
 
 MODELS = ("morison", "kirchhoff")
 

@@ -1,6 +1,6 @@
 """What each part of the compiled fixed-base plant's evaluation costs, and the floor it sets.
 
-One evaluation of :func:`hydroarm.model.arm_fast_kernels.evaluate` (one RK4 stage; a 10 ms
+One evaluation of :func:`hydroarm.model.arm.fast_kernels.evaluate` (one RK4 stage; a 10 ms
 control period at 1 ms is 40 of them) is the rigid body's RNEA (forward pass with the joints'
 sines and cosines, body forces, backward pass), the water's cylinders (8 Gauss points per drag
 piece), the CRBA (``M + M_A``), the Cholesky solve and the disturbance's ``M q''`` pass. Each is
@@ -32,9 +32,9 @@ from pathlib import Path
 import numba
 import numpy as np
 
-from hydroarm.model import arm_fast_kernels as kernels
-from hydroarm.model.current import current_at
-from hydroarm.model.uvms_fast_kernels import _cholesky_solve
+from hydroarm.model.arm.description import fast_kernels as kernels
+from hydroarm.model.vehicle.fast_kernels import _cholesky_solve
+from hydroarm.model.water.current import current_at
 from hydroarm.sim.experiment import build_experiment, with_overrides
 
 BENCH = Path(__file__).resolve().parents[1] / "bench"

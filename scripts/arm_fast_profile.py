@@ -30,8 +30,8 @@ from pathlib import Path
 
 import numpy as np
 
-from hydroarm.model.arm_fast import FastArmDynamics
-from hydroarm.model.arm_fast_kernels import step_kernel
+from hydroarm.model.arm.fast import FastArmDynamics
+from hydroarm.model.arm.fast_kernels import step_kernel
 from hydroarm.sim.experiment import build_experiment, with_overrides
 
 BENCH = Path(__file__).resolve().parents[1] / "bench"

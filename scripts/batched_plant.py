@@ -3,7 +3,7 @@
 Each count of copies (``--copies``, default 1 8 64 512) starts from the arm's task start moved by a
 seeded uniform draw (0.1 rad, 0.1 rad/s) with seeded random torques within a tenth of the torque
 limits held per copy, and is stepped ``--steps`` control periods of 10 ms by
-:class:`hydroarm.model.arm_fast.BatchedArm` (numba's threads: every core this process may use)
+:class:`hydroarm.model.arm.fast.BatchedArm` (numba's threads: every core this process may use)
 after one warm-up period. Prints JSON: per count the wall time, copy-steps per second and per
 CPU second, and whether every copy stayed finite. The CPU baseline of the GPU design in
 docs/model.md ("A GPU path"); no JAX or Warp backend exists yet, so it runs the CPU kernel only.
@@ -20,7 +20,7 @@ import time
 import numba
 import numpy as np
 
-from hydroarm.model.arm_fast import BatchedArm
+from hydroarm.model.arm.fast import BatchedArm
 from hydroarm.sim.experiment import ExperimentConfig, build_experiment, with_overrides
 
 PERIOD = 0.01

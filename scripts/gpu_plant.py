@@ -3,13 +3,13 @@
 Two modes (docs/model.md, "A GPU path"):
 
 ``--export FILE.npz`` (here, with hydroarm): the compiled plant's constants
-(:func:`hydroarm.model.arm_export.export_constants`), a few seeded copies' initial states and
-held torques, the numba :class:`~hydroarm.model.arm_fast.BatchedArm`'s results after 1 and after
+(:func:`hydroarm.model.arm.description.fast_export.export_constants`), a few seeded copies' initial states and
+held torques, the numba :class:`~hydroarm.model.arm.fast.BatchedArm`'s results after 1 and after
 ``--periods`` control periods of 10 ms, and the numba batched rate measured in the same run
 (copy-steps/s, this machine's cores).
 
 ``--run FILE.npz --copies 1024 16384 131072 --steps N --out result.json`` (anywhere with JAX and
-NumPy only: :mod:`hydroarm.model.arm_jax` is loaded by file path): the JAX period against the
+NumPy only: :mod:`hydroarm.model.arm.description.fast_jax` is loaded by file path): the JAX period against the
 file's numba reference (max relative difference per copy, max over copies), then per count of
 copies the compile time, the wall time of ``--steps`` periods (warm-up excluded,
 ``block_until_ready``), copy-steps/s and the ratio to the file's numba rate; the device and the
@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 PERIOD = 0.01
-ARM_JAX = Path(__file__).resolve().parents[1] / "src" / "hydroarm" / "model" / "arm_jax.py"
+ARM_JAX = Path(__file__).resolve().parents[1] / "src" / "hydroarm" / "model" / "arm" / "fast_jax.py"
 
 
 def _copies(x_base, limit, count, seed):
@@ -50,9 +50,9 @@ def export(path: Path, arm: str, copies: int, periods: int, drag_points: int | N
 
     import numba
 
-    from hydroarm.model.arm_export import export_constants
-    from hydroarm.model.arm_fast import BatchedArm
-    from hydroarm.model.integrator import inner_steps
+    from hydroarm.model.arm.description.fast_export import export_constants
+    from hydroarm.model.arm.fast import BatchedArm
+    from hydroarm.model.dynamics.integrator import inner_steps
     from hydroarm.sim.experiment import ExperimentConfig, build_experiment, with_overrides
 
     overrides = {"arm": arm, "plant.compiled": True}

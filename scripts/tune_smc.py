@@ -20,7 +20,7 @@ import numpy as np
 
 import hydroarm
 from hydroarm.control.smc import SlidingModeController, SMCConfig
-from hydroarm.model.plant import PlantConfig
+from hydroarm.model.arm.plant import PlantConfig
 from hydroarm.sim.runner import run_closed_loop, tracking_metrics
 
 

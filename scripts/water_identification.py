@@ -20,7 +20,7 @@ import json
 from pathlib import Path
 
 from hydroarm.control.water_model import PhysicsInformedModel, fit_water
-from hydroarm.model.loading import load_arm
+from hydroarm.model.arm.loading import load_arm
 from hydroarm.sim.experiment import ExperimentConfig, build_experiment, with_overrides
 
 RUN = {

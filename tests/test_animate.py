@@ -9,9 +9,9 @@ from PIL import Image
 import hydroarm
 from hydroarm.config import ConfigError
 from hydroarm.control.smc import SlidingModeController
-from hydroarm.model.plant import UnderwaterPlant
-from hydroarm.model.task import paper_reference
-from hydroarm.model.water import Water
+from hydroarm.model.arm.plant import UnderwaterPlant
+from hydroarm.model.task.references import paper_reference
+from hydroarm.model.water.morison import Water
 from hydroarm.sim.runner import Trajectory, run_closed_loop
 from hydroarm.studies.animate import animate, reach, render_frame
 

@@ -57,7 +57,7 @@ def test_the_dry_model_does_not_import_the_true_plant():
     """The controllers' dry model (model.nominal) shares the integrator with the true plant, not
     the plant itself (issue 20): no import chain from one to the other."""
     graph = grimp.build_graph("hydroarm")
-    assert not graph.chain_exists(importer="hydroarm.model.nominal", imported="hydroarm.model.plant")
+    assert not graph.chain_exists(importer="hydroarm.model.dynamics.nominal", imported="hydroarm.model.arm.plant")
 
 
 def test_the_architecture_page_names_every_module_under_its_layer():
@@ -162,13 +162,13 @@ def test_public_api_names_resolve():
 
 def test_every_true_plant_follows_the_plant_protocol():
     """The fixed-base arm, the vehicle with its arm and its compiled fast path are one protocol
-    (hydroarm.sim.plant.Plant): the one runner runs each of them."""
-    from hydroarm.model.loading import load_arm
-    from hydroarm.model.plant import UnderwaterPlant
-    from hydroarm.model.uvms import build_uvms
-    from hydroarm.model.uvms_fast import FastUVMSPlant
-    from hydroarm.model.uvms_plant import UVMSPlant
-    from hydroarm.sim.plant import Plant
+    (hydroarm.sim.plant_protocol.Plant): the one runner runs each of them."""
+    from hydroarm.model.arm.loading import load_arm
+    from hydroarm.model.arm.plant import UnderwaterPlant
+    from hydroarm.model.vehicle.fast import FastUVMSPlant
+    from hydroarm.model.vehicle.plant import UVMSPlant
+    from hydroarm.model.vehicle.system import build_uvms
+    from hydroarm.sim.plant_protocol import Plant
 
     uvms = build_uvms("bluerov2-heavy", "mount")
     for plant in (UnderwaterPlant(load_arm("paper")), UVMSPlant(uvms), FastUVMSPlant(uvms)):
@@ -177,3 +177,47 @@ def test_every_true_plant_follows_the_plant_protocol():
         assert x.shape == (plant.state_size,) and plant.joint_state(x).shape == (2 * plant.n,)
         x_next, info = plant.step(0.0, x, np.zeros(plant.n_inputs), 0.01)
         assert x_next.shape == x.shape and info.disturbance.shape == (plant.n,)
+
+
+def _resolve(dotted: str) -> object:
+    """The module, class, function or attribute a dotted name names (ImportError/AttributeError if none)."""
+    import importlib
+
+    parts = dotted.split(".")
+    for cut in range(len(parts), 0, -1):
+        try:
+            target = importlib.import_module(".".join(parts[:cut]))
+        except ModuleNotFoundError:
+            continue
+        for name in parts[cut:]:
+            target = getattr(target, name)
+        return target
+    raise ImportError(dotted)
+
+
+def test_where_to_add_names_what_the_code_has():
+    """docs/architecture.md's "Where to add..." is checked against the code: every dotted name
+    there (a module, a class, a function, a registry) resolves, every test file and source folder
+    it points to exists, and the protocol members it lists for a plant, a sensor and a drive block
+    are the code's."""
+    section = ARCHITECTURE.read_text().split("## Where to add...", 1)[1].split("\n## ", 1)[0]
+    names = set(re.findall(r"`(hydroarm(?:\.\w+)+)`", section))
+    assert len(names) > 15
+    for name in sorted(names):
+        _resolve(name)
+    root = ARCHITECTURE.parents[1]
+    for test_file in set(re.findall(r"tests/test_\w+\.py", section)):
+        assert (root / test_file).is_file(), test_file
+    for folder in set(re.findall(r"`(hydroarm/[\w/]+/)`", section)):
+        assert (root / "src" / folder).is_dir(), folder
+    from hydroarm.model.real_loop.sensing import Actuator, Sensor
+    from hydroarm.model.vehicle.system import StateLayout
+    from hydroarm.sim.plant_protocol import Plant
+
+    plant_entry = section.split("- **A plant.**", 1)[1].split("\n- **", 1)[0]
+    members = {*Plant.__annotations__, *(m for m in vars(Plant) if not m.startswith("_"))}
+    for member in ("n", "n_inputs", "state_size", "step", "measure", "new_sensor", "new_actuator"):
+        assert f"`{member}`" in plant_entry and member in members, member
+    for part in ("base_pose", "arm_q", "base_velocity", "arm_v", "thrust"):
+        assert f"`{part}`" in plant_entry and part in StateLayout.__dataclass_fields__, part
+    assert callable(Sensor.sample) and callable(Actuator.apply)

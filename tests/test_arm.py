@@ -11,9 +11,9 @@ import pytest
 
 import hydroarm
 from hydroarm.config import ConfigError, validate
-from hydroarm.model.arm import ArmSpec
-from hydroarm.model.loading import builtin_arm_path, load_arm_spec
-from hydroarm.model.urdf_export import arm_to_urdf
+from hydroarm.model.arm.description import ArmSpec
+from hydroarm.model.arm.loading import builtin_arm_path, load_arm_spec
+from hydroarm.model.arm.urdf_export import arm_to_urdf
 
 RNG = np.random.default_rng(20231641)
 CONFIGS = RNG.uniform(-math.pi, math.pi, size=(25, 6))
@@ -260,8 +260,8 @@ def test_urdf_loads_in_mujoco_with_same_mass_matrix(arm):
 
 
 def _paper_with_armature(armature):
-    from hydroarm.model.arm import build_arm
-    from hydroarm.model.loading import load_arm_spec
+    from hydroarm.model.arm.description import build_arm
+    from hydroarm.model.arm.loading import load_arm_spec
 
     data = load_arm_spec("paper").model_dump()
     data["armature"] = armature
@@ -271,10 +271,10 @@ def _paper_with_armature(armature):
 def test_armature_adds_exactly_itself_to_the_mass_matrix_diagonal_in_the_plant_and_the_model():
     import pinocchio as pin
 
-    from hydroarm.model.loading import load_arm
-    from hydroarm.model.nominal import NominalModel
-    from hydroarm.model.plant import PlantConfig, UnderwaterPlant
-    from hydroarm.model.water import Water
+    from hydroarm.model.arm.loading import load_arm
+    from hydroarm.model.arm.plant import PlantConfig, UnderwaterPlant
+    from hydroarm.model.dynamics.nominal import NominalModel
+    from hydroarm.model.water.morison import Water
 
     plain = load_arm("paper")
     armature = np.array([0.4, 0.3, 0.2, 0.05, 0.02, 0.01])  # kg m^2
@@ -299,8 +299,8 @@ def test_armature_adds_exactly_itself_to_the_mass_matrix_diagonal_in_the_plant_a
 
 def test_armature_is_one_value_or_one_per_joint_in_arm_and_hydrodynamics_files():
     from hydroarm.config import ConfigError
-    from hydroarm.model.urdf_export import arm_to_urdf
-    from hydroarm.model.urdf_import import arm_from_urdf, hydro_spec_of
+    from hydroarm.model.arm.urdf_export import arm_to_urdf
+    from hydroarm.model.arm.urdf_import import arm_from_urdf, hydro_spec_of
 
     assert np.all(_paper_with_armature(0.1).model.armature == 0.1)
     with pytest.raises(ConfigError, match="armature"):
@@ -320,8 +320,8 @@ def test_armature_is_one_value_or_one_per_joint_in_arm_and_hydrodynamics_files()
 
 def test_built_in_arms_carry_no_armature_and_a_vehicle_refuses_one():
     from hydroarm.config import ConfigError
-    from hydroarm.model.loading import load_arm
-    from hydroarm.model.uvms import build_uvms
+    from hydroarm.model.arm.loading import load_arm
+    from hydroarm.model.vehicle.system import build_uvms
 
     for name in ("paper", "ur5", "alpha5", "examples/urdf/iiwa14.urdf"):
         assert np.all(load_arm(name).model.armature == 0.0), name  # no published figure: see the arm files

@@ -1,4 +1,4 @@
-"""The compiled fixed-base plant (``plant.compiled``, hydroarm.model.arm_fast): its rigid body
+"""The compiled fixed-base plant (``plant.compiled``, hydroarm.model.arm.fast): its rigid body
 against Pinocchio, its water against the reference path, its steps against the reference
 plant's, and the batched kernel against single steps bit for bit."""
 
@@ -11,11 +11,11 @@ import pinocchio as pin
 import pydantic
 import pytest
 
-from hydroarm.model.arm_fast import BatchedArm, FastArmDynamics
-from hydroarm.model.friction import FrictionConfig
-from hydroarm.model.loading import load_arm
-from hydroarm.model.plant import PlantConfig, UnderwaterPlant
-from hydroarm.model.water import CurrentConfig, Water, added_mass_matrix
+from hydroarm.model.arm.fast import BatchedArm, FastArmDynamics
+from hydroarm.model.arm.loading import load_arm
+from hydroarm.model.arm.plant import PlantConfig, UnderwaterPlant
+from hydroarm.model.real_loop.friction import FrictionConfig
+from hydroarm.model.water.morison import CurrentConfig, Water, added_mass_matrix
 from hydroarm.sim.experiment import ExperimentConfig, build_experiment, with_overrides
 
 ARMS = ("paper", "alpha5")

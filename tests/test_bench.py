@@ -13,10 +13,10 @@ import pytest
 import hydroarm
 from hydroarm.control import mpc as mpc_module
 from hydroarm.control.gp import _batched as gp_module
-from hydroarm.model.nominal import NominalModel
-from hydroarm.model.plant import PlantConfig, UnderwaterPlant
-from hydroarm.model.task import paper_reference
-from hydroarm.model.water import CurrentConfig, Water
+from hydroarm.model.arm.plant import PlantConfig, UnderwaterPlant
+from hydroarm.model.dynamics.nominal import NominalModel
+from hydroarm.model.task.references import paper_reference
+from hydroarm.model.water.morison import CurrentConfig, Water
 from hydroarm_bench import growth_exponent, run_benchmarks, stats_ms, validate_report
 from hydroarm_bench import mpc_peers as mpc_peers_module
 from hydroarm_bench.control_steps import mpc_snapshot_hook

@@ -20,8 +20,8 @@ import pytest
 from hydroarm.cli import _experiment_config
 from hydroarm.config import ConfigError, FrozenModel, load_model, validate
 from hydroarm.control.gp import GPConfig
-from hydroarm.model.loading import builtin_arm_path, load_arm
-from hydroarm.model.water import Water
+from hydroarm.model.arm.loading import builtin_arm_path, load_arm
+from hydroarm.model.water.morison import Water
 from hydroarm.sim.experiment import ExperimentConfig, with_overrides
 from hydroarm.studies.sweep import validate_sweep
 

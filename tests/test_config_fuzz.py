@@ -38,10 +38,10 @@ from typer.testing import CliRunner
 from hydroarm.cli import app
 from hydroarm.config import ConfigError, read_mapping, shown, validate
 from hydroarm.control.gp import GPConfig
-from hydroarm.model.loading import builtin_arm_path, load_arm
-from hydroarm.model.plant import PlantConfig, UnderwaterPlant
-from hydroarm.model.task import task_for_arm
-from hydroarm.model.water import CurrentConfig, Water
+from hydroarm.model.arm.loading import builtin_arm_path, load_arm
+from hydroarm.model.arm.plant import PlantConfig, UnderwaterPlant
+from hydroarm.model.task.references import task_for_arm
+from hydroarm.model.water.morison import CurrentConfig, Water
 from hydroarm.sim.experiment import (
     CONTROLLERS,
     ExperimentConfig,
@@ -663,7 +663,8 @@ def test_gp_vectors_must_fit_every_gp_controller_that_runs():
     config = validate(ExperimentConfig, data, "settings")
     check_settings_for_arm(config, _arm("paper"), controllers=("GP-MPC", "SMC"))
     for controllers in (None, ("gp-idmpc",)):
-        with pytest.raises(ConfigError, match=r"gp\.theta0 = .*14 values: give 20 \(GP-IDMPC: idmpc\.gp_features"):
+        wanted = r"gp\.theta0 = .*14 values: give 20 \[sf2, sn2, l_1\.\.l_18\] .*\(GP-IDMPC: idmpc\.gp_features"
+        with pytest.raises(ConfigError, match=wanted):
             check_settings_for_arm(config, _arm("paper"), controllers=controllers)
     with pytest.raises(ConfigError, match=r"gp\.theta0"):
         run_experiment(config, "GP-IDMPC")

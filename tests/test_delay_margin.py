@@ -9,7 +9,7 @@ import pytest
 from numpy.polynomial import polynomial as P
 
 from hydroarm.control.idmpc import MARGIN_RADIUS, IDMPCConfig, InverseDynamicsMPC, delay_margin_weight, joint_lqr
-from hydroarm.model.loading import load_arm
+from hydroarm.model.arm.loading import load_arm
 from hydroarm.sim.experiment import ExperimentConfig, build_experiment, with_overrides
 
 T = 0.01

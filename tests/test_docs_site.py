@@ -30,7 +30,7 @@ API_PAGES = ROOT / "docs" / "api"
 NOTEBOOKS = ROOT / "examples" / "notebooks"
 SUBPACKAGES = ("hydroarm.model", "hydroarm.control", "hydroarm.studies", "hydroarm.envs")
 
-# [`hydroarm.Arm`][hydroarm.model.arm.Arm]: the public name and the autorefs identifier of its definition
+# [`hydroarm.Arm`][hydroarm.model.arm.description.Arm]: the public name and the autorefs identifier of its definition
 LINK = re.compile(r"\[`hydroarm\.(\w+)`\]\[([\w.]+)\]")
 # ::: identifier, then its indented options
 DIRECTIVE = re.compile(r"^::: ([\w.]+)[ \t]*\n((?:[ \t]+\S.*\n?)*)", re.M)

@@ -16,8 +16,8 @@ gymnasium = pytest.importorskip("gymnasium")
 import hydroarm.envs  # noqa: E402  (registers the environment)
 from hydroarm.envs import ENV_ID  # noqa: E402
 from hydroarm.envs.underwater_arm import ControllerPolicy, UnderwaterArmEnv  # noqa: E402
-from hydroarm.model.loading import load_arm  # noqa: E402
-from hydroarm.model.task import task_for_arm  # noqa: E402
+from hydroarm.model.arm.loading import load_arm  # noqa: E402
+from hydroarm.model.task.references import task_for_arm  # noqa: E402
 from hydroarm.sim.experiment import ExperimentConfig, run_experiment, with_overrides  # noqa: E402
 from hydroarm.sim.runner import tracking_metrics  # noqa: E402
 

@@ -23,8 +23,8 @@ from hydroarm.control.mpc import (
     qp_failure_event,
     solve_terminal_qp,
 )
-from hydroarm.model.plant import PlantConfig, UnderwaterPlant
-from hydroarm.model.water import Water
+from hydroarm.model.arm.plant import PlantConfig, UnderwaterPlant
+from hydroarm.model.water.morison import Water
 from hydroarm.sim.experiment import ExperimentConfig, build_controller
 from hydroarm.sim.runner import Trajectory, run_closed_loop, tracking_metrics
 

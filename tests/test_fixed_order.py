@@ -1,4 +1,4 @@
-"""hydroarm.model.fixed_order: the small dense algebra in a fixed order of operations.
+"""hydroarm.model.dynamics.fixed_order: the small dense algebra in a fixed order of operations.
 
 Bitwise against plain-Python loops in the documented order (Python floats are IEEE doubles
 with the same rounding: equal bits prove the order, no reassociation and no FMA), and against
@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 import scipy.linalg
 
-from hydroarm.model import fixed_order
+from hydroarm.model.dynamics import fixed_order
 
 
 def _python_matvec(a, x):

@@ -10,10 +10,10 @@ import pytest
 
 from hydroarm.control.friction_feedforward import GATE_OFF, GATE_ON, FrictionFeedforward, told_friction
 from hydroarm.control.interface import ControlOutput, controller_chain
-from hydroarm.model.friction import PUBLISHED_COULOMB, FrictionConfig
-from hydroarm.model.loading import load_arm
-from hydroarm.model.plant import UnderwaterPlant
-from hydroarm.model.water import Water
+from hydroarm.model.arm.loading import load_arm
+from hydroarm.model.arm.plant import UnderwaterPlant
+from hydroarm.model.real_loop.friction import PUBLISHED_COULOMB, FrictionConfig
+from hydroarm.model.water.morison import Water
 from hydroarm.sim.experiment import ExperimentConfig, build_experiment, with_overrides
 
 

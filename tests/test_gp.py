@@ -167,7 +167,7 @@ def test_window_drops_oldest_sample():
     X = np.arange(16.0).reshape(8, 2)
     Y = 10.0 * np.arange(24.0).reshape(8, 3)
     for k in range(8):
-        gp.add(X[k], Y[k])
+        gp.update(X[k], Y[k])
         assert gp.n_samples == min(k + 1, 5)
     np.testing.assert_array_equal(gp.window_inputs, X[3:])
     np.testing.assert_array_equal(gp.window_targets, Y[3:])
@@ -180,7 +180,7 @@ def test_batched_prediction_equals_per_output_predict(incremental_min_window):
     X, Y = arm_like_stream(40, n_inputs=12, n_outputs=6, noise=0.01)
     gp = SlidingWindowGP(12, 6, GPConfig(hyper_steps=1, incremental_min_window=incremental_min_window))
     for k in range(30):
-        gp.add(X[k], Y[k])
+        gp.update(X[k], Y[k])
         gp.update_hyperparameters()
     assert not np.allclose(gp.theta, 1.0)  # the hyperparameters did move and differ per output
     X_star = X[30:34]
@@ -203,7 +203,7 @@ def test_normalize_y_matches_sklearn_normalize_y():
     gp = SlidingWindowGP(3, 2, GPConfig(normalize_y=True, hyper_steps=0, jitter=0.0))
     gp.set_theta(theta)
     for x, y in zip(X, Y):
-        gp.add(x, y)
+        gp.update(x, y)
     X_star = rng.uniform(-1, 1, size=(5, 3))
     mean, var = gp.predict(X_star)
     kernel = ConstantKernel(theta[0], "fixed") * RBF(theta[2:], "fixed") + WhiteKernel(theta[1], "fixed")
@@ -224,8 +224,8 @@ def test_input_and_output_scale_are_reparametrisations():
     raw = SlidingWindowGP(2, 2, GPConfig(hyper_steps=0, jitter=0.0))
     raw.set_theta([1.5 * y_scale**2, 0.01 * y_scale**2, 1.2 * x_scale[0], 0.7 * x_scale[1]])
     for x, y in zip(X, Y):
-        scaled.add(x, y)
-        raw.add(x, y)
+        scaled.update(x, y)
+        raw.update(x, y)
     X_star = rng.uniform(-5, 5, size=(4, 2))
     for a, b in zip(scaled.predict(X_star), raw.predict(X_star)):
         np.testing.assert_allclose(a, b, rtol=1e-9)
@@ -237,7 +237,7 @@ def test_lml_never_decreases_over_an_update():
     config = GPConfig(hyper_steps=2, learning_rate=1.0, max_log_step=2.0, max_step_halvings=2)
     gp = SlidingWindowGP(12, 6, config)
     for k in range(len(X)):
-        gp.add(X[k], Y[k])
+        gp.update(X[k], Y[k])
         theta_before = gp.theta
         trace = gp.update_hyperparameters()
         theta_after = gp.theta
@@ -273,7 +273,7 @@ def test_lml_monotone_and_bounds_respected_on_random_data(seed, n_inputs, window
     gp = SlidingWindowGP(n_inputs, 2, config)
     lower, upper = gp.log_bounds
     for _ in range(window + 5):
-        gp.add(rng.normal(size=n_inputs) * rng.choice([0.01, 1.0, 100.0]), rng.normal(size=2) * 10.0)
+        gp.update(rng.normal(size=n_inputs) * rng.choice([0.01, 1.0, 100.0]), rng.normal(size=2) * 10.0)
         trace = gp.update_hyperparameters()
         finite = np.isfinite(trace)
         assert np.all(np.diff(np.where(finite, trace, 0.0), axis=0) >= 0.0)
@@ -297,7 +297,7 @@ def test_bounds_respected_with_aggressive_steps():
     lower, upper = gp.log_bounds
     hit_bound = np.zeros_like(gp.log_theta, dtype=bool)
     for x, y in zip(X, Y):
-        gp.add(x, y)
+        gp.update(x, y)
         gp.update_hyperparameters()
         assert np.all(gp.log_theta >= lower) and np.all(gp.log_theta <= upper)
         hit_bound |= np.isclose(gp.log_theta, lower) | np.isclose(gp.log_theta, upper)
@@ -324,8 +324,8 @@ def test_incremental_window_update_equals_full_refactorisation(window):
     full = SlidingWindowGP(5, 3, GPConfig(window=window, hyper_steps=0, incremental_min_window=10**6))
     full.set_theta(gp.theta)
     for k in range(len(X)):
-        gp.add(X[k], Y[k])
-        full.add(X[k], Y[k])
+        gp.update(X[k], Y[k])
+        full.update(X[k], Y[k])
         mean, var = gp.predict(X[k] + 0.1)
         mean_full, var_full = full.predict(X[k] + 0.1)
         np.testing.assert_allclose(mean, mean_full, rtol=1e-9, atol=1e-9)
@@ -340,7 +340,7 @@ def test_incremental_update_refactorises_periodically():
     config = GPConfig(window=6, hyper_steps=0, incremental_min_window=2, refactor_every=5)
     gp = SlidingWindowGP(3, 2, config)
     for x, y in zip(X, Y):
-        gp.add(x, y)
+        gp.update(x, y)
         gp.predict(x)
     assert gp.stats.n_incremental_updates > 0
     assert gp.stats.n_full_factorizations >= len(X) // 6
@@ -356,7 +356,7 @@ def test_identical_samples_need_jitter_but_do_not_raise():
     )
     gp = SlidingWindowGP(2, 2, config)
     for _ in range(10):
-        gp.add([0.3, -0.2], [1.0, 2.0])
+        gp.update([0.3, -0.2], [1.0, 2.0])
         gp.update_hyperparameters()
         mean, var = gp.predict([0.3, -0.2])
         assert np.all(np.isfinite(mean)) and np.all(np.isfinite(var))
@@ -375,11 +375,11 @@ def test_failed_factorisation_falls_back_and_is_counted():
         log_sn2_bounds=(math.log(1e-30), math.log(1.0)),
     )
     gp = SlidingWindowGP(2, 2, config)
-    gp.add([0.3, -0.2], [1.0, 2.0])  # one sample: K is 1 x 1 and factorisable
+    gp.update([0.3, -0.2], [1.0, 2.0])  # one sample: K is 1 x 1 and factorisable
     gp.update_hyperparameters()
     theta_one_sample = gp.theta
     for _ in range(10):  # from two identical samples on, K = sf2 * ones exactly: singular
-        gp.add([0.3, -0.2], [1.0, 2.0])
+        gp.update([0.3, -0.2], [1.0, 2.0])
         trace = gp.update_hyperparameters()  # must not raise LinAlgError
         mean, var = gp.predict([0.3, -0.2])
         assert np.all(np.isfinite(mean)) and np.all(np.isfinite(var))
@@ -419,7 +419,7 @@ def test_calls_return_the_fault_events_they_meet(hyper_steps, max_jitter_retries
     gp = SlidingWindowGP(2, 2, degenerate_config(hyper_steps, max_jitter_retries))
     returned = dict.fromkeys(FAULTS, 0)
     for _ in range(6):
-        assert gp.add([0.3, -0.2], [1.0, 2.0]) is None  # add meets no fault
+        assert gp.update([0.3, -0.2], [1.0, 2.0]) is True  # update meets no fault
         before = fault_counts(gp.stats)
         trace, update_events = gp.update_hyperparameters(return_events=True)
         between = fault_counts(gp.stats)
@@ -444,8 +444,8 @@ def test_calls_return_the_fault_events_they_meet(hyper_steps, max_jitter_retries
 
 def test_without_return_events_the_calls_return_what_they_always_did():
     gp = SlidingWindowGP(2, 2, degenerate_config(2, 0))
-    gp.add([0.3, -0.2], [1.0, 2.0])
-    gp.add([0.3, -0.2], [1.0, 2.0])
+    gp.update([0.3, -0.2], [1.0, 2.0])
+    gp.update([0.3, -0.2], [1.0, 2.0])
     trace = gp.update_hyperparameters()
     assert isinstance(trace, np.ndarray) and trace.shape == (1, 2)
     prediction = gp.predict([0.3, -0.2])
@@ -466,7 +466,7 @@ def test_extreme_lengthscales_do_not_raise(lengthscale):
     gp = SlidingWindowGP(2, 1, config)
     rng = np.random.default_rng(8)
     for _ in range(12):
-        gp.add(rng.normal(size=2), rng.normal(size=1))
+        gp.update(rng.normal(size=2), rng.normal(size=1))
         gp.update_hyperparameters()
         mean, var = gp.predict(rng.normal(size=2))
         assert np.all(np.isfinite(mean)) and np.all(np.isfinite(var)) and np.all(var >= 0)
@@ -604,9 +604,9 @@ def test_estimator_rejects_bad_inputs_naming_the_argument():
         SlidingWindowGP(3, 0)
     gp = SlidingWindowGP(3, 2)
     with pytest.raises(ValueError, match=r"x must have shape \(3,\)"):
-        gp.add(np.zeros(4), np.zeros(2))
+        gp.update(np.zeros(4), np.zeros(2))
     with pytest.raises(ValueError, match="y must contain only finite"):
-        gp.add(np.zeros(3), np.array([0.0, np.inf]))
+        gp.update(np.zeros(3), np.array([0.0, np.inf]))
     with pytest.raises(ValueError, match="x_star"):
         gp.predict(np.zeros((2, 4)))
     with pytest.raises(ValueError, match="theta must lie within"):

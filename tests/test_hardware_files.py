@@ -11,11 +11,11 @@ import pinocchio as pin
 import pytest
 
 from hydroarm.config import ConfigError, validate
-from hydroarm.model.loading import load_arm
-from hydroarm.model.urdf_import import arm_from_urdf
-from hydroarm.model.uvms import UVMSDynamics, build_uvms
-from hydroarm.model.vehicle import VehicleSpec, build_vehicle, load_vehicle_spec
-from hydroarm.model.water import Water
+from hydroarm.model.arm.loading import load_arm
+from hydroarm.model.arm.urdf_import import arm_from_urdf
+from hydroarm.model.vehicle.description import VehicleSpec, build_vehicle, load_vehicle_spec
+from hydroarm.model.vehicle.system import UVMSDynamics, build_uvms
+from hydroarm.model.water.morison import Water
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples" / "hinsdale"
 VEHICLE = EXAMPLES / "bluerov2_hinsdale.toml"

@@ -15,7 +15,7 @@ from hydroarm.control.estimator import EstimatorConfig, JointKalmanFilter
 from hydroarm.control.filter_design import steady_state_covariance
 from hydroarm.control.idmpc import IDMPCConfig, InverseDynamicsMPC, allocate, authority_weights, unconstrained_move
 from hydroarm.control.idmpc_limits import predicted_plan
-from hydroarm.model.task import SinusoidReference, paper_reference
+from hydroarm.model.task.references import SinusoidReference, paper_reference
 from hydroarm.sim.experiment import build_experiment, with_overrides
 
 T = 0.01

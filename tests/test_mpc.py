@@ -21,8 +21,8 @@ from hydroarm.control.mpc import (
     solve_terminal_qp,
 )
 from hydroarm.control.qp import BoxQPSolver
-from hydroarm.model.nominal import NominalModel
-from hydroarm.model.task import SinusoidReference, paper_reference
+from hydroarm.model.dynamics.nominal import NominalModel
+from hydroarm.model.task.references import SinusoidReference, paper_reference
 
 T = 0.01
 

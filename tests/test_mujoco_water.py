@@ -10,8 +10,9 @@ import pytest
 mujoco = pytest.importorskip("mujoco")
 
 import hydroarm  # noqa: E402
-from hydroarm.model.arm import ArmSpec, build_arm  # noqa: E402
-from hydroarm.model.mujoco_water import (  # noqa: E402
+from hydroarm.model.arm.description import ArmSpec, build_arm  # noqa: E402
+from hydroarm.model.water.morison import CurrentConfig, Water  # noqa: E402
+from hydroarm.model.water.mujoco_check import (  # noqa: E402
     MujocoWater,
     arm_to_mjcf,
     axial_flow_fraction,
@@ -21,7 +22,6 @@ from hydroarm.model.mujoco_water import (  # noqa: E402
     hydroarm_drag,
     lumped_drag_ratio,
 )
-from hydroarm.model.water import CurrentConfig, Water  # noqa: E402
 
 RNG = np.random.default_rng(7)
 PI = math.pi

@@ -15,8 +15,8 @@ from typer.testing import CliRunner
 import hydroarm
 from hydroarm.cli import _experiment_config, app
 from hydroarm.control.registry import canonical_name
-from hydroarm.model.loading import builtin_arm_path
-from hydroarm.model.urdf_import import load_hydro_spec
+from hydroarm.model.arm.loading import builtin_arm_path
+from hydroarm.model.arm.urdf_import import load_hydro_spec
 from hydroarm.sim import experiment
 
 ROOT = Path(__file__).resolve().parents[1]

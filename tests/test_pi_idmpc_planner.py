@@ -144,7 +144,7 @@ def test_the_unguarded_planner_beats_the_disturbance_blind_plan_on_the_paper_sta
 def _stress_world(deviation):
     """A world of the stress study (examples/stress.toml) where the unguarded planner diverged
     at 0.04 s: a plant 26 % lighter than the model, C_d 0.65, C_m 1.44, noise 1.3e-3."""
-    from hydroarm.model.loading import load_arm
+    from hydroarm.model.arm.loading import load_arm
     from hydroarm.studies.sweep.plan import perturbed_arm
     from hydroarm.studies.sweep.schema import Mismatch
 

@@ -17,7 +17,7 @@ from hydroarm.control.plan_qp import (
     solve_plan_qp,
     warm_set,
 )
-from hydroarm.model.loading import load_arm
+from hydroarm.model.arm.loading import load_arm
 
 
 def random_instance(rng, n=3, horizon=12, scale=1.0):

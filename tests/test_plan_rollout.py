@@ -83,7 +83,7 @@ def test_the_water_along_the_plan_is_the_per_state_computation():
     """The compiled force along a plan is, bit for bit, f_k - M_A,k a_k (fixed-order product) +
     the remainder, clipped to the limits, state by state; some entries are clipped."""
     from hydroarm.control.plan_rollout import water_along_plan
-    from hydroarm.model import fixed_order
+    from hydroarm.model.dynamics import fixed_order
 
     rng = np.random.default_rng(3)
     horizon, n = 35, 6

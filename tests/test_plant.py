@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 import hydroarm
-from hydroarm.model.nominal import NominalModel
-from hydroarm.model.plant import PlantConfig, UnderwaterPlant
-from hydroarm.model.water import CurrentConfig, Water, paper_current_acceleration
+from hydroarm.model.arm.plant import PlantConfig, UnderwaterPlant
+from hydroarm.model.dynamics.nominal import NominalModel
+from hydroarm.model.water.morison import CurrentConfig, Water, paper_current_acceleration
 
 
 @pytest.fixture(scope="session")

@@ -24,7 +24,7 @@ from hydroarm.control.interface import (
 from hydroarm.control.mpc import LinearMPC
 from hydroarm.control.observers import DisturbanceObserver, ObservedController, ObserverConfig
 from hydroarm.control.registry import REGISTRY, build_controller
-from hydroarm.model.loading import load_arm
+from hydroarm.model.arm.loading import load_arm
 from hydroarm.sim.experiment import ExperimentConfig, build_experiment, controller_settings
 from hydroarm.sim.vehicle import VehicleRun
 
@@ -88,7 +88,7 @@ class _TorqueOnly(_NoPorts):
 def test_a_wrapper_refuses_a_controller_without_its_port(arm):
     observer = DisturbanceObserver(arm, 0.01, ObserverConfig(kind="tde"))
     with pytest.raises(TypeError, match="plain.*feedforward_torque"):
-        ObservedController(_NoPorts(), observer)
+        ObservedController(_NoPorts(), observer, arm)
     with pytest.raises(TypeError, match="torque-only.*feedforward_acceleration"):
         GPMPC(arm, _TorqueOnly(), GPConfig(), GPMPCConfig(feedforward="acceleration"))
     with pytest.raises(TypeError, match="feedforward_torque"):
@@ -98,7 +98,7 @@ def test_a_wrapper_refuses_a_controller_without_its_port(arm):
 
 def test_the_observer_feeds_its_estimate_through_the_port(arm):
     inner = _TorqueOnly()
-    observed = ObservedController(inner, DisturbanceObserver(arm, 0.01, ObserverConfig(kind="tde")))
+    observed = ObservedController(inner, DisturbanceObserver(arm, 0.01, ObserverConfig(kind="tde")), arm)
     out = observed.compute(0.0, np.zeros(12), None)  # the inner controller reads no reference
     assert len(inner.calls) == 1 and inner.calls[0] is not None
     assert np.array_equal(out.disturbance_mean, inner.calls[0])
@@ -121,5 +121,5 @@ def test_the_vehicle_controller_wraps_the_arm_controller():
     config = ExperimentConfig(arm="mount", duration=0.05, vehicle=VehicleRun(name="bluerov2_heavy"))
     controller = build_experiment(config, "smc").controller
     chain = controller_chain(controller)
-    assert isinstance(controller, WrapsController) and controller.controller is controller.arm
-    assert chain[1] is controller.arm and chain[-1].name == "SMC"
+    assert isinstance(controller, WrapsController) and controller.controller is controller.arm_controller
+    assert chain[1] is controller.arm_controller and chain[-1].name == "SMC"

@@ -17,12 +17,12 @@ from hydroarm.config import ConfigError
 from hydroarm.control.estimator import EstimatorConfig, FilteredController, JointKalmanFilter
 from hydroarm.control.filter_design import FilterDesign
 from hydroarm.control.interface import ControlOutput
-from hydroarm.model.friction import PUBLISHED_COULOMB, PUBLISHED_WIDTH, FrictionConfig
-from hydroarm.model.loading import load_arm
-from hydroarm.model.nominal import NominalModel
-from hydroarm.model.plant import PlantConfig, UnderwaterPlant
-from hydroarm.model.sensing import Actuator, ActuatorConfig, Sensor, SensorConfig
-from hydroarm.model.water import Water
+from hydroarm.model.arm.loading import load_arm
+from hydroarm.model.arm.plant import PlantConfig, UnderwaterPlant
+from hydroarm.model.dynamics.nominal import NominalModel
+from hydroarm.model.real_loop.friction import PUBLISHED_COULOMB, PUBLISHED_WIDTH, FrictionConfig
+from hydroarm.model.real_loop.sensing import Actuator, ActuatorConfig, Sensor, SensorConfig
+from hydroarm.model.water.morison import Water
 from hydroarm.sim.experiment import ExperimentConfig, build_experiment, with_overrides
 
 RUNNER = CliRunner()

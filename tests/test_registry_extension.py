@@ -16,7 +16,7 @@ from hydroarm.cli import app
 from hydroarm.config import ConfigError, FrozenModel
 from hydroarm.control.interface import ControlOutput
 from hydroarm.control.registry import REGISTRY, ControllerSpec, canonical_name, register
-from hydroarm.model.nominal import NominalModel
+from hydroarm.model.dynamics.nominal import NominalModel
 from hydroarm.sim.experiment import ExperimentConfig, gp_inputs, run_experiment, settings_from_record, with_overrides
 from hydroarm.studies.sweep.plan import run_id
 from hydroarm.studies.sweep.schema import Mismatch

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from hydroarm.config import ConfigError
-from hydroarm.model.loading import load_arm
+from hydroarm.model.arm.loading import load_arm
 from hydroarm.sim.experiment import ExperimentConfig, start_for_arm
 from hydroarm.studies.reproduce import plan_runs, plan_study, replica_config
 from hydroarm.studies.reproduce_numbers import held, held_digits

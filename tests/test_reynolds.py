@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 import scipy.integrate
 
-from hydroarm.model.arm import ArmSpec, build_arm
-from hydroarm.model.loading import load_arm
-from hydroarm.model.plant import PlantConfig, UnderwaterPlant
-from hydroarm.model.reynolds import CD_SMOOTH, aspect_factor, drag_coefficient
-from hydroarm.model.water import Water, WaterModel
+from hydroarm.model.arm.description import ArmSpec, build_arm
+from hydroarm.model.arm.loading import load_arm
+from hydroarm.model.arm.plant import PlantConfig, UnderwaterPlant
+from hydroarm.model.water.morison import Water, WaterModel
+from hydroarm.model.water.reynolds import CD_SMOOTH, aspect_factor, drag_coefficient
 
 
 def rod(length=0.5, diameter=0.08):

@@ -26,7 +26,7 @@ from cyclonedds.sub import DataReader  # noqa: E402
 from cyclonedds.topic import Topic  # noqa: E402
 
 from hydroarm.config import ConfigError  # noqa: E402
-from hydroarm.model.loading import load_arm  # noqa: E402
+from hydroarm.model.arm.loading import load_arm  # noqa: E402
 from hydroarm.ros2 import messages as m  # noqa: E402
 from hydroarm.ros2.gate import CommandGate  # noqa: E402
 from hydroarm.ros2.participant import Ros2Config, cyclone_xml  # noqa: E402
@@ -457,7 +457,7 @@ def test_the_vehicle_in_lockstep_is_the_in_process_run_and_its_bag_reads_back(tm
 
 def test_replay_refuses_a_fixed_arm_bag_naming_compare(tmp_path):
     """A fixed-base arm's recorded run has no IMU: replay exits 2 and names compare."""
-    from hydroarm.model.urdf_export import arm_to_urdf
+    from hydroarm.model.arm.urdf_export import arm_to_urdf
     from hydroarm.ros2.record import BagRecorder
 
     recorder = BagRecorder(tmp_path / "bag")
@@ -603,7 +603,7 @@ def test_tf_is_the_links_of_the_published_urdf():
     with the URDF's link names."""
     import pinocchio as pin
 
-    from hydroarm.model.urdf_export import arm_to_urdf
+    from hydroarm.model.arm.urdf_export import arm_to_urdf
     from hydroarm.ros2.sim_node import SimNode
     from hydroarm.sim.experiment import build_experiment
 

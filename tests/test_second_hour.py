@@ -11,7 +11,7 @@ from typer.testing import CliRunner
 
 from hydroarm.cli import app
 from hydroarm.config import ConfigError
-from hydroarm.model.loading import load_arm
+from hydroarm.model.arm.loading import load_arm
 from hydroarm.sim.experiment import ExperimentConfig, build_experiment, with_overrides
 from hydroarm.sim.runner import Trajectory, run_closed_loop, tracking_metrics
 

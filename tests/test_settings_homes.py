@@ -13,10 +13,10 @@ from typer.testing import CliRunner
 
 from hydroarm.cli import app
 from hydroarm.config import ConfigError
-from hydroarm.model.integrator import INNER_STEP_RANGE
-from hydroarm.model.plant import PlantConfig
-from hydroarm.model.uvms_fast import FastUVMSConfig
-from hydroarm.model.uvms_plant import UVMSPlantConfig
+from hydroarm.model.arm.plant import PlantConfig
+from hydroarm.model.dynamics.integrator import INNER_STEP_RANGE
+from hydroarm.model.vehicle.fast import FastUVMSConfig
+from hydroarm.model.vehicle.plant import UVMSPlantConfig
 from hydroarm.sim.experiment import ExperimentConfig, build_experiment, with_overrides
 from hydroarm.sim.vehicle import VEHICLE_HOMES
 from hydroarm.studies.replay import ReplayConfig
@@ -105,7 +105,7 @@ def test_the_cli_refuses_water_current_on_a_vehicle_with_exit_2(tmp_path):
 
 def test_every_water_density_is_the_one_setting():
     """Water.rho and the replay's water_density: one definition (model.water.density_setting)."""
-    from hydroarm.model.water import Water
+    from hydroarm.model.water.morison import Water
 
     for model, name in ((Water, "rho"), (ReplayConfig, "water_density")):
         field = model.model_fields[name]
@@ -136,7 +136,7 @@ def test_a_settings_file_mismatch_and_set_give_the_same_run(tmp_path):
     mismatch away from its defaults names the run (its digest), none leaves the digest as it was."""
     import numpy as np
 
-    from hydroarm.model.loading import load_arm
+    from hydroarm.model.arm.loading import load_arm
     from hydroarm.sim.mismatch import Mismatch, perturbed_arm
     from hydroarm.sim.runner import Trajectory
 
@@ -264,8 +264,8 @@ def test_every_key_one_system_alone_reads_is_refused_on_the_other(system, other)
 def test_every_torque_limit_is_the_one_setting():
     """The settings', a DH arm file's and a hydrodynamics file's torque_limit: one definition
     (model.arm.TorqueLimit, (0, 1e12] N m); a limit outside it is refused in each."""
-    from hydroarm.model.arm import TORQUE_LIMIT_MAX, ArmSpec
-    from hydroarm.model.hydro_spec import HydroSpec
+    from hydroarm.model.arm.description import TORQUE_LIMIT_MAX, ArmSpec
+    from hydroarm.model.arm.hydro_spec import HydroSpec
 
     for model in (ExperimentConfig, ArmSpec, HydroSpec):
         field = pydantic.TypeAdapter(model.model_fields["torque_limit"].annotation)

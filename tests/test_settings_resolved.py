@@ -11,8 +11,8 @@ import numpy as np
 from typer.testing import CliRunner
 
 from hydroarm.cli import app
-from hydroarm.model.loading import load_arm
-from hydroarm.model.strips import StripGeometry
+from hydroarm.model.arm.loading import load_arm
+from hydroarm.model.water.strips import StripGeometry
 from hydroarm.sim.experiment import ExperimentConfig, build_experiment, with_overrides
 from hydroarm.studies.settings_resolved import PRECEDENCE, resolve_settings
 
@@ -70,12 +70,12 @@ def test_settings_resolved_command():
 
 
 def test_cylinder_over_link_over_water(tmp_path):
-    """The three tiers of the one coefficient rule (hydroarm.model.arm.coefficient): a cylinder's own
+    """The three tiers of the one coefficient rule (hydroarm.model.arm.description.coefficient): a cylinder's own
     cd (1.7) beats its link's (1.2), which beats water.cd (0.8); a cylinder with neither takes the
     water's; the resolved table and the strip water agree on each."""
     import shutil
 
-    from hydroarm.model.arm import coefficient
+    from hydroarm.model.arm.description import coefficient
 
     shutil.copy(ROOT / "examples" / "urdf" / "myarm.urdf", tmp_path / "myarm.urdf")
     text = (ROOT / "examples" / "urdf" / "myarm.hydro.toml").read_text()

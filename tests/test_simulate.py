@@ -9,7 +9,7 @@ import pytest
 
 import hydroarm
 from hydroarm.control.smc import SlidingModeController, SMCConfig
-from hydroarm.model.plant import PlantConfig
+from hydroarm.model.arm.plant import PlantConfig
 from hydroarm.sim.runner import Trajectory, run_closed_loop, tracking_metrics
 
 

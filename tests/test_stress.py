@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 
 from hydroarm.config import ConfigError, read_mapping
-from hydroarm.model.loading import load_arm
-from hydroarm.model.plant import UnderwaterPlant
-from hydroarm.model.task import task_for_arm
+from hydroarm.model.arm.loading import load_arm
+from hydroarm.model.arm.plant import UnderwaterPlant
+from hydroarm.model.task.references import task_for_arm
 from hydroarm.sim.experiment import (
     ExperimentConfig,
     InitialState,

@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 
 from hydroarm.config import ConfigError
-from hydroarm.model.loading import load_arm
-from hydroarm.model.plant import UnderwaterPlant
-from hydroarm.model.task import task_for_arm
+from hydroarm.model.arm.loading import load_arm
+from hydroarm.model.arm.plant import UnderwaterPlant
+from hydroarm.model.task.references import task_for_arm
 from hydroarm.sim.experiment import ExperimentConfig, build_controller, run_experiment, with_overrides
 from hydroarm.sim.runner import Trajectory, run_closed_loop, tracking_metrics
 from hydroarm.studies.executor import SerialExecutor

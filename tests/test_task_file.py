@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from hydroarm.config import ConfigError
-from hydroarm.model.loading import load_arm
-from hydroarm.model.task import paper_reference
-from hydroarm.model.task_file import SplineReference, TaskConfig, reference_for
+from hydroarm.model.arm.loading import load_arm
+from hydroarm.model.task.references import paper_reference
+from hydroarm.model.task.task_file import SplineReference, TaskConfig, reference_for
 from hydroarm.sim.experiment import ExperimentConfig, build_experiment, with_overrides
 
 ARM = load_arm("paper")

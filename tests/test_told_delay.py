@@ -14,7 +14,7 @@ from hydroarm.control.delay_design import (
     worst_told_delay_radius,
 )
 from hydroarm.control.idmpc import IDMPCConfig, InverseDynamicsMPC, joint_lqr, told_delay_weight
-from hydroarm.model.loading import load_arm
+from hydroarm.model.arm.loading import load_arm
 from hydroarm.sim.experiment import ExperimentConfig, build_experiment, with_overrides
 
 T = 0.01

@@ -11,8 +11,8 @@ from hypothesis import strategies as st
 import hydroarm
 from hydroarm.control.gp import GPConfig
 from hydroarm.control.mpc import MPCConfig
-from hydroarm.model.plant import PlantConfig, UnderwaterPlant
-from hydroarm.model.water import CurrentConfig, Water
+from hydroarm.model.arm.plant import PlantConfig, UnderwaterPlant
+from hydroarm.model.water.morison import CurrentConfig, Water
 from hydroarm.sim.experiment import ExperimentConfig, build_controller
 from hydroarm.sim.runner import run_closed_loop
 

@@ -117,7 +117,7 @@ def test_cli_tune_writes_a_settings_file_run_reads(tmp_path):
 @pytest.mark.parametrize("arm", ["paper", "ur5", "alpha5"])
 def test_builtin_arms_ship_tuned_settings_that_the_cli_applies(arm):
     from hydroarm.cli import _experiment_config
-    from hydroarm.model.loading import tuned_settings_path
+    from hydroarm.model.arm.loading import tuned_settings_path
 
     shipped = load_experiment_config(tuned_settings_path(arm))
     assert shipped.arm == arm
@@ -130,7 +130,7 @@ def test_builtin_arms_ship_tuned_settings_that_the_cli_applies(arm):
 
 def test_tuned_settings_for_an_arm_without_them_is_a_clear_error():
     from hydroarm.config import ConfigError
-    from hydroarm.model.loading import tuned_settings_path
+    from hydroarm.model.arm.loading import tuned_settings_path
 
     with pytest.raises(ConfigError, match="no tuned settings ship for arm 'examples/urdf/iiwa14.urdf'"):
         tuned_settings_path("examples/urdf/iiwa14.urdf")

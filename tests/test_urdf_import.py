@@ -11,12 +11,12 @@ import pytest
 
 import hydroarm
 from hydroarm.config import ConfigError
-from hydroarm.model.loading import BUILTIN_ARMS, builtin_arm_path, load_arm_spec
-from hydroarm.model.plant import UnderwaterPlant
-from hydroarm.model.task import SinusoidReference
-from hydroarm.model.urdf_export import arm_to_urdf
-from hydroarm.model.urdf_import import arm_from_urdf, hydro_spec_of, load_urdf_arm
-from hydroarm.model.water import CurrentConfig, Water, WaterModel, added_mass_matrix, hydrodynamic_torques
+from hydroarm.model.arm.loading import BUILTIN_ARMS, builtin_arm_path, load_arm_spec
+from hydroarm.model.arm.plant import UnderwaterPlant
+from hydroarm.model.arm.urdf_export import arm_to_urdf
+from hydroarm.model.arm.urdf_import import arm_from_urdf, hydro_spec_of, load_urdf_arm
+from hydroarm.model.task.references import SinusoidReference
+from hydroarm.model.water.morison import CurrentConfig, Water, WaterModel, added_mass_matrix, hydrodynamic_torques
 from hydroarm.sim.experiment import ExperimentConfig, build_controller
 from hydroarm.sim.runner import run_closed_loop
 

@@ -10,9 +10,9 @@ import pinocchio as pin
 import pytest
 
 import hydroarm
-from hydroarm.model.uvms import ROOT_JOINT, UVMSDynamics, build_uvms
-from hydroarm.model.uvms_plant import UVMSPlant, integrate_configuration
-from hydroarm.model.water import CurrentConfig, Water, WaterModel
+from hydroarm.model.vehicle.plant import UVMSPlant, integrate_configuration
+from hydroarm.model.vehicle.system import ROOT_JOINT, UVMSDynamics, build_uvms
+from hydroarm.model.water.morison import CurrentConfig, Water, WaterModel
 
 GAINS_P = np.array([0.3, 0.3, 0.1, 0.002])
 GAINS_D = np.array([0.05, 0.05, 0.02, 0.0003])

@@ -94,7 +94,7 @@ def test_run_with_vehicle_is_the_python_experiment_and_animates(tmp_path):
 
 @pytest.mark.subprocess
 def test_run_with_a_bad_vehicle_exits_2(tmp_path):
-    from hydroarm.model.vehicle import builtin_vehicle_path
+    from hydroarm.model.vehicle.description import builtin_vehicle_path
 
     bad = tmp_path / "bad.toml"
     bad.write_text(builtin_vehicle_path("bluerov2_heavy").read_text().replace("mass = 13.5 ", "mass = -1.0 "))

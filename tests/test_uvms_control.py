@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from hydroarm.control.vehicle_control import ThrusterAllocation, pose_error
-from hydroarm.model.vehicle import load_vehicle
+from hydroarm.model.vehicle.description import load_vehicle
 from hydroarm.sim.experiment import ExperimentConfig, build_experiment
 from hydroarm.sim.vehicle import VehicleRun
 
@@ -54,7 +54,7 @@ def test_vehicle_mpc_predicts_what_the_plant_does_under_the_restoring_feed_forwa
     prediction one step ahead must stay at rest. Counting the restoring stiffness in the model
     as well predicted -0.0146 rad/s of roll rate after 50 ms."""
     from hydroarm.control.vehicle_control import VehicleMPC, restoring_wrench
-    from hydroarm.model.vehicle import vehicle_generalised_force
+    from hydroarm.model.vehicle.description import vehicle_generalised_force
 
     mpc = VehicleMPC(vehicle)
     roll = 0.1
@@ -144,7 +144,7 @@ def _cli(*args):
 def test_cli_lists_vehicles_and_rejects_bad_vehicle_files(tmp_path):
     listed = _cli("vehicles", "--json")
     assert listed.returncode == 0 and json.loads(listed.stdout)[0]["name"] == "bluerov2-heavy"
-    from hydroarm.model.vehicle import builtin_vehicle_path
+    from hydroarm.model.vehicle.description import builtin_vehicle_path
 
     text = builtin_vehicle_path("bluerov2_heavy").read_text()
     cases = {

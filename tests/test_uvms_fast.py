@@ -1,4 +1,4 @@
-"""The compiled UVMS path (hydroarm.model.uvms_fast) against the reference path (uvms, uvms_plant)."""
+"""The compiled UVMS path (hydroarm.model.vehicle.fast) against the reference path (uvms, uvms_plant)."""
 
 from __future__ import annotations
 
@@ -8,10 +8,10 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from hydroarm.model.uvms import UVMSDynamics, build_uvms
-from hydroarm.model.uvms_fast import FastUVMSConfig, FastUVMSDynamics, FastUVMSPlant, cylinder_added_inertia
-from hydroarm.model.uvms_plant import UVMSPlant
-from hydroarm.model.water import CurrentConfig, Water
+from hydroarm.model.vehicle.fast import FastUVMSConfig, FastUVMSDynamics, FastUVMSPlant, cylinder_added_inertia
+from hydroarm.model.vehicle.plant import UVMSPlant
+from hydroarm.model.vehicle.system import UVMSDynamics, build_uvms
+from hydroarm.model.water.morison import CurrentConfig, Water
 
 CURRENT = Water(current=CurrentConfig(model="uniform", mean=[0.2, -0.1, 0.05]))
 

@@ -6,10 +6,10 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from hydroarm.model.uvms import UVMSDynamics, build_uvms
-from hydroarm.model.uvms_plant import UVMSPlantConfig
-from hydroarm.model.uvms_prescribed import PointWrench, PrescribedUVMSPlant
-from hydroarm.model.water import Water
+from hydroarm.model.vehicle.plant import UVMSPlantConfig
+from hydroarm.model.vehicle.prescribed import PointWrench, PrescribedUVMSPlant
+from hydroarm.model.vehicle.system import UVMSDynamics, build_uvms
+from hydroarm.model.water.morison import Water
 
 
 class Sines:

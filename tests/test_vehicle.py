@@ -12,15 +12,15 @@ import numpy as np
 import pytest
 
 from hydroarm.config import ConfigError, validate
-from hydroarm.model.uvms import build_uvms
-from hydroarm.model.uvms_plant import UVMSPlant
-from hydroarm.model.vehicle import (
+from hydroarm.model.vehicle.description import (
     VehicleSpec,
     allocation_matrix,
     builtin_vehicle_path,
     load_vehicle,
 )
-from hydroarm.model.water import Water
+from hydroarm.model.vehicle.plant import UVMSPlant
+from hydroarm.model.vehicle.system import build_uvms
+from hydroarm.model.water.morison import Water
 
 RHO, G = 1000.0, 9.81
 

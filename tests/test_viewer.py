@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hydroarm.model.loading import load_arm
+from hydroarm.model.arm.loading import load_arm
 from hydroarm.sim.experiment import ExperimentConfig, build_experiment, run_experiment
 from hydroarm.sim.runner import Trajectory
 from hydroarm.sim.vehicle import VehicleRun
@@ -231,7 +231,7 @@ def test_the_vehicle_motion_agrees_with_pinocchio(tmp_path):
     """Quaternion to rotation, the arm's mounted frame and roll-pitch-yaw, against Pinocchio's own."""
     import pinocchio as pin
 
-    from hydroarm.model.vehicle import load_vehicle
+    from hydroarm.model.vehicle.description import load_vehicle
 
     vehicle = load_vehicle("bluerov2-heavy")
     saved, poses = _saved_with_random_poses(np.random.default_rng(1), tmp_path)

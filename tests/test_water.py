@@ -10,8 +10,8 @@ import pytest
 from scipy import integrate
 
 import hydroarm
-from hydroarm.model.arm import ArmSpec, build_arm
-from hydroarm.model.water import CurrentConfig, Water, WaterModel, paper_current_acceleration
+from hydroarm.model.arm.description import ArmSpec, build_arm
+from hydroarm.model.water.morison import CurrentConfig, Water, WaterModel, paper_current_acceleration
 
 RNG = np.random.default_rng(1641)
 RHO, CD, CM = 1000.0, 1.0, 2.0

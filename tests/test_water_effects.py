@@ -18,15 +18,15 @@ from typer.testing import CliRunner
 
 import hydroarm
 from hydroarm.cli import app
-from hydroarm.model.arm import ArmSpec, build_arm
-from hydroarm.model.loading import load_arm, load_arm_spec
-from hydroarm.model.plant import PlantConfig, UnderwaterPlant
-from hydroarm.model.uvms import UVMSDynamics, build_uvms
-from hydroarm.model.uvms_fast import FastUVMSConfig, FastUVMSDynamics, FastUVMSPlant
-from hydroarm.model.uvms_plant import UVMSPlant, UVMSPlantConfig
-from hydroarm.model.uvms_prescribed import PrescribedUVMSPlant
-from hydroarm.model.water import CurrentConfig, Water, WaterModel
-from hydroarm.model.water_regressor import WaterRegressor
+from hydroarm.model.arm.description import ArmSpec, build_arm
+from hydroarm.model.arm.loading import load_arm, load_arm_spec
+from hydroarm.model.arm.plant import PlantConfig, UnderwaterPlant
+from hydroarm.model.vehicle.fast import FastUVMSConfig, FastUVMSDynamics, FastUVMSPlant
+from hydroarm.model.vehicle.plant import UVMSPlant, UVMSPlantConfig
+from hydroarm.model.vehicle.prescribed import PrescribedUVMSPlant
+from hydroarm.model.vehicle.system import UVMSDynamics, build_uvms
+from hydroarm.model.water.morison import CurrentConfig, Water, WaterModel
+from hydroarm.model.water.regressor import WaterRegressor
 
 STILL = CurrentConfig(model="none")
 ARMS = ["paper", "ur5", "alpha5"]
@@ -325,7 +325,7 @@ def test_a_bad_axial_coefficient_in_a_hydrodynamics_file_names_its_field():
     from test_urdf_import import generated_urdf
 
     from hydroarm.config import ConfigError
-    from hydroarm.model.urdf_import import arm_from_urdf
+    from hydroarm.model.arm.urdf_import import arm_from_urdf
 
     hydro = {"fixed_joints": {"gripper": 0.0},
              "links": [{"link": "l1", "cylinders": [{"diameter": 0.05, "length": 0.2, "axis": [0, 0, 1],

@@ -11,10 +11,10 @@ import pytest
 from hydroarm.config import ConfigError
 from hydroarm.control.registry import canonical_name
 from hydroarm.control.water_model import PhysicsInformedModel, WaterModelConfig, fit_water
-from hydroarm.model.loading import load_arm
-from hydroarm.model.plant import PlantConfig, UnderwaterPlant
-from hydroarm.model.water import Water, WaterModel
-from hydroarm.model.water_regressor import WaterRegressor
+from hydroarm.model.arm.loading import load_arm
+from hydroarm.model.arm.plant import PlantConfig, UnderwaterPlant
+from hydroarm.model.water.morison import Water, WaterModel
+from hydroarm.model.water.regressor import WaterRegressor
 from hydroarm.sim.experiment import ExperimentConfig, build_experiment, with_overrides
 
 STILL = Water(current={"model": "none"})
@@ -73,7 +73,7 @@ def test_rls_recovers_the_plants_cd_cm_and_volumes_from_noise_free_data():
     for q, v, a, w in plant_samples(arm, water, 200):
         phi = model.regressor.basis(q, v, a)
         rows.append(phi)
-        assert model.update(phi, w)
+        assert model.rls_step(phi, w)
     singular = np.linalg.svd(np.concatenate(rows), compute_uv=False)
     assert np.sum(singular < 1e-9 * singular[0]) == 4
     found = model.coefficients()
@@ -89,7 +89,7 @@ def test_saved_models_round_trip_and_are_refused_on_another_arm(tmp_path):
     arm = load_arm("paper")
     model = PhysicsInformedModel(arm)
     for q, v, a, w in plant_samples(arm, STILL, 20):
-        model.update(model.regressor.basis(q, v, a), w)
+        model.update(np.concatenate([q, v, a]), w)
     path = tmp_path / "water.json"
     model.save(path)
     loaded = PhysicsInformedModel(arm)
@@ -137,7 +137,7 @@ def test_the_estimate_stays_in_the_physical_box():
     for _ in range(20):
         q, v, a = rng.normal(size=(3, 6))
         phi = model.regressor.basis(q, v, a)
-        model.update(phi, -50.0 * (phi @ model.textbook))  # a water pulling the other way, hard
+        model.rls_step(phi, -50.0 * (phi @ model.textbook))  # a water pulling the other way, hard
     assert np.all(model.theta >= 0.0)
     assert np.all(model.theta <= 2.0 * np.maximum(model.textbook, 1e-6 * model.textbook.max()) * (1 + 1e-12))
 

@@ -9,7 +9,7 @@ state through every path in turn, so that a load change on a shared machine hits
 * ``compiled``: ``plant.compiled = true`` at the reference's settings (its numbers to ~1e-14);
 * ``compiled_fast``: ``plant.inner_step = 2.5e-3``, ``plant.drag_points = 3``;
 * ``mujoco_rk4_1ms_segments{1,8}``: MuJoCo stepping the same arm (hydroarm's own MJCF export,
-  :func:`hydroarm.model.mujoco_water.arm_to_mjcf`: the Pinocchio inertias and joints, each
+  :func:`hydroarm.model.water.mujoco_check.arm_to_mjcf`: the Pinocchio inertias and joints, each
   wetted cylinder as 1 or 8 geoms under MuJoCo's ellipsoid fluid model, gravity on) with its RK4
   integrator at 1 ms: ten ``mj_step`` per control step (skipped with a reason without mujoco);
 * ``batched_64``: 64 copies of the compiled step in one ``BatchedArm`` call (numba threads:
@@ -42,7 +42,7 @@ def _mujoco_stepper(arm, water, segments: int, period: float):
         import mujoco
     except ImportError:
         return "mujoco not installed (pip install 'hydroarm[mujoco]')"
-    from hydroarm.model.mujoco_water import arm_to_mjcf
+    from hydroarm.model.water.mujoco_check import arm_to_mjcf
 
     gravity = " ".join(f"{g:.17g}" for g in arm.model.gravity.linear)
     xml = arm_to_mjcf(arm, water, segments=segments)
@@ -170,7 +170,7 @@ def _batched(plant, states: list, period: float, quick: bool) -> dict:
     """64 copies in one BatchedArm call against 64 single compiled steps (copy-steps per second)."""
     import numba
 
-    from hydroarm.model.arm_fast import BatchedArm
+    from hydroarm.model.arm.fast import BatchedArm
 
     batch = BatchedArm(plant.fast)
     picks = [states[k % len(states)] for k in range(COPIES)]

@@ -26,7 +26,7 @@ def record_gp_stream(duration: float = 10.0) -> list:
     events: list = []
     experiment = paper_experiment("GP-MPC", duration)
     gp = experiment.controller.gp
-    add, predict = gp.add, gp.predict
+    add, predict = gp.update, gp.predict
 
     def recording_add(x, y):
         events.append(("add", np.array(x, dtype=float), np.array(y, dtype=float)))
@@ -36,7 +36,7 @@ def record_gp_stream(duration: float = 10.0) -> list:
         events.append(("predict", np.array(x, dtype=float)))
         return predict(x, **kwargs)
 
-    gp.add, gp.predict = recording_add, recording_predict
+    gp.update, gp.predict = recording_add, recording_predict
     experiment.run(0)
     return events
 
@@ -53,7 +53,7 @@ def replay_ours(events, gp_config, n_inputs: int, n_outputs: int, max_steps: int
     for event in events:
         if event[0] == "add":
             start = time.perf_counter_ns()
-            gp.add(event[1], event[2])
+            gp.update(event[1], event[2])
             add_s = (time.perf_counter_ns() - start) * 1e-9
             pending_add = 1
             continue

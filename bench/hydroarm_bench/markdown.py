@@ -40,7 +40,7 @@ EXPLANATIONS = {
         "iterations of 12 x 12 products), DAQP (~55 us) and Pinocchio's ABA derivatives "
         "(~6 us). The rest is Python glue: ~80 us of small NumPy calls in the GP's "
         "accept/reject logic and window bookkeeping, the reference sampling "
-        "(hydroarm.model.task, ~20 us per call, NumPy on 6 x 2 arrays), the copies in "
+        "(hydroarm.model.task.references, ~20 us per call, NumPy on 6 x 2 arrays), the copies in "
         "Arm.forward_dynamics_derivatives (~20 us of its 25 us) and the nominal RK4 step "
         "of observe (~40 us). What would move it: the GP's accept/reject loop inside the "
         "kernel (one call per update), a scalar fast path for the reference, copy-free "

@@ -1,8 +1,8 @@
 """Section 2c: the true plant against the dry rigid body alone (Pinocchio ABA).
 
 One dynamics evaluation (rigid body + water) against ``pinocchio.aba``, one control
-period of :class:`~hydroarm.model.plant.UnderwaterPlant` against the dry
-:class:`~hydroarm.model.nominal.NominalModel` RK4 step, and the compiled plant step
+period of :class:`~hydroarm.model.arm.plant.UnderwaterPlant` against the dry
+:class:`~hydroarm.model.dynamics.nominal.NominalModel` RK4 step, and the compiled plant step
 against its plain-NumPy twin ``UnderwaterPlant.step_numpy`` (bit-identical), at
 states of the GP-MPC closed loop.
 """
@@ -18,7 +18,7 @@ from hydroarm_bench.stats import FULL_SAMPLES, ratio, stats_ms, time_calls
 def bench_plant(recorded: dict, quick: bool) -> dict:
     import pinocchio as pin
 
-    from hydroarm.model.nominal import NominalModel
+    from hydroarm.model.dynamics.nominal import NominalModel
 
     # the plant of the paper scenario (the controller is not used: SMC is the cheapest to build)
     experiment = paper_experiment("SMC")

@@ -41,10 +41,10 @@ def _run(plant, system, steps: int) -> tuple[np.ndarray, np.ndarray]:
 
 def bench_uvms(quick: bool = False) -> dict:
     """The ``uvms`` section of bench.json."""
-    from hydroarm.model.uvms import build_uvms
-    from hydroarm.model.uvms_fast import FastUVMSConfig, FastUVMSPlant
-    from hydroarm.model.uvms_plant import UVMSPlant
-    from hydroarm.model.water import CurrentConfig, Water
+    from hydroarm.model.vehicle.fast import FastUVMSConfig, FastUVMSPlant
+    from hydroarm.model.vehicle.plant import UVMSPlant
+    from hydroarm.model.vehicle.system import build_uvms
+    from hydroarm.model.water.morison import CurrentConfig, Water
 
     system = build_uvms()
     water = Water(current=CurrentConfig(model="uniform", mean=[0.2, 0.0, 0.0]))

@@ -71,7 +71,7 @@ def bench_viewer(quick: bool = False) -> dict:
         return {"skipped": reason}
     from playwright.sync_api import sync_playwright
 
-    from hydroarm.model.loading import load_arm
+    from hydroarm.model.arm.loading import load_arm
     from hydroarm.sim.experiment import ExperimentConfig, run_experiment
     from hydroarm.studies.playback import reach
     from hydroarm.studies.viewer import camera_for, cylinder_poses, link_colour

@@ -198,11 +198,11 @@ def _experiment_config(
     vehicle: str | None = None,
 ):
     """The settings of ``--config`` (or the defaults), then, with ``--tuned``, the gains tuned for
-    the arm (``arm`` or the settings' arm; :func:`hydroarm.model.loading.tuned_settings_path`),
+    the arm (``arm`` or the settings' arm; :func:`hydroarm.model.arm.loading.tuned_settings_path`),
     then ``--vehicle`` (``vehicle``) with the ``--set`` overrides (validated together: a vehicle's
     settings are refused on a fixed arm)."""
     from hydroarm.config import read_mapping
-    from hydroarm.model.loading import tuned_settings_path
+    from hydroarm.model.arm.loading import tuned_settings_path
     from hydroarm.sim.experiment import ExperimentConfig, load_experiment_config, with_overrides
     from hydroarm.sim.settings_schema import migrated
 

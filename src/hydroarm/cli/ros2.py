@@ -93,7 +93,7 @@ def sim(
         on_stale=on_stale, controller_name=controller_name, thruster_controller_name=thruster_controller_name,
     )  # fmt: skip
     try:
-        from hydroarm.model.urdf_export import arm_to_urdf
+        from hydroarm.model.arm.urdf_export import arm_to_urdf
         from hydroarm.ros2.record import BagRecorder
         from hydroarm.ros2.sim_node import SimNode
         from hydroarm.sim.experiment import build_experiment

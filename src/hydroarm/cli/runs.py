@@ -133,7 +133,7 @@ def animate(
 
     Example: hydroarm animate results/runs/clean__gp-mpc__seed0.npz --out arm.gif
     """
-    from hydroarm.model.loading import load_arm
+    from hydroarm.model.arm.loading import load_arm
     from hydroarm.sim.runner import Trajectory
     from hydroarm.studies.animate import animate as render
 
@@ -159,7 +159,7 @@ def animate(
 @app.command()
 def arms(as_json: Annotated[bool, typer.Option("--json")] = False) -> None:
     """List the built-in arms."""
-    from hydroarm.model.loading import BUILTIN_ARMS, arm_description, load_arm
+    from hydroarm.model.arm.loading import BUILTIN_ARMS, arm_description, load_arm
 
     rows = []
     for name in BUILTIN_ARMS:
@@ -222,10 +222,10 @@ def export_urdf(
 
     Example: hydroarm export-urdf paper --out paper.urdf
     """
-    from hydroarm.model.loading import load_arm
+    from hydroarm.model.arm.loading import load_arm
 
     try:
-        from hydroarm.model.urdf_export import arm_to_urdf
+        from hydroarm.model.arm.urdf_export import arm_to_urdf
 
         text = arm_to_urdf(load_arm(arm))
     except ConfigError as error:

@@ -86,7 +86,7 @@ def _print_resolved(config_file, overrides: list[str], arm: str | None, as_json:
     from rich.console import Console
     from rich.table import Table
 
-    from hydroarm.model.loading import load_arm
+    from hydroarm.model.arm.loading import load_arm
     from hydroarm.sim.experiment import with_overrides
     from hydroarm.studies.settings_resolved import resolve_settings
 

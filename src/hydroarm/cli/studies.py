@@ -236,7 +236,7 @@ def tune(
     the best mean E_p wins.
     Example: hydroarm tune --arm alpha5 --controller smc --out alpha5.toml
     """
-    from hydroarm.model.loading import load_arm
+    from hydroarm.model.arm.loading import load_arm
     from hydroarm.sim.experiment import (
         arm_for_settings_file,
         canonical_name,

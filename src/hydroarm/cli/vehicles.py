@@ -23,7 +23,7 @@ app.add_typer(study_app, name="study")
 @app.command()
 def vehicles(as_json: Annotated[bool, typer.Option("--json", help="Machine-readable list.")] = False) -> None:
     """List the built-in vehicles (mass, thrusters, mounted arm)."""
-    from hydroarm.model.vehicle import BUILTIN_VEHICLES, load_vehicle
+    from hydroarm.model.vehicle.description import BUILTIN_VEHICLES, load_vehicle
 
     rows = []
     for name in BUILTIN_VEHICLES:

@@ -64,7 +64,7 @@ def serve_run(
 
             webbrowser.open(url)
     try:
-        from hydroarm.model.loading import load_arm
+        from hydroarm.model.arm.loading import load_arm
         from hydroarm.sim.runner import Trajectory
         from hydroarm.studies import viewer as browser_viewer
 

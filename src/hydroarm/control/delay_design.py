@@ -26,8 +26,8 @@ from __future__ import annotations
 import numpy as np
 
 from hydroarm.control.linear import double_integrator
-from hydroarm.model.arm import Arm
-from hydroarm.model.water import Water, added_mass_matrix
+from hydroarm.model.arm.description import Arm
+from hydroarm.model.water.morison import Water, added_mass_matrix
 
 INERTIA_MARGIN = 1.5
 """kappa (-): how much heavier than the dry arm plus its Morison added mass each joint's loop

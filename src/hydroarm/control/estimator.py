@@ -27,7 +27,7 @@ measurement before ``compute`` and ``observe``, and drives the filter with the
 controller's commanded acceleration (``ControlOutput.acceleration`` when the controller
 states it, else the dry model's ``ABA(q_hat, v_hat, tau)``).
 
-The real loop (issue 23, :mod:`hydroarm.model.sensing`):
+The real loop (issue 23, :mod:`hydroarm.model.real_loop.sensing`):
 
 * **encoder-only sensing** (``sensor.velocity = "differenced"``; ``estimator.measures``): the
   filter measures the position alone, ``y = C z + noise`` with C = [1, 0] and the variance of
@@ -69,8 +69,8 @@ from hydroarm.control.filter_design import (
 )
 from hydroarm.control.interface import Controller, ControlOutput, Reference
 from hydroarm.control.linear import double_integrator, double_integrator_step, filter_covariance
-from hydroarm.model.nominal import NominalModel
-from hydroarm.model.sensing import Actuator, ActuatorConfig, SensorConfig
+from hydroarm.model.dynamics.nominal import NominalModel
+from hydroarm.model.real_loop.sensing import Actuator, ActuatorConfig, SensorConfig
 
 EstimatorKind = Literal["auto", "none", "kalman"]
 

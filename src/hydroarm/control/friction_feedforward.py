@@ -1,6 +1,6 @@
 """The arm's joint friction fed forward under the inverse-dynamics MPCs (issue 32).
 
-A geared joint's Coulomb friction (:mod:`hydroarm.model.friction`) is a force that flips with the
+A geared joint's Coulomb friction (:mod:`hydroarm.model.real_loop.friction`) is a force that flips with the
 velocity. The ID-MPCs' learners and observers (GP-IDMPC's GP, the TDE/NDOB under IDMPC, PI-IDMPC's
 remainder) estimate it from past transitions; behind a loop delay they see transitions d periods
 old, and a force that flips with the velocity is then fed forward stale (docs/robustness.md,
@@ -45,7 +45,7 @@ from collections import deque
 import numpy as np
 
 from hydroarm.control.interface import Controller, ControlOutput, Reference
-from hydroarm.model.friction import FrictionConfig, friction_torque
+from hydroarm.model.real_loop.friction import FrictionConfig, friction_torque
 
 
 def told_friction(friction: FrictionConfig | None, setting: float | str) -> FrictionConfig | None:

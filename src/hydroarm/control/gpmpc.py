@@ -36,9 +36,9 @@ import pydantic
 from hydroarm.config import FrozenModel
 from hydroarm.control.gp import GPConfig, SlidingWindowGP
 from hydroarm.control.interface import AccelerationFeedforward, ControlOutput, Reference, require_port
-from hydroarm.model import fixed_order
-from hydroarm.model.arm import Arm
-from hydroarm.model.nominal import NominalModel
+from hydroarm.model.arm.description import Arm
+from hydroarm.model.dynamics import fixed_order
+from hydroarm.model.dynamics.nominal import NominalModel
 
 Features = Literal["state", "state+nominal", "state+torque"]
 
@@ -92,6 +92,7 @@ class GPMPC:
         self.mpc = mpc
         self.n = arm.n_joints
         self.gp = SlidingWindowGP(feature_size(self.config.features, self.n), self.n, gp_config)
+        self.estimator = self.gp  # interface.DisturbanceEstimator
         self.control_period = mpc.control_period
         self.nominal = NominalModel(arm, inner_step=None)  # own workspace; one RK4 step per period
         self.reset()
@@ -158,4 +159,4 @@ class GPMPC:
         if not (np.all(np.isfinite(residual)) and np.all(np.isfinite(features))):
             self._pending_events.append("gp_sample_rejected")  # e.g. a blown-up step: not learned
             return
-        self.gp.add(features, residual)  # meets no GP fault (SlidingWindowGP.add)
+        self.gp.update(features, residual)  # meets no GP fault (SlidingWindowGP.update)

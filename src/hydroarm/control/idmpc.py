@@ -67,7 +67,7 @@ torque and the acceleration the dynamics then gives. ``"clip"``: each torque cli
 (plain computed-torque saturation, for comparison).
 
 The GP (:class:`~hydroarm.control.gp.SlidingWindowGP`) learns the one-step residual of the
-dry model (:meth:`~hydroarm.model.nominal.NominalModel.residual`), n outputs, from the state
+dry model (:meth:`~hydroarm.model.dynamics.nominal.NominalModel.residual`), n outputs, from the state
 y (2n,) and, with ``gp_features = "state+acceleration"`` (default), the planned acceleration
 a_0 (n,) divided by ``acceleration_scale``: the water's added mass answers the acceleration,
 which the state alone does not tell. The outer plan does not depend on w_hat (only the torque
@@ -90,8 +90,8 @@ from hydroarm.control.gp import GPConfig, SlidingWindowGP
 from hydroarm.control.idmpc_limits import HorizonQP, allocate  # noqa: F401 (allocate: public here too)
 from hydroarm.control.interface import DEFAULT_CONTROL_PERIOD, ControlOutput, Reference, require_period, sample_times
 from hydroarm.control.linear import double_integrator, reference_defects, solve_dare
-from hydroarm.model.arm import Arm
-from hydroarm.model.nominal import NominalModel
+from hydroarm.model.arm.description import Arm
+from hydroarm.model.dynamics.nominal import NominalModel
 
 PositiveFloat = Annotated[float, pydantic.Field(gt=0.0, le=1e8)]
 NonNegativeFloat = Annotated[float, pydantic.Field(ge=0.0, le=1e8)]
@@ -354,12 +354,13 @@ class InverseDynamicsMPC:
             )
         self.n_gp_inputs = gp_input_size(cfg.gp_features, n)
         self.gp = SlidingWindowGP(self.n_gp_inputs, n, gp_config) if gp_config is not None else None
+        self.estimator = self.gp  # interface.DisturbanceEstimator (None: no GP)
         # load the compiled code now, not in the first control steps (a throwaway GP: same config)
         unconstrained_move(np.zeros((n, 2)), np.zeros((1, n, 2)), self.P, self.K, self._g, self.control_period)
         if gp_config is not None:
             warm = SlidingWindowGP(self.n_gp_inputs, n, gp_config)
             for k in range(2):
-                warm.add(np.full(self.n_gp_inputs, 0.1 * k), np.full(n, 0.1 * k))
+                warm.update(np.full(self.n_gp_inputs, 0.1 * k), np.full(n, 0.1 * k))
             warm.update_hyperparameters()
             warm.predict(np.zeros(self.n_gp_inputs))
         self.reset()
@@ -502,4 +503,4 @@ class InverseDynamicsMPC:
         if not (np.all(np.isfinite(residual)) and np.all(np.isfinite(gp_input))):
             self._pending_events.append("gp_sample_rejected")
             return
-        self.gp.add(gp_input, residual)
+        self.gp.update(gp_input, residual)

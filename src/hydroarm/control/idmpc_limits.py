@@ -45,7 +45,7 @@ import numpy as np
 
 from hydroarm.control.linear import double_integrator
 from hydroarm.control.plan_qp import DUAL_TOL, PRIMAL_TOL, joint_factors, solve_plan_qp, warm_set
-from hydroarm.model.nominal import NominalModel
+from hydroarm.model.dynamics.nominal import NominalModel
 
 QP_SOLVERS = ("daqp", "structured")
 """The solvers of :class:`HorizonQP`: DAQP (dense) or :mod:`hydroarm.control.plan_qp` (its structure)."""

@@ -28,7 +28,7 @@ class Reference(Protocol):
 
     Optionally, a reference that also accepts an array of times (shape (m,)) and then returns
     (m, n) arrays declares it with a class attribute ``vectorised = True``
-    (:class:`~hydroarm.model.task.SinusoidReference` does): controllers that need a whole
+    (:class:`~hydroarm.model.task.references.SinusoidReference` does): controllers that need a whole
     horizon then sample it in one call. Without it, :func:`sample_times` calls ``sample`` once
     per time.
     """
@@ -215,6 +215,55 @@ class WrapsController(Protocol):
     Kalman filter's, an observer's, the vehicle's arm controller)."""
 
     controller: Controller
+
+
+@runtime_checkable
+class DisturbanceEstimator(Protocol):
+    """What every disturbance learner implements: the sliding-window GP
+    (:class:`~hydroarm.control.gp.SlidingWindowGP`, GP-MPC's, GP-IDMPC's and the vehicle
+    controller's), PI-IDMPC's water model (:class:`~hydroarm.control.water_model.PhysicsInformedModel`)
+    and the observers (:class:`~hydroarm.control.observers.DisturbanceObserver`).
+
+    The disturbance w (n,) N m (the force the dry model misses) is learned as a function of an
+    input x (d,): the learner's own features (the GP's, say the state; the water model's
+    ``[q, v, a]`` (3n,)); an observer is input-free (it ignores x: its estimate is the filtered
+    last residual). Per control step: :meth:`update` with the newest sample, then :meth:`mean`
+    and :meth:`variance` where the estimate is needed.
+    """
+
+    @property
+    def n_samples(self) -> int:
+        """The samples taken since the last :meth:`reset` (the GP: in its window)."""
+
+    def reset(self) -> None:
+        """Forget every sample (back to the prior)."""
+
+    def update(self, x: np.ndarray, r: np.ndarray) -> bool:
+        """Take one sample: the disturbance r (n,) N m seen at input x (d,); False if it was
+        refused (non-finite, or the learner could not take it) and nothing changed."""
+
+    def mean(self, x: np.ndarray) -> np.ndarray:
+        """The estimated disturbance (n,) N m at input x (d,)."""
+
+    def variance(self, x: np.ndarray) -> np.ndarray:
+        """Its variance (n,) (N m)^2 at input x (d,); NaN where the learner has no variance model."""
+
+
+@runtime_checkable
+class LearnsDisturbance(Protocol):
+    """A controller whose disturbance learner is ``estimator`` (:class:`DisturbanceEstimator`)."""
+
+    estimator: DisturbanceEstimator
+
+
+def estimator_of(controller: Controller) -> DisturbanceEstimator | None:
+    """The disturbance learner of the outermost controller of ``controller``'s chain
+    (:func:`controller_chain`) that has one (:class:`LearnsDisturbance`), or None."""
+    for inner in controller_chain(controller):
+        estimator = getattr(inner, "estimator", None)
+        if estimator is not None and isinstance(estimator, DisturbanceEstimator):
+            return estimator
+    return None
 
 
 @runtime_checkable

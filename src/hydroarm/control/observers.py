@@ -28,10 +28,12 @@ Saturation gate (``gate``): on the step after a torque saturated, the estimate i
 (zero instead): that step's residual mixes the unmodelled clipping of the torque with the water.
 The observer itself still updates.
 
-:class:`ObservedController` puts an observer under any controller whose ``compute`` takes a
-``feedforward_torque`` (SMC, MPC, IDMPC): it feeds the estimate forward as the generalised force
-the controller compensates (sign: ``M q'' + h = tau + w``, so the controller plans with
-``tau - w_hat``) and updates the observer in ``observe``.
+:class:`ObservedController` puts an observer (or any
+:class:`~hydroarm.control.interface.DisturbanceEstimator` on the state) under any controller
+whose ``compute`` takes a ``feedforward_torque`` (SMC, MPC, IDMPC): it feeds the estimate forward
+as the generalised force the controller compensates (sign: ``M q'' + h = tau + w``, so the
+controller plans with ``tau - w_hat``) and, in ``observe``, updates it with the transition's
+one-step residual (:meth:`~hydroarm.model.dynamics.nominal.NominalModel.tde_residual`).
 """
 
 from __future__ import annotations
@@ -43,9 +45,15 @@ import numpy as np
 import pydantic
 
 from hydroarm.config import FrozenModel
-from hydroarm.control.interface import ControlOutput, Reference, TorqueFeedforward, require_port
-from hydroarm.model.arm import Arm
-from hydroarm.model.nominal import NominalModel
+from hydroarm.control.interface import (
+    ControlOutput,
+    DisturbanceEstimator,
+    Reference,
+    TorqueFeedforward,
+    require_port,
+)
+from hydroarm.model.arm.description import Arm
+from hydroarm.model.dynamics.nominal import NominalModel
 
 ObserverKind = Literal["none", "tde", "ndob"]
 
@@ -77,11 +85,14 @@ class ObserverConfig(FrozenModel):
 
 
 class DisturbanceObserver:
-    """TDE or first-order NDOB on ``arm``'s dry model with control period T (module docstring).
+    """TDE or first-order NDOB with control period T (module docstring): a
+    :class:`~hydroarm.control.interface.DisturbanceEstimator` without an input.
 
-    :meth:`update` takes each measured transition; :attr:`estimate` (n,) N m is the current
-    w_hat (zero before the first transition); :meth:`feedforward` is what the controller uses
-    (zero on the step after a saturation when gated).
+    :meth:`update` takes each residual (the one-step residual of a measured transition,
+    :meth:`~hydroarm.model.dynamics.nominal.NominalModel.tde_residual`, or what a model left of it);
+    :meth:`mean` (n,) N m is the current w_hat (zero before the first residual) whatever its
+    input; :meth:`variance` is NaN (an observer has no variance model); :meth:`feedforward` is
+    what PI-IDMPC's remainder uses (zero on the step after a saturation when gated).
     """
 
     def __init__(self, arm: Arm, control_period: float, config: ObserverConfig):
@@ -92,7 +103,6 @@ class DisturbanceObserver:
         self.period = float(control_period)
         self.config = config
         self.gain = 1.0 if config.kind == "tde" else float(config.gain)
-        self.nominal = NominalModel(arm, inner_step=None)  # own workspace
         self.reset()
 
     def reset(self) -> None:
@@ -101,29 +111,32 @@ class DisturbanceObserver:
         self.updates = 0
         self._saturated = False
 
-    def residual(self, y: np.ndarray, u: np.ndarray, y_next: np.ndarray) -> np.ndarray:
-        """``r = M(q) (v_next - v) / T + h(q, v) - u`` (n,) N m of the transition ``y -> y_next``
-        (2n,) under ``u`` (n,), with M and h at y (:meth:`~hydroarm.model.nominal.NominalModel.tde_residual`,
-        with NumPy's product as the observers always had it)."""
-        return self.nominal.tde_residual(y, u, y_next, self.period, product="blas")
+    @property
+    def n_samples(self) -> int:
+        """The residuals taken since the last reset."""
+        return self.updates
 
-    def update(self, y: np.ndarray, u: np.ndarray, y_next: np.ndarray, saturated: bool = False) -> None:
-        """Take the transition ``y -> y_next`` under the applied ``u``; ``saturated``: a torque of
-        ``u`` was at its limit (the gate then holds the next feed-forward). A non-finite residual
-        is not taken."""
-        r = self.residual(np.asarray(y, dtype=float), np.asarray(u, dtype=float), np.asarray(y_next, dtype=float))
-        self.update_residual(r, saturated)
-
-    def update_residual(self, r: np.ndarray, saturated: bool = False) -> None:
-        """Take an already computed residual r (n,) N m (e.g. what a model left of the TDE's)."""
+    def update(self, x: np.ndarray | None, r: np.ndarray, saturated: bool = False) -> bool:
+        """Take the residual r (n,) N m (``x`` is not read: the observer has no input);
+        ``saturated``: a torque of the step was at its limit (the gate then holds the next
+        :meth:`feedforward`). A non-finite residual is not taken (False)."""
         self._saturated = bool(saturated)
         if not np.all(np.isfinite(r)):
-            return
+            return False
         if self.gain == 1.0:  # TDE: the residual itself, bit for bit
             self.estimate = r
         else:
             self.estimate = self.estimate + self.gain * (r - self.estimate)
         self.updates += 1
+        return True
+
+    def mean(self, x: np.ndarray | None = None) -> np.ndarray:
+        """The estimate w_hat (n,) N m (``x`` is not read)."""
+        return self.estimate.copy()
+
+    def variance(self, x: np.ndarray | None = None) -> np.ndarray:
+        """NaN (n,): an observer keeps no variance of its estimate."""
+        return np.full(self.n, np.nan)
 
     def feedforward(self) -> np.ndarray:
         """The estimate to feed forward now (n,) N m: zero when gated after a saturated step."""
@@ -137,32 +150,53 @@ SATURATION_TOLERANCE = 1e-9
 
 
 class ObservedController:
-    """A controller with a :class:`DisturbanceObserver` under it (module docstring).
+    """A controller with a disturbance estimator under it (module docstring).
 
     ``controller`` must have the torque feed-forward port (``compute(..., feedforward_torque=)``
     (n,) N m, :class:`~hydroarm.control.interface.TorqueFeedforward`; checked here, TypeError
-    otherwise); its ``torque_limit`` (n,) decides saturation. ``name``: the controller's with
-    ``+TDE`` / ``+NDOB`` (``-gated``).
+    otherwise); its ``torque_limit`` (n,) decides saturation. ``estimator``: any
+    :class:`~hydroarm.control.interface.DisturbanceEstimator` whose input is the measured state
+    y (2n,) (a :class:`DisturbanceObserver` ignores it; a
+    :class:`~hydroarm.control.gp.SlidingWindowGP` with 2n inputs and n outputs learns on it);
+    it is updated with the one-step residual of each transition
+    (:meth:`~hydroarm.model.dynamics.nominal.NominalModel.tde_residual` on ``arm``'s dry model, NumPy's
+    product as the observers always had it) and its mean at y is fed forward. ``gate``: feed
+    zero on the step after a saturated one (default: the observer's ``config.gate``, else False).
+    ``name``: the controller's with ``+TDE`` / ``+NDOB`` (``-gated``), or ``+label``.
     ``ControlOutput.disturbance_mean`` is the estimate fed forward.
     """
 
-    def __init__(self, controller: TorqueFeedforward, observer: DisturbanceObserver):
-        require_port(controller, "torque", f"the disturbance observer ({observer.config.label})")
+    def __init__(
+        self,
+        controller: TorqueFeedforward,
+        estimator: DisturbanceEstimator,
+        arm: Arm,
+        gate: bool | None = None,
+        label: str | None = None,
+    ):
+        observer = estimator if isinstance(estimator, DisturbanceObserver) else None
+        if label is None:
+            label = observer.config.label if observer is not None else type(estimator).__name__
+        require_port(controller, "torque", f"the disturbance estimator ({label})")
         self.controller = controller
-        self.observer = observer
-        self.name = f"{controller.name}+{observer.config.label}"
+        self.estimator = estimator
+        self.gate = bool(observer.config.gate if observer is not None and gate is None else gate)
+        self.name = f"{controller.name}+{label}"
         self.control_period = controller.control_period
         self.torque_limit = np.asarray(controller.torque_limit, dtype=float)
-        self._saturated = False
+        self.nominal = NominalModel(arm, inner_step=None)  # own workspace
+        self._saturated = False  # the last computed torque saturated
+        self._hold = False  # the last observed step saturated: gate the next feed-forward
 
     def reset(self) -> None:
         self.controller.reset()
-        self.observer.reset()
+        self.estimator.reset()
         self._saturated = False
+        self._hold = False
 
     def compute(self, t: float, y: np.ndarray, reference: Reference) -> ControlOutput:
         start = time.perf_counter()
-        w_hat = self.observer.feedforward()
+        w_hat = np.zeros(self.torque_limit.shape[0]) if self.gate and self._hold else self.estimator.mean(y)
         elapsed = time.perf_counter() - start
         out = self.controller.compute(t, y, reference, feedforward_torque=w_hat)
         self._saturated = out.status == "saturated" or bool(
@@ -174,5 +208,11 @@ class ObservedController:
         return out
 
     def observe(self, t: float, y: np.ndarray, u: np.ndarray, y_next: np.ndarray) -> None:
-        self.observer.update(y, u, y_next, self._saturated)
+        y, u, y_next = (np.asarray(x, dtype=float) for x in (y, u, y_next))
+        r = self.nominal.tde_residual(y, u, y_next, self.control_period, product="blas")
+        self._hold = self._saturated
+        if isinstance(self.estimator, DisturbanceObserver):
+            self.estimator.update(y, r, self._saturated)
+        elif np.all(np.isfinite(r)) and np.all(np.isfinite(y)):
+            self.estimator.update(y, r)
         self.controller.observe(t, y, u, y_next)

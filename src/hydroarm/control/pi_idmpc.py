@@ -59,8 +59,8 @@ from hydroarm.control.linear import reference_defects
 from hydroarm.control.observers import DisturbanceObserver
 from hydroarm.control.plan_rollout import rollout_step, water_along_plan
 from hydroarm.control.water_model import PhysicsInformedModel, WaterModelConfig
-from hydroarm.model import fixed_order
-from hydroarm.model.arm import Arm
+from hydroarm.model.arm.description import Arm
+from hydroarm.model.dynamics import fixed_order
 
 PLAN_TRUST = (20.0, 1000.0)
 """A plan is followed only if its accelerations over the held steps are within ``20 x`` the largest
@@ -157,6 +157,7 @@ class PhysicsInformedIDMPC:
         self.control_period = self.mpc.control_period
         self.torque_limit = self.mpc.torque_limit
         self.model = PhysicsInformedModel(arm, model_config)
+        self.estimator = self.model  # interface.DisturbanceEstimator
         remainder = self.model.config.remainder
         self.remainder = None if remainder.kind == "none" else DisturbanceObserver(arm, self.control_period, remainder)
         self._loaded: tuple[np.ndarray, np.ndarray, int] | None = None
@@ -524,7 +525,7 @@ class PhysicsInformedIDMPC:
         if residual is not None and self.remainder is not None:
             y, y_next = np.asarray(y, dtype=float), np.asarray(y_next, dtype=float)
             q_mid, v_mid, a = self.model.transition_features(y, y_next, self.control_period)
-            self.remainder.update_residual(residual - self.model.predict(q_mid, v_mid, a), self._saturated)
+            self.remainder.update(None, residual - self.model.predict(q_mid, v_mid, a), self._saturated)
         self._learn_time = time.perf_counter() - start
 
 

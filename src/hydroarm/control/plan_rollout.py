@@ -7,7 +7,7 @@ nonlinear effects at that state and the arm's joint Jacobian and its time variat
 
 1. the IDMPC's unconstrained first acceleration ``a = a_r,0 + u_0(e0, c)``
    (:func:`~hydroarm.control.idmpc.unconstrained_move`, the defects c of its own horizon);
-2. the water model's terms ``(M_A, f)`` (:func:`~hydroarm.model.strips.water_terms` with the
+2. the water model's terms ``(M_A, f)`` (:func:`~hydroarm.model.water.strips.water_terms` with the
    model's coefficients), ``M = M_dry + M_A``, ``bias = h - f - w_rest``;
 3. the torque allocation of :func:`~hydroarm.control.idmpc_limits.allocate`
    (:func:`allocate_fixed`), the acceleration bounded by ``max(|a|, 100)``;
@@ -28,7 +28,7 @@ import numba
 import numpy as np
 
 from hydroarm.control.idmpc import unconstrained_move
-from hydroarm.model.strips import water_terms
+from hydroarm.model.water.strips import water_terms
 
 __all__ = ["allocate_fixed", "rollout_step", "water_along_plan"]
 
@@ -166,7 +166,7 @@ def water_along_plan(added, rest, a, remainder, limit):  # pragma: no cover - co
     """The model's force at the plan's N states, ``clip(f_k - M_A,k a_k + w_rest, +-limit)``
     (N, n), from its terms ``added`` (N, n, n), ``rest`` = f (N, n), the planned accelerations
     ``a`` (N, n), the remainder's estimate (n,) and the torque limits (n,): each product summed
-    in column order (:func:`hydroarm.model.fixed_order.matvec`'s)."""
+    in column order (:func:`hydroarm.model.dynamics.fixed_order.matvec`'s)."""
     horizon, n = rest.shape
     w = np.empty((horizon, n))
     for k in range(horizon):

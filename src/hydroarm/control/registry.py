@@ -31,10 +31,10 @@ from hydroarm.control.mpc import LinearMPC
 from hydroarm.control.observers import DisturbanceObserver, ObservedController
 from hydroarm.control.pi_idmpc import PhysicsInformedIDMPC
 from hydroarm.control.smc import SlidingModeController
-from hydroarm.model.arm import Arm
-from hydroarm.model.friction import FrictionConfig
-from hydroarm.model.nominal import NominalModel
-from hydroarm.model.sensing import ActuatorConfig, SensorConfig
+from hydroarm.model.arm.description import Arm
+from hydroarm.model.dynamics.nominal import NominalModel
+from hydroarm.model.real_loop.friction import FrictionConfig
+from hydroarm.model.real_loop.sensing import ActuatorConfig, SensorConfig
 
 
 @dataclass(frozen=True)
@@ -320,7 +320,7 @@ def build_controller(
                 f"observer.kind = {observer.kind!r}: {spec.name} learns the disturbance itself; "
                 f"an observer runs under {takes} (or set observer.kind = 'none')"
             )
-        controller = ObservedController(controller, DisturbanceObserver(arm, control_period, observer))
+        controller = ObservedController(controller, DisturbanceObserver(arm, control_period, observer), arm)
     idmpc = sections.get("idmpc") if "idmpc" in spec.sections else None
     told = told_friction(friction, idmpc.friction_feedforward) if idmpc is not None else None
     if told is not None:

@@ -25,8 +25,8 @@ import pydantic
 
 from hydroarm.config import FrozenModel, per_joint
 from hydroarm.control.interface import DEFAULT_CONTROL_PERIOD, ControlOutput, Reference, require_period
-from hydroarm.model.arm import Arm
-from hydroarm.model.nominal import NominalModel
+from hydroarm.model.arm.description import Arm
+from hydroarm.model.dynamics.nominal import NominalModel
 
 Gain = Annotated[float, pydantic.Field(gt=0.0, le=1e6)]
 GainOrList = Gain | list[Gain]

@@ -1,7 +1,7 @@
 """The whole vehicle-manipulator system's controller: an arm controller + a station keeper.
 
 * The arm: any controller of the registry (default ``SMC``) built on the arm alone, fixed-base,
-  seeing joint states only (on :func:`hydroarm.model.uvms.mounted_arm`: the arm's dry model
+  seeing joint states only (on :func:`hydroarm.model.vehicle.system.mounted_arm`: the arm's dry model
   with gravity turned into its base frame as mounted on a level vehicle; the vehicle's motion
   is a disturbance to it).
 * The vehicle: :class:`~hydroarm.control.vehicle_control.VehiclePID` or ``VehicleMPC``, blind
@@ -30,8 +30,8 @@ import numpy as np
 from hydroarm.control.gp import GPConfig, SlidingWindowGP
 from hydroarm.control.interface import DEFAULT_CONTROL_PERIOD, Controller, ControlOutput, Reference, require_period
 from hydroarm.control.vehicle_control import VehicleControlConfig, make_vehicle_controller, restoring_wrench
-from hydroarm.model.uvms import UVMS
-from hydroarm.model.vehicle import body_rotation
+from hydroarm.model.vehicle.description import body_rotation
+from hydroarm.model.vehicle.system import UVMS
 
 
 class UVMSController:
@@ -55,11 +55,13 @@ class UVMSController:
         self.uvms = uvms
         self.n_arm = uvms.n_arm
         self.control_period = require_period(control_period)
-        self.arm = arm_controller
+        self.arm_controller = arm_controller  # the port the arm's controller fills
+        self.layout = uvms.layout  # the floating state's parts by name
         self.target = np.asarray(target, dtype=float).copy()
         self.vehicle = make_vehicle_controller(uvms.vehicle, vehicle, self.control_period)
         self.aware = aware
         self.gp = SlidingWindowGP(3 * self.n_arm, 6, gp if gp is not None else GPConfig(window=60)) if aware else None
+        self.estimator = self.gp  # interface.DisturbanceEstimator of the body wrench (None: unaware)
         self.name = f"{arm_controller.name}+{self.vehicle.config.kind.upper()}{'+GP' if aware else ''}"
         self._features = None
         self._pending_events: list[str] = []
@@ -67,11 +69,11 @@ class UVMSController:
     @property
     def controller(self) -> Controller:
         """The arm's controller: the one this one wraps (:class:`~hydroarm.control.interface.WrapsController`;
-        ``arm`` is the same object)."""
-        return self.arm
+        ``arm_controller`` is the same object)."""
+        return self.arm_controller
 
     def reset(self) -> None:
-        self.arm.reset()
+        self.arm_controller.reset()
         self.vehicle.reset()
         if self.gp is not None:
             self.gp.reset()
@@ -79,16 +81,15 @@ class UVMSController:
         self._pending_events = []
 
     def features(self, x: np.ndarray, reference: Reference, t: float) -> np.ndarray:
-        n, nq = self.n_arm, self.uvms.nq
-        return np.concatenate([x[7:nq], x[nq + 6 : nq + 6 + n], reference.sample(t)[2]])
+        parts = self.layout
+        return np.concatenate([x[parts.arm_q], x[parts.arm_v], reference.sample(t)[2]])
 
     def compute(self, t: float, y: np.ndarray, reference: Reference) -> ControlOutput:
         """The input ``[tau_arm, thrust]`` for the measured plant state ``y = [q, v, f]``;
         ``reference`` the arm's joint reference."""
         start = time.perf_counter()
-        n, nq = self.n_arm, self.uvms.nq
-        y_arm = np.concatenate([y[7:nq], y[nq + 6 : nq + 6 + n]])
-        arm_out = self.arm.compute(t, y_arm, reference)
+        parts = self.layout
+        arm_out = self.arm_controller.compute(t, parts.arm_state(y), reference)
         events = [*self._pending_events, *arm_out.events]
         self._pending_events = []
         d_hat = np.zeros(6)
@@ -102,7 +103,7 @@ class UVMSController:
             else:
                 events.append("gp_nonfinite_prediction")
             gp_time = time.perf_counter() - gp_start
-        thrust, wrench, saturated = self.vehicle.compute(y[:7], y[nq : nq + 6], self.target, d_hat)
+        thrust, wrench, saturated = self.vehicle.compute(y[parts.base_pose], y[parts.base_velocity], self.target, d_hat)
         self._features = self.features(y, reference, t) if self.gp is not None else None
         timings = {"gp": gp_time, "total": time.perf_counter() - start}
         record = {
@@ -123,8 +124,8 @@ class UVMSController:
 
     def residual(self, x: np.ndarray, u: np.ndarray, x_next: np.ndarray) -> np.ndarray:
         """What the vehicle-only model misses over the step (body wrench, N and N m)."""
-        vehicle, nq = self.uvms.vehicle, self.uvms.nq
-        nu, nu_next = x[nq : nq + 6], x_next[nq : nq + 6]
+        vehicle, twist = self.uvms.vehicle, self.layout.base_velocity
+        nu, nu_next = x[twist], x_next[twist]
         rot = body_rotation(x)
         thrust = vehicle.clip_thrust(u[self.n_arm :])
         damping = (vehicle.linear_damping + vehicle.quadratic_damping * np.abs(nu)) * nu
@@ -132,19 +133,13 @@ class UVMSController:
         return self.vehicle.inertia @ (nu_next - nu) / self.control_period - model
 
     def observe(self, t: float, y: np.ndarray, u: np.ndarray, y_next: np.ndarray) -> None:
-        n, nq = self.n_arm, self.uvms.nq
-        self.arm.observe(
-            t,
-            np.concatenate([y[7:nq], y[nq + 6 : nq + 6 + n]]),
-            u[:n],
-            np.concatenate([y_next[7:nq], y_next[nq + 6 : nq + 6 + n]]),
-        )
+        self.arm_controller.observe(t, self.layout.arm_state(y), u[: self.n_arm], self.layout.arm_state(y_next))
         if self.gp is None or self._features is None:
             return
         target = self.residual(y, u, y_next)
         if not np.all(np.isfinite(target)):
             self._pending_events.append("gp_sample_rejected")
             return
-        self.gp.add(self._features, target)
+        self.gp.update(self._features, target)
         _, events = self.gp.update_hyperparameters(return_events=True)
         self._pending_events.extend(events)

@@ -28,7 +28,7 @@ from hydroarm.config import FrozenModel
 from hydroarm.control.interface import DEFAULT_CONTROL_PERIOD
 from hydroarm.control.mpc.condense import condense
 from hydroarm.control.qp import DaqpBoxSolver
-from hydroarm.model.vehicle import Vehicle, body_rotation, rotation_log
+from hydroarm.model.vehicle.description import Vehicle, body_rotation, rotation_log
 
 Six = list[float]
 

@@ -1,7 +1,7 @@
 """A physics-informed model of the water, learned online: recursive least squares on the Morison basis.
 
 The water's generalised force is linear in three coefficients per wetted cylinder
-(:class:`~hydroarm.model.water_regressor.WaterRegressor`): ``w = Phi(q, v, a) theta``. The
+(:class:`~hydroarm.model.water.regressor.WaterRegressor`): ``w = Phi(q, v, a) theta``. The
 learner keeps a Gaussian belief ``theta ~ N(theta_hat, P)`` and updates it with each observed
 transition ``y -> y_next`` under the applied torque u (recursive least squares with exponential
 forgetting, i.e. Bayesian linear regression whose old evidence fades by lambda per step)::
@@ -47,11 +47,11 @@ from scipy.interpolate import make_smoothing_spline
 
 from hydroarm.config import ConfigError, FrozenModel
 from hydroarm.control.observers import ObserverConfig
-from hydroarm.model import fixed_order as fixed
-from hydroarm.model.arm import Arm
-from hydroarm.model.nominal import NominalModel
-from hydroarm.model.water import Water
-from hydroarm.model.water_regressor import WaterRegressor
+from hydroarm.model.arm.description import Arm
+from hydroarm.model.dynamics import fixed_order as fixed
+from hydroarm.model.dynamics.nominal import NominalModel
+from hydroarm.model.water.morison import Water
+from hydroarm.model.water.regressor import WaterRegressor
 
 MODEL_FORMAT = "hydroarm-water-model-1"
 
@@ -138,9 +138,27 @@ class PhysicsInformedModel:
         """:meth:`terms` at the N states of a plan, q, v (N, n): ``(M_A (N, n, n), f (N, n))``."""
         return self.regressor.terms_along(self.theta, q, v)
 
-    def variance(self, q: np.ndarray, v: np.ndarray, a: np.ndarray) -> np.ndarray:
-        """The predicted force's variance (n,) (N m)^2 under the belief on theta."""
-        phi = self.regressor.basis(q, v, a)
+    # --- the estimator protocol (hydroarm.control.interface.DisturbanceEstimator) -----
+    @property
+    def n_samples(self) -> int:
+        """The transitions learned since the last reset."""
+        return self.samples
+
+    def _split(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(q, v, a)`` (n,) each of the input ``x = [q, v, a]`` (3n,)."""
+        x = np.asarray(x, dtype=float)
+        if x.shape != (3 * self.n,):
+            raise ValueError(f"the water model's input is [q, v, a]: {3 * self.n} values, got shape {x.shape}")
+        n = self.n
+        return x[:n], x[n : 2 * n], x[2 * n :]
+
+    def mean(self, x: np.ndarray) -> np.ndarray:
+        """The water's generalised force (n,) N m at ``x = [q, v, a]`` (3n,) (:meth:`predict`)."""
+        return self.predict(*self._split(x))
+
+    def variance(self, x: np.ndarray) -> np.ndarray:
+        """The predicted force's variance (n,) (N m)^2 at ``x = [q, v, a]`` (3n,) under the belief on theta."""
+        phi = self.regressor.basis(*self._split(x))
         return np.einsum("ip,pq,iq->i", phi, self.covariance, phi)
 
     def coefficients(self) -> dict[str, np.ndarray]:
@@ -150,7 +168,7 @@ class PhysicsInformedModel:
     # --- learning -----------------------------------------------------------------
     def residual(self, y: np.ndarray, u: np.ndarray, y_next: np.ndarray, period: float) -> np.ndarray:
         """The TDE residual ``M(q) (v_next - v) / T + h(q, v) - u`` (n,) N m of a transition
-        (:meth:`~hydroarm.model.nominal.NominalModel.tde_residual`, fixed-order product)."""
+        (:meth:`~hydroarm.model.dynamics.nominal.NominalModel.tde_residual`, fixed-order product)."""
         return self.nominal.tde_residual(y, u, y_next, period)
 
     def transition_features(self, y: np.ndarray, y_next: np.ndarray, period: float):
@@ -158,13 +176,18 @@ class PhysicsInformedModel:
         n = self.n
         return 0.5 * (y[:n] + y_next[:n]), 0.5 * (y[n:] + y_next[n:]), (y_next[n:] - y[n:]) / period
 
-    def update(self, phi: np.ndarray, target: np.ndarray) -> bool:
+    def update(self, x: np.ndarray, r: np.ndarray) -> bool:
+        """Learn the observed force r (n,) N m at ``x = [q, v, a]`` (3n,): one RLS step on the
+        Morison basis there (:meth:`rls_step`); False (nothing learned) as there."""
+        return self.rls_step(self.regressor.basis(*self._split(x)), r)
+
+    def rls_step(self, phi: np.ndarray, target: np.ndarray) -> bool:
         """One RLS step with the regressor ``phi`` (n, 3C) and the observed force ``target`` (n,)
         N m; False (nothing learned) for a non-finite sample, or if the innovation covariance is
         not positive definite (P has lost it)."""
         if not (np.all(np.isfinite(phi)) and np.all(np.isfinite(target))):
             return False
-        # Fixed-order compiled products and a Cholesky solve (hydroarm.model.fixed_order): BLAS
+        # Fixed-order compiled products and a Cholesky solve (hydroarm.model.dynamics.fixed_order): BLAS
         # and LAPACK round by their CPU's kernel, and the plan built on theta amplifies that.
         phi = np.ascontiguousarray(phi, dtype=float)
         lam = self.config.forgetting
@@ -202,7 +225,7 @@ class PhysicsInformedModel:
         if acceleration is not None:
             a = np.asarray(acceleration, dtype=float)
         r = self.residual(y, u, y_next, period)
-        return r if self.update(self.regressor.basis(q, v, a), r) else None
+        return r if self.update(np.concatenate([q, v, a]), r) else None
 
     # --- memory -------------------------------------------------------------------
     def save(self, path: str | Path) -> None:

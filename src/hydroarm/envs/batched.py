@@ -4,8 +4,8 @@
 vectorization_mode="vector_entry_point")`` gives it (``gymnasium.make`` of that id gives one copy,
 :func:`make_compiled_arm_env`, the same numbers bit for bit). Every copy is an
 :class:`~hydroarm.envs.underwater_arm.UnderwaterArmEnv` on the compiled plant
-(``plant.compiled = true``, :mod:`hydroarm.model.arm_fast`): the copies' control periods are one
-:class:`~hydroarm.model.arm_fast.BatchedArm` call (``numba.prange`` across the cores), the rest
+(``plant.compiled = true``, :mod:`hydroarm.model.arm.fast`): the copies' control periods are one
+:class:`~hydroarm.model.arm.fast.BatchedArm` call (``numba.prange`` across the cores), the rest
 (torques, rewards, measurements, the reference, autoreset) array operations over the copies. The
 keyword arguments are the env's (``arm``, ``config``, ``settings``, ``noise_variance``,
 ``duration``, ``action_mode``, ``action_scale``, ``start_spread``).
@@ -42,7 +42,7 @@ from gymnasium.vector.utils import batch_space
 
 from hydroarm.envs.underwater_arm import POSITION_BOUND, VELOCITY_WEIGHT, UnderwaterArmEnv
 from hydroarm.envs.vector import _autoreset_mode
-from hydroarm.model.arm_fast import BatchedArm
+from hydroarm.model.arm.fast import BatchedArm
 from hydroarm.sim.runner import DIVERGENCE_SPEED
 
 __all__ = ["BatchedArmVectorEnv", "make_batched_arm_vector_env", "make_compiled_arm_env"]

@@ -3,9 +3,9 @@
 ``UnderwaterArmEnv`` is the closed loop of :func:`hydroarm.sim.runner.run_closed_loop`
 with the controller taken out: the agent gives the joint torques. Everything else comes
 from the one experiment builder, :func:`hydroarm.sim.experiment.build_experiment`
-(with no controller): the true plant (:class:`~hydroarm.model.plant.UnderwaterPlant`,
+(with no controller): the true plant (:class:`~hydroarm.model.arm.plant.UnderwaterPlant`,
 with the water, current and measurement noise of the settings), the arm's own task
-(:func:`~hydroarm.model.task.task_for_arm`: the paper's sinusoids, scaled into the joint
+(:func:`~hydroarm.model.task.references.task_for_arm`: the paper's sinusoids, scaled into the joint
 ranges of arms with limits) and the start state (the task's, moved by the settings'
 ``initial_state``: :func:`~hydroarm.sim.experiment.start_for_arm`).
 
@@ -130,7 +130,7 @@ def task_torque(experiment) -> np.ndarray:
     true plant: the dry inverse dynamics of the reference minus the water's torques (drag,
     added mass, buoyancy; the current left out) on it, at :data:`TASK_SAMPLES` instants over the
     episode (at least 1e-6 N m)."""
-    from hydroarm.model.water import hydrodynamic_torques
+    from hydroarm.model.water.morison import hydrodynamic_torques
 
     config, arm = experiment.config, experiment.arm
     largest = np.zeros(arm.n_joints)

@@ -2,7 +2,7 @@
 
 Built by the one experiment builder (:func:`hydroarm.sim.experiment.build_experiment` with the
 ``vehicle`` section set): the plant is the floating system's
-(:class:`~hydroarm.model.uvms_fast.FastUVMSPlant`, BlueROV2 Heavy + Alpha 5 by default, a
+(:class:`~hydroarm.model.vehicle.fast.FastUVMSPlant`, BlueROV2 Heavy + Alpha 5 by default, a
 uniform current along world x), the arm runs its reach-and-return task under the registry's
 arm controller inside the whole system's
 :class:`~hydroarm.control.uvms_control.UVMSController` (``SMC`` by default, as in the vehicle
@@ -93,8 +93,9 @@ class UVMSEnv(gymnasium.Env):
         self.config, self.episode = config, episode
         self.experiment = build_experiment(config, arm_controller)
         self.uvms = self.experiment.uvms
+        self.layout = self.uvms.layout  # the state's parts by name
         self.plant = self.experiment.plant
-        self.arm_controller = self.experiment.controller.arm  # the agent replaces the station keeper
+        self.arm_controller = self.experiment.controller.arm_controller  # the agent replaces the station keeper
         self.reference = self.experiment.reference
         self.period = config.control_period
         self.steps = int(round(config.duration / self.period))
@@ -108,7 +109,7 @@ class UVMSEnv(gymnasium.Env):
         ])  # fmt: skip
         self.observation_space = spaces.Box(-high, high, dtype=np.float64)
         self.x = self.experiment.x0.copy()
-        self.target = self.x[:7].copy()
+        self.target = self.x[self.layout.base_pose].copy()
         self.k = 0
         self._y_arm = self.plant.joint_state(self.x)
         # compile (or load from numba's cache) the plant's step and the arm controller's code now,
@@ -119,10 +120,9 @@ class UVMSEnv(gymnasium.Env):
         self.arm_controller.reset()
 
     def _observation(self) -> np.ndarray:
-        nq = self.uvms.nq
-        x = self.x
+        x, parts = self.x, self.layout
         observation = np.concatenate(
-            [pose_error(x[:7], self.target), x[nq : nq + 6], x[7:nq], x[nq + 6 : nq + 6 + self.n_arm]]
+            [pose_error(x[parts.base_pose], self.target), x[parts.base_velocity], x[parts.arm_q], x[parts.arm_v]]
         )
         return np.clip(observation, self.observation_space.low, self.observation_space.high)
 
@@ -130,7 +130,7 @@ class UVMSEnv(gymnasium.Env):
         super().reset(seed=seed)
         self.arm_controller.reset()
         self.x = self.experiment.x0.copy()
-        self.target = self.x[:7].copy()
+        self.target = self.x[self.layout.base_pose].copy()
         offset = self.episode.start_offset
         self.x[:3] += self.np_random.uniform(-offset, offset, size=3)
         self.k = 0
@@ -158,16 +158,16 @@ class UVMSEnv(gymnasium.Env):
             self.arm_controller.observe(t, y_arm, tau, self._y_arm)
         self.k += 1
         observation = self._observation()
-        nq = self.uvms.nq
-        error = pose_error(self.x[:7], self.target)  # unclipped: the reward and the drift
+        parts = self.layout
+        error = pose_error(self.x[parts.base_pose], self.target)  # unclipped: the reward and the drift
         reward = -float(error[:3] @ error[:3] + self.episode.attitude_weight * error[3:] @ error[3:])
-        speeds = np.abs(np.concatenate([self.x[nq : nq + 6], self.x[nq + 6 : nq + 6 + self.n_arm]]))
+        speeds = np.abs(np.concatenate([self.x[parts.base_velocity], self.x[parts.arm_v]]))
         limits = np.concatenate([np.full(3, MAX_SPEED), np.full(3, MAX_RATE), np.full(self.n_arm, ARM_RATE_BOUND)])
         terminated = bool(
             not np.all(np.isfinite(self.x))
             or np.linalg.norm(error[:3]) > self.episode.drift_limit
             or np.any(speeds > limits)
-            or np.any(np.abs(self.x[7:nq]) > ARM_POSITION_BOUND)
+            or np.any(np.abs(self.x[parts.arm_q]) > ARM_POSITION_BOUND)
         )
         if terminated:
             observation = np.nan_to_num(observation, nan=0.0, posinf=0.0, neginf=0.0)

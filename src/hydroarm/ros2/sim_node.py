@@ -322,7 +322,7 @@ def loop_timing(published: np.ndarray, arrivals: np.ndarray, period: float) -> d
 
 def link_frames(arm, prefix: str = "") -> list[tuple[str, str]]:
     """``(parent, child)`` link names of each joint of ``arm``, as its URDF export names them
-    (:func:`~hydroarm.model.urdf_export.arm_to_urdf`: ``base_link``, then ``link<i>`` for joint i),
+    (:func:`~hydroarm.model.arm.urdf_export.arm_to_urdf`: ``base_link``, then ``link<i>`` for joint i),
     each with ``prefix`` in front (robot_state_publisher's ``frame_prefix``)."""
     model = arm.model
     return [

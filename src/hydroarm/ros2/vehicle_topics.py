@@ -55,12 +55,12 @@ def _quaternion(xyzw) -> Quaternion:
 
 class VehicleState:
     """The vehicle's messages of the floating plant ``plant``
-    (:class:`~hydroarm.model.uvms_plant.UVMSPlant`: state ``[q (7 + n), v (6 + n), f]``) with the
+    (:class:`~hydroarm.model.vehicle.plant.UVMSPlant`: state ``[q (7 + n), v (6 + n), f]``) with the
     arm ``arm`` (the mounted arm the arm's URDF is exported from)."""
 
     def __init__(self, plant, arm):
         self.plant = plant
-        self.nq = plant.nq
+        self.layout = plant.uvms.layout  # the state's parts by name
         model = plant.uvms.model
         self.gravity = np.asarray(model.gravity.linear, dtype=float).copy()
         # base_link -> arm_base_link: the arm's first joint on the vehicle, less its own placement on the arm's base
@@ -68,7 +68,7 @@ class VehicleState:
 
     def pose_twist(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The base's pose (7,: position m, quaternion x y z w) and body twist (6,: m/s, rad/s)."""
-        return x[:7], x[self.nq : self.nq + 6]
+        return x[self.layout.base_pose], x[self.layout.base_velocity]
 
     def odometry(self, stamp: Time, x: np.ndarray) -> Odometry:
         pose, twist = self.pose_twist(x)

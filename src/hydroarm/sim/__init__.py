@@ -1,6 +1,6 @@
 """The simulation core, between the controllers and the studies.
 
-* :mod:`hydroarm.sim.plant`: the plant protocol every true plant follows (the fixed-base arm,
+* :mod:`hydroarm.sim.plant_protocol`: the plant protocol every true plant follows (the fixed-base arm,
   the vehicle with its arm), with sensing and fault handling left to the runner;
 * :mod:`hydroarm.sim.experiment`: :class:`~hydroarm.sim.experiment.ExperimentConfig`, the one
   experiment builder and :func:`~hydroarm.sim.experiment.run_experiment`;

@@ -44,16 +44,16 @@ from hydroarm.control.pi_idmpc import PIIDMPCConfig
 from hydroarm.control.registry import CONTROLLERS, canonical_name, controller_sections, controller_spec
 from hydroarm.control.smc import SMCConfig
 from hydroarm.control.water_model import WaterModelConfig
-from hydroarm.model.arm import Arm, TorqueLimit
-from hydroarm.model.friction import FrictionConfig
-from hydroarm.model.loading import BUILTIN_ARMS, load_arm
-from hydroarm.model.plant import PlantConfig, UnderwaterPlant
-from hydroarm.model.sensing import ActuatorConfig, SensorConfig
-from hydroarm.model.task import SinusoidReference
-from hydroarm.model.task_file import SplineReference, TaskConfig, reference_for
-from hydroarm.model.water import Water
+from hydroarm.model.arm.description import Arm, TorqueLimit
+from hydroarm.model.arm.loading import BUILTIN_ARMS, load_arm
+from hydroarm.model.arm.plant import PlantConfig, UnderwaterPlant
+from hydroarm.model.real_loop.friction import FrictionConfig
+from hydroarm.model.real_loop.sensing import ActuatorConfig, SensorConfig
+from hydroarm.model.task.references import SinusoidReference
+from hydroarm.model.task.task_file import SplineReference, TaskConfig, reference_for
+from hydroarm.model.water.morison import Water
 from hydroarm.sim.mismatch import Mismatch, perturbed_arm
-from hydroarm.sim.plant import Plant
+from hydroarm.sim.plant_protocol import Plant
 from hydroarm.sim.runner import Trajectory, run_closed_loop
 from hydroarm.sim.settings_rules import check_one_system, compact_declared, declared_section_of, split_declared
 from hydroarm.sim.settings_schema import MIGRATIONS, SCHEMA, compact, migrated, moved_settings
@@ -67,7 +67,7 @@ from hydroarm.sim.vehicle import (
 )
 
 if TYPE_CHECKING:
-    from hydroarm.model.uvms import UVMS
+    from hydroarm.model.vehicle.system import UVMS
 
 __all__ = [
     "CONTROLLERS",
@@ -354,7 +354,7 @@ def check_settings_for_arm(
     the d GP inputs (:func:`gp_inputs`) of each GP controller among ``controllers`` (default:
     every registered controller; the section is shared) on the arm's n joints; ``plant.friction`` and
     the joint friction model (``friction``) must suit the RK4 step on this arm
-    (:class:`~hydroarm.model.plant.UnderwaterPlant` checks it); a task from settings or a file
+    (:class:`~hydroarm.model.arm.plant.UnderwaterPlant` checks it); a task from settings or a file
     must be readable and have the arm's joint count. Nothing is run (with friction or a
     real-loop setting, the plant is built: about a millisecond).
     """
@@ -376,17 +376,9 @@ def check_settings_for_arm(
         if found is None:
             continue
         d, why = found
-        inputs = f"{why} gives d = {d} GP inputs on {n} joints"
-        for name, value, allowed in (
-            ("theta0", gp.theta0, (d + 2,)),
-            ("input_scale", gp.input_scale, (d,)),
-            ("output_scale", gp.output_scale, (1, n)),
-        ):
-            if value is not None and len(value) not in allowed:
-                wanted = " or ".join(str(k) for k in allowed)
-                raise ConfigError(
-                    f"{source}: gp.{name} = {shown(value)}: {len(value)} values: give {wanted} ({inputs})"
-                )
+        for name, problem in gp.size_problems(d, n).items():
+            inputs = f"{why} gives d = {d} GP inputs on {n} joints"
+            raise ConfigError(f"{source}: gp.{name} = {shown(getattr(gp, name))}: {problem} ({inputs})")
 
 
 def make_plant(arm: Arm, config: ExperimentConfig) -> UnderwaterPlant:
@@ -415,8 +407,8 @@ def build_controller(name: str, arm: Arm, config: ExperimentConfig) -> Controlle
 
 def start_for_arm(arm: Arm, config: ExperimentConfig) -> tuple[SinusoidReference | SplineReference, np.ndarray]:
     """The reference and the start state (2n,) of a run of ``config`` on ``arm``: the task of
-    ``config.task`` (:func:`~hydroarm.model.task_file.reference_for`; default the arm's,
-    :func:`~hydroarm.model.task.task_for_arm`), moved by ``config.initial_state``
+    ``config.task`` (:func:`~hydroarm.model.task.task_file.reference_for`; default the arm's,
+    :func:`~hydroarm.model.task.references.task_for_arm`), moved by ``config.initial_state``
     (:class:`InitialState`)."""
     reference, x0 = reference_for(config.task, arm)
     return reference, config.initial_state.apply(x0)
@@ -462,7 +454,7 @@ class Experiment:
             arm = self.uvms.vehicle.mount_arm if self.config.arm == "mount" else self.config.arm
             traj.meta["arm"] = source_name(arm)
             traj.meta["vehicle"] = source_name(vehicle.name)
-            traj.meta["target_pose"] = self.x0[:7].tolist()
+            traj.meta["target_pose"] = self.x0[self.uvms.layout.base_pose].tolist()
             traj.meta["metrics"] = station_keeping_metrics(self.uvms, traj, self.reference)
         return traj
 
@@ -521,6 +513,6 @@ def run_experiment(
     progress: Callable[[int, int], None] | None = None,
 ) -> Trajectory:
     """Run ``controller`` (any spelling) on the true plant of ``config`` along the arm's task
-    (:func:`~hydroarm.model.task.task_for_arm`) from :func:`start_for_arm`'s state;
+    (:func:`~hydroarm.model.task.references.task_for_arm`) from :func:`start_for_arm`'s state;
     ``seed`` drives the measurement noise. See :func:`build_experiment`."""
     return build_experiment(config, controller).run(seed, progress)

@@ -10,8 +10,8 @@ step k of period T:
 ```
 
 Signals: ``x`` the plant's true state (``plant.state_size``,), ``y`` the measurement the
-controller sees (what the plant's sensor delivers: :mod:`hydroarm.model.sensing`; the plant's own
-:meth:`~hydroarm.sim.plant.Plant.measure` when the sensor is ideal), ``u`` the command, ``a``
+controller sees (what the plant's sensor delivers: :mod:`hydroarm.model.real_loop.sensing`; the plant's own
+:meth:`~hydroarm.sim.plant_protocol.Plant.measure` when the sensor is ideal), ``u`` the command, ``a``
 the torque the drives apply and hold for the period (``u`` itself when the drives are ideal).
 
 :class:`Loop` owns the sensor and drives of one run (fresh on every :meth:`Loop.reset`), the
@@ -30,7 +30,7 @@ from typing import Any
 
 import numpy as np
 
-from hydroarm.sim.plant import Plant
+from hydroarm.sim.plant_protocol import Plant
 
 
 @dataclass(frozen=True)
@@ -49,7 +49,7 @@ class Loop:
     """Plant, sensor and drives of one closed loop of control period ``period`` (s).
 
     ``reset(x0, rng, seed)`` starts a run: fresh sensor and drives (the plant's
-    :meth:`~hydroarm.sim.plant.Plant.new_sensor` / ``new_actuator``: None when ideal), the true
+    :meth:`~hydroarm.sim.plant_protocol.Plant.new_sensor` / ``new_actuator``: None when ideal), the true
     state ``x0``, the first measurement. ``step(t, command)`` applies the command through the
     drives and integrates the plant one period; ``measure_next()`` then moves the loop to the new
     state and measures it. The split lets the runner stop on a diverged state before the sensor

@@ -15,7 +15,7 @@ import pinocchio as pin
 import pydantic
 
 from hydroarm.config import FrozenModel
-from hydroarm.model.arm import Arm
+from hydroarm.model.arm.description import Arm
 
 __all__ = ["Mismatch", "perturbed_arm"]
 

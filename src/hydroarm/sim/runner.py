@@ -4,7 +4,7 @@ One control step k (period T): the plant's true state x_k is measured as
 y_k (seeded noise), the controller returns u_k, the plant integrates to
 x_{k+1} under u_k held constant, y_{k+1} is measured and the controller
 observes (y_k, u_k, y_{k+1}). The plant's sensor and drives
-(:mod:`hydroarm.model.sensing`: quantisation, encoder-only velocity, delays, dropout, torque
+(:mod:`hydroarm.model.real_loop.sensing`: quantisation, encoder-only velocity, delays, dropout, torque
 rate and bandwidth limits) sit in between: y_k is what the sensor delivers, the plant
 integrates under the torque the drives apply (``Trajectory.u``; the command is
 ``extra["u_command"]`` when the drives are not ideal), and the controller observes its own
@@ -26,7 +26,7 @@ Faults are caught where they happen and counted, never hidden
   :data:`DIVERGENCE_SPEED`) stops the run cleanly (``meta["stopped"] =
   "diverged"``).
 
-Any plant of the protocol :class:`hydroarm.sim.plant.Plant` runs here: the fixed-base arm
+Any plant of the protocol :class:`hydroarm.sim.plant_protocol.Plant` runs here: the fixed-base arm
 and the vehicle with its arm alike.
 """
 
@@ -43,7 +43,7 @@ import numpy as np
 from hydroarm.control.interface import FAULT_EVENTS, Controller, Reference
 from hydroarm.sim.files import atomic_file
 from hydroarm.sim.loop import Loop, LoopStep
-from hydroarm.sim.plant import Plant
+from hydroarm.sim.plant_protocol import Plant
 
 DIVERGENCE_SPEED = 1e3  # rad/s: beyond this the run is declared diverged
 
@@ -64,7 +64,7 @@ class Trajectory:
     ``"diverged"`` or ``"controller_error"``), ``error`` and ``final_state`` (the
     plant's whole true state after the last step, a list); ``extra``: further
     per-step arrays (K, ...), saved only when present: what the plant records of its
-    state beyond the joints (:meth:`~hydroarm.sim.plant.Plant.state_record`; on a
+    state beyond the joints (:meth:`~hydroarm.sim.plant_protocol.Plant.state_record`; on a
     vehicle ``base_pose`` (K, 7), ``base_velocity`` (K, 6), ``thrust`` (K, n_thr)) and what
     the controller reports beside its torque (``ControlOutput.record``; the station
     keeper's ``thrust_command``, ``wrench``, ``vehicle_disturbance_estimate``, ``saturated``).

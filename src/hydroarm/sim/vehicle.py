@@ -2,10 +2,10 @@
 
 ``ExperimentConfig.vehicle`` (:class:`VehicleRun`) puts the arm on a vehicle: with
 ``vehicle.name`` set, :func:`hydroarm.sim.experiment.build_experiment` builds the floating
-plant (:class:`~hydroarm.model.uvms_fast.FastUVMSPlant`), the whole system's controller
+plant (:class:`~hydroarm.model.vehicle.fast.FastUVMSPlant`), the whole system's controller
 (:class:`~hydroarm.control.uvms_control.UVMSController`: the named arm controller on the
 mounted arm + the station keeper), the arm's reach-and-return task
-(:class:`~hydroarm.model.task.ReachReturn`) and the start state, and the one runner runs it.
+(:class:`~hydroarm.model.task.references.ReachReturn`) and the start state, and the one runner runs it.
 :func:`station_keeping_metrics` reads a finished run's trajectory.
 """
 
@@ -22,11 +22,11 @@ import pydantic
 from hydroarm.config import ConfigError, FrozenModel, shown
 from hydroarm.control.gp import GPConfig
 from hydroarm.control.vehicle_control import VehicleControlConfig
-from hydroarm.model.arm import Arm
-from hydroarm.model.task import ReachReturn
-from hydroarm.model.uvms import UVMS
-from hydroarm.model.uvms_fast import FastUVMSConfig, FastUVMSPlant
-from hydroarm.model.water import CurrentConfig, Water
+from hydroarm.model.arm.description import Arm
+from hydroarm.model.task.references import ReachReturn
+from hydroarm.model.vehicle.fast import FastUVMSConfig, FastUVMSPlant
+from hydroarm.model.vehicle.system import UVMS
+from hydroarm.model.water.morison import CurrentConfig, Water
 
 Angles = list[float]
 
@@ -64,7 +64,7 @@ class VehicleRun(FrozenModel):
         """``bluerov2-heavy`` and ``bluerov2_heavy`` both name the built-in vehicle: kept as the first."""
         if value is None:
             return None
-        from hydroarm.model.vehicle import builtin_vehicle_name
+        from hydroarm.model.vehicle.description import builtin_vehicle_name
 
         return builtin_vehicle_name(value) or value
 
@@ -100,7 +100,7 @@ def vehicle_parts(vehicle: VehicleRun, arm: str | Arm, water: Water, torque_limi
     """The parts of a vehicle run of ``vehicle`` with ``arm`` ("mount": the vehicle file's) in
     ``water`` (its current replaced by ``vehicle.current``); ``torque_limit`` overrides the arm's
     (N m, None: the arm file's). Raises :class:`ConfigError` naming the setting at fault."""
-    from hydroarm.model.uvms import build_uvms, mounted_arm
+    from hydroarm.model.vehicle.system import build_uvms, mounted_arm
 
     try:
         uvms = build_uvms(vehicle.name, arm)
@@ -131,7 +131,7 @@ def station_keeper(vehicle: VehicleRun, parts: VehicleParts, arm_controller, con
     from hydroarm.control.uvms_control import UVMSController
 
     return UVMSController(
-        parts.uvms, arm_controller, parts.x0[:7], vehicle=vehicle.control, gp=vehicle.gp,
+        parts.uvms, arm_controller, parts.x0[parts.uvms.layout.base_pose], vehicle=vehicle.control, gp=vehicle.gp,
         aware=vehicle.aware, control_period=control_period,
     )  # fmt: skip
 
@@ -157,10 +157,10 @@ def station_keeping_metrics(uvms: UVMS, traj, reference) -> dict:
     Over the K recorded instants t_k and the end of the run (``meta["final_state"]``), against
     the start pose (``extra["base_pose"][0]``, the station-keeping target) and the end effector
     where the target pose and the joint reference put it."""
-    n, nq = uvms.n_arm, uvms.nq
+    n, layout = uvms.n_arm, uvms.layout
     final = np.asarray(traj.meta["final_state"], dtype=float)
-    poses = np.vstack([traj.extra.get("base_pose", np.empty((0, 7))), final[:7]])
-    arm_q = np.vstack([traj.q, final[7:nq]])
+    poses = np.vstack([traj.extra.get("base_pose", np.empty((0, 7))), final[layout.base_pose]])
+    arm_q = np.vstack([traj.q, final[layout.arm_q]])
     period = float(traj.meta["control_period"])
     target = poses[0]
     drift = np.linalg.norm(poses[:, :3] - target[:3], axis=1)

@@ -33,7 +33,7 @@ from matplotlib.ticker import MaxNLocator
 from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 
 from hydroarm.config import ConfigError
-from hydroarm.model.arm import Arm
+from hydroarm.model.arm.description import Arm
 from hydroarm.sim.runner import Trajectory
 from hydroarm.studies.playback import VehicleMotion, as_arm, as_trajectory, reach, vehicle_motion
 

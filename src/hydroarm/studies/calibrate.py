@@ -33,7 +33,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from hydroarm.config import ConfigError
-from hydroarm.model.vehicle import VehicleSpec
+from hydroarm.model.vehicle.description import VehicleSpec
 from hydroarm.sim.files import atomic_write
 from hydroarm.sim.logs import joint_motion
 from hydroarm.sim.trials import load_trial
@@ -156,7 +156,7 @@ def apply_parameters(spec: VehicleSpec, values: dict[str, float]) -> VehicleSpec
 
 
 def apply_arm_parameters(arm, values: dict[str, float]):
-    """The arm (an :class:`~hydroarm.model.arm.Arm`) with ``arm_buoyancy_scale`` applied."""
+    """The arm (an :class:`~hydroarm.model.arm.description.Arm`) with ``arm_buoyancy_scale`` applied."""
     scale = values.get("arm_buoyancy_scale")
     if scale is None:
         return arm
@@ -166,8 +166,8 @@ def apply_arm_parameters(arm, values: dict[str, float]):
 
 def write_calibrated_arm(path: Path, arm_source: str, arm, scale: float) -> None:
     """The mounted URDF arm's hydrodynamics file with every displaced volume times ``scale``."""
-    from hydroarm.model.loading import builtin_arm_path, is_urdf_source
-    from hydroarm.model.urdf_import import load_hydro_spec
+    from hydroarm.model.arm.loading import builtin_arm_path, is_urdf_source
+    from hydroarm.model.arm.urdf_import import load_hydro_spec
 
     if not is_urdf_source(arm_source):
         raise ConfigError(f"arm_buoyancy_scale: the mounted arm {arm_source!r} is not a URDF arm with a hydro file")
@@ -317,7 +317,7 @@ def write_calibrated_vehicle(
     fitted replay settings in its ``[replay]`` table (on ``config``, the replay settings the
     calibration ran with; default: the defaults), so that ``hydroarm replay --vehicle <path>``
     alone replays what was calibrated; with ``arm_buoyancy_scale``, the calibrated arm file
-    ``<stem>.arm.hydro.toml`` beside it (``arm`` the mounted :class:`~hydroarm.model.arm.Arm`)."""
+    ``<stem>.arm.hydro.toml`` beside it (``arm`` the mounted :class:`~hydroarm.model.arm.description.Arm`)."""
     calibrated = apply_parameters(spec, calibration.values)
     data = calibrated.model_dump(by_alias=True, exclude_none=True)
     data["name"] = f"{spec.name}-calibrated"

@@ -12,8 +12,8 @@ from pathlib import Path
 import numpy as np
 
 from hydroarm.config import ConfigError
-from hydroarm.model.arm import Arm
-from hydroarm.model.loading import load_arm
+from hydroarm.model.arm.description import Arm
+from hydroarm.model.arm.loading import load_arm
 from hydroarm.sim.runner import Trajectory
 
 
@@ -82,7 +82,7 @@ class VehicleMotion:
     run's samples or the vehicle cannot be loaded."""
 
     def __init__(self, traj: Trajectory):
-        from hydroarm.model.vehicle import load_vehicle
+        from hydroarm.model.vehicle.description import load_vehicle
 
         vehicle = load_vehicle(traj.meta["vehicle"])
         self.name = vehicle.name

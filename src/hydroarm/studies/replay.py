@@ -3,7 +3,7 @@
 For each trial: the joints' logged motion is cleaned and smoothed
 (:func:`hydroarm.sim.logs.joint_motion`); the vehicle starts from the IMU's attitude and rates
 at the first common instant; the prescribed-motion plant
-(:class:`hydroarm.model.uvms_prescribed.PrescribedUVMSPlant`) integrates the vehicle only; the
+(:class:`hydroarm.model.vehicle.prescribed.PrescribedUVMSPlant`) integrates the vehicle only; the
 simulated roll and pitch are compared with the IMU's and the motion capture's (RMSE and the
 peak-excursion error, the largest departure from the initial value, simulated minus measured).
 
@@ -26,13 +26,13 @@ import pinocchio as pin
 import pydantic
 
 from hydroarm.config import ConfigError, FrozenModel
-from hydroarm.model.integrator import inner_step_setting, inner_steps
-from hydroarm.model.loading import load_arm
-from hydroarm.model.uvms import build_uvms
-from hydroarm.model.uvms_plant import UVMSPlantConfig
-from hydroarm.model.uvms_prescribed import PrescribedUVMSPlant
-from hydroarm.model.vehicle import VehicleSpec, build_vehicle, load_vehicle_spec
-from hydroarm.model.water import Water, density_setting
+from hydroarm.model.arm.loading import load_arm
+from hydroarm.model.dynamics.integrator import inner_step_setting, inner_steps
+from hydroarm.model.vehicle.description import VehicleSpec, build_vehicle, load_vehicle_spec
+from hydroarm.model.vehicle.plant import UVMSPlantConfig
+from hydroarm.model.vehicle.prescribed import PrescribedUVMSPlant
+from hydroarm.model.vehicle.system import build_uvms
+from hydroarm.model.water.morison import Water, density_setting
 from hydroarm.sim.files import atomic_write
 from hydroarm.sim.logs import CleaningConfig, TrialLog, clean_attitude, joint_motion, roll_pitch_yaw
 from hydroarm.sim.trials import load_trial

@@ -49,8 +49,8 @@ import numpy as np
 
 from hydroarm.config import ConfigError
 from hydroarm.control.registry import PAPER_CONTROLLERS
-from hydroarm.model.arm import Arm
-from hydroarm.model.loading import arm_description, load_arm
+from hydroarm.model.arm.description import Arm
+from hydroarm.model.arm.loading import arm_description, load_arm
 from hydroarm.sim.experiment import ExperimentConfig, run_experiment, start_for_arm, with_overrides
 from hydroarm.sim.files import atomic_write, file_bytes
 from hydroarm.sim.runner import Trajectory

@@ -4,9 +4,9 @@ arm's hydrodynamics file) resolved for one run, with where each value came from
 docs/settings.md's table).
 
 The rules are the code's, not restated: the coefficients are the ones the strip water uses
-(:func:`~hydroarm.model.arm.coefficient`, the one rule: a cylinder's own ``cd``/``cm`` when its
+(:func:`~hydroarm.model.arm.description.coefficient`, the one rule: a cylinder's own ``cd``/``cm`` when its
 hydrodynamics file gives one, else ``water.cd``/``water.cm``; a DH arm file gives none), the
-torque limit the one the experiment builds (:meth:`~hydroarm.model.arm.Arm.with_torque_limit`:
+torque limit the one the experiment builds (:meth:`~hydroarm.model.arm.description.Arm.with_torque_limit`:
 ``torque_limit`` when set, else the arm file's); tests/test_settings_resolved.py checks both against those functions.
 """
 
@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from hydroarm.model.arm import Arm
+from hydroarm.model.arm.description import Arm
 from hydroarm.sim.experiment import ExperimentConfig
 
 PRECEDENCE: tuple[tuple[str, tuple[str, ...]], ...] = (

@@ -2,7 +2,7 @@
 
 The paper's premise is that the controllers are "tuned once on land". For controller C on
 arm A, every point of C's grid (:func:`tuning_grid`, the registry's) runs A's own task
-(:func:`~hydroarm.model.task.task_for_arm`) on A without water (no drag, added mass,
+(:func:`~hydroarm.model.task.references.task_for_arm`) on A without water (no drag, added mass,
 buoyancy or current: the nominal model is then exact, as on land), once clean and once with
 measurement noise of variance ``NOISE_VARIANCE`` (seed 0). A point's score is the mean of the
 two runs' mean E_p over joints; a diverged or failed run scores infinity. The best point is

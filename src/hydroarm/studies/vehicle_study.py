@@ -92,8 +92,8 @@ def run_task(task: UVMSTask, arm, progress=None) -> dict:
     experiment = build_experiment(config, ARM_CONTROLLER)
     traj = experiment.run(progress=progress)
     final = np.asarray(traj.meta["final_state"])
-    nq = experiment.uvms.nq
-    poses = np.vstack([traj.extra["base_pose"], final[:7]])
+    layout = experiment.uvms.layout
+    poses = np.vstack([traj.extra["base_pose"], final[layout.base_pose]])
     errors = np.empty((poses.shape[0], 6))
     errors[:, :3] = poses[:, :3] - poses[0, :3]
     rot0 = pin.Quaternion(poses[0, 6], *poses[0, 3:6]).toRotationMatrix()
@@ -102,7 +102,7 @@ def run_task(task: UVMSTask, arm, progress=None) -> dict:
         errors[k, 3:] = np.degrees(pin.rpy.matrixToRpy(rot0.T @ rot))
     wrench = traj.extra["thrust_command"] @ experiment.uvms.vehicle.allocation.T
     every = max(1, int(round(0.05 / config.control_period)))
-    arm_q = np.vstack([traj.q, final[7:nq]])
+    arm_q = np.vstack([traj.q, final[layout.arm_q]])
     return {
         "settings": json.loads(task.settings),
         "metrics": traj.meta["metrics"] | {"mean_abs_wrench": np.mean(np.abs(wrench), axis=0).tolist()},

@@ -42,7 +42,7 @@ import numpy as np
 import viser
 import viser.transforms
 
-from hydroarm.model.arm import Arm
+from hydroarm.model.arm.description import Arm
 from hydroarm.sim.runner import Trajectory
 from hydroarm.studies.playback import VehicleMotion, as_arm, as_trajectory, reach, vehicle_motion
 from hydroarm.studies.viewer_charts import LINK_RGB, PLOT_WIDTH, RunCharts, cursor_style

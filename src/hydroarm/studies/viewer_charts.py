@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hydroarm.model.arm import Arm
+from hydroarm.model.arm.description import Arm
 from hydroarm.sim.runner import Trajectory
 from hydroarm.studies.playback import VehicleMotion
 

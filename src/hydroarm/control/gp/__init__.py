@@ -2,9 +2,11 @@
 
 One module per concept, in the style of scikit-learn's ``gaussian_process``:
 
-* `kernels`: the model (SE-ARD kernel, zero mean, noise on the training diagonal) and its
-  pure functions: `predict`, `log_marginal_likelihood` and their batched forms
-  `predict_multi`, `log_marginal_likelihood_multi`;
+* `kernels`: the model (SE-ARD kernel, zero mean, noise on the training diagonal), its
+  hyperparameters described (`SEARDKernel`, `Hyperparameter`: name, bounds, fixed, as
+  scikit-learn's kernels describe theirs) and its pure functions: `predict`,
+  `log_marginal_likelihood` and their batched forms `predict_multi`,
+  `log_marginal_likelihood_multi`;
 * `config`: `GPConfig`, the validated settings;
 * `sliding_window`: `SlidingWindowGP`, the online estimator (window, hyperparameter steps,
   faults);
@@ -17,7 +19,7 @@ One module per concept, in the style of scikit-learn's ``gaussian_process``:
 Usage at control step k::
 
     gp = SlidingWindowGP(n_inputs, n_outputs=6, config=GPConfig())
-    gp.add(x, y); gp.update_hyperparameters(); mean, var = gp.predict(x_star)
+    gp.update(x, y); gp.update_hyperparameters(); mean, var = gp.predict(x_star)
 
 Measured choices (defaults, scaling, compiled kernels, incremental window update) are in
 docs/controllers.md, "The GP: measured choices".
@@ -26,6 +28,8 @@ docs/controllers.md, "The GP: measured choices".
 from hydroarm.control.gp.config import GPConfig
 from hydroarm.control.gp.events import FAULTS, GPStats
 from hydroarm.control.gp.kernels import (
+    Hyperparameter,
+    SEARDKernel,
     log_marginal_likelihood,
     log_marginal_likelihood_multi,
     predict,
@@ -39,6 +43,8 @@ __all__ = [
     "GPConfig",
     "GPStats",
     "SlidingWindowGP",
+    "SEARDKernel",
+    "Hyperparameter",
     "se_ard_kernel",
     "predict",
     "log_marginal_likelihood",

@@ -9,7 +9,7 @@ inputs give the same bits on any x86-64 CPU (issue 29). A Cholesky that fails in
 `_evaluate_kernel` (a pivot at round-off level or below, or NaN: `_PIVOT_FLOOR`) returns
 ``factorised = False``: the caller (`_batched._evaluate`) then runs the jitter ladder
 (`_cholesky._cholesky_inverse`, compiled too) and evaluates on its factors. Compiled on first
-use and cached on disk (``cache=True``), like ``hydroarm.model.water``.
+use and cached on disk (``cache=True``), like ``hydroarm.model.water.morison``.
 """
 
 from __future__ import annotations

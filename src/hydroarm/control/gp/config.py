@@ -38,8 +38,10 @@ class GPConfig(FrozenModel):
 
     sf2 and sn2 are in fitted target units^2 (N^2 m^2 for raw torques; unit-free with
     ``normalize_y`` or ``output_scale``), lengthscales in scaled input units (inputs divided
-    by ``input_scale``). The lengths of ``theta0`` (d + 2), ``input_scale`` (d) and
-    ``output_scale`` (1 or n_outputs) are checked when the GP is built, as only then is d known.
+    by ``input_scale``). The lengths of ``theta0`` (d + 2: the kernel's description,
+    :class:`~hydroarm.control.gp.kernels.SEARDKernel`), ``input_scale`` (d) and ``output_scale``
+    (1 or n_outputs) are checked when the GP is built, as only then is d known
+    (:meth:`size_problems`).
     """
 
     window: int = pydantic.Field(
@@ -134,3 +136,21 @@ class GPConfig(FrozenModel):
                 "output_scale", self.output_scale, "must be None when normalize_y is True (choose one target scaling)"
             )
         return self
+
+    def size_problems(self, n_inputs: int, n_outputs: int) -> dict[str, str]:
+        """What does not fit a GP of ``n_inputs`` inputs and ``n_outputs`` outputs: field ->
+        what is wrong, for ``theta0`` (one value per entry of the kernel's description,
+        :class:`~hydroarm.control.gp.kernels.SEARDKernel`), ``input_scale`` (one per input) and
+        ``output_scale`` (1 or one per output); empty if everything fits."""
+        from hydroarm.control.gp.kernels import SEARDKernel
+
+        problems = {}
+        if self.theta0 is not None:
+            problem = SEARDKernel.for_config(self, n_inputs).check_theta(self.theta0)
+            if problem is not None:
+                problems["theta0"] = problem
+        if self.input_scale is not None and len(self.input_scale) != n_inputs:
+            problems["input_scale"] = f"{len(self.input_scale)} values: give one per input ({n_inputs})"
+        if self.output_scale is not None and len(self.output_scale) not in (1, n_outputs):
+            problems["output_scale"] = f"{len(self.output_scale)} values: give 1 or one per output ({n_outputs})"
+        return problems

@@ -33,13 +33,149 @@ stacked machinery of `SlidingWindowGP`)::
 
 from __future__ import annotations
 
+import math
+from dataclasses import dataclass
+
 import numpy as np
 from scipy.linalg import cho_factor, cho_solve, solve_triangular
 
 from hydroarm.control.gp._batched import LOG_2PI, _evaluate, _predict_with_factor, _solve_with_factor, _Window
 from hydroarm.control.gp._checks import _check_jitter, _check_matrix, _check_theta, _check_thetas, _check_vector
 
-__all__ = ["se_ard_kernel", "predict", "log_marginal_likelihood", "predict_multi", "log_marginal_likelihood_multi"]
+__all__ = [
+    "Hyperparameter",
+    "SEARDKernel",
+    "se_ard_kernel",
+    "predict",
+    "log_marginal_likelihood",
+    "predict_multi",
+    "log_marginal_likelihood_multi",
+]
+
+SF2, SN2, LENGTHSCALES = 0, 1, slice(2, None)
+"""Where each hyperparameter sits in ``theta = [sf2, sn2, l_1 .. l_d]`` (and in a row of the
+batched ``thetas``): what :class:`SEARDKernel` describes and the code indexes by."""
+
+
+@dataclass(frozen=True)
+class Hyperparameter:
+    """One hyperparameter of a kernel, described as scikit-learn describes one
+    (``sklearn.gaussian_process.kernels.Hyperparameter``: name, value type, bounds, number of
+    elements, fixed), with its unit and its place in ``theta``.
+
+    ``name``: scikit-learn's name for it (``constant_value``, ``noise_level``, ``length_scale``:
+    ``ConstantKernel * RBF + WhiteKernel`` is the same model); ``symbol``: the paper's;
+    ``bounds``: (low, high), natural scale; ``n_elements``: values it takes (d for the
+    lengthscales); ``fixed``: the GP never changes it (its hyperparameter steps are off);
+    ``index``: its place in ``theta`` (an int, or a slice for a vector).
+    """
+
+    name: str
+    symbol: str
+    unit: str
+    bounds: tuple[float, float]
+    n_elements: int
+    fixed: bool
+    index: int | slice
+    value_type: str = "numeric"
+
+
+@dataclass(frozen=True)
+class SEARDKernel:
+    """The GP's model of d inputs, described (the module docstring): ``k(x, x') = sf2 exp(-1/2
+    sum_j (x_j - x'_j)^2 / l_j^2)`` with the noise ``sn2`` on the training diagonal.
+
+    ``log_*_bounds``: (low, high) natural-log box of each hyperparameter; ``fixed``: none moves
+    (``GPConfig.hyper_steps = 0``). :attr:`hyperparameters` describes them in ``theta``'s order;
+    :meth:`named` and :meth:`theta` go between the vector and the names; :meth:`check_theta`
+    says what is wrong with a vector of the wrong length.
+    """
+
+    n_inputs: int
+    log_sf2_bounds: tuple[float, float]
+    log_sn2_bounds: tuple[float, float]
+    log_lengthscale_bounds: tuple[float, float]
+    fixed: bool = False
+
+    @classmethod
+    def for_config(cls, config, n_inputs: int) -> SEARDKernel:
+        """The kernel a :class:`~hydroarm.control.gp.GPConfig` sets up on ``n_inputs`` inputs."""
+        return cls(
+            int(n_inputs),
+            tuple(config.log_sf2_bounds),
+            tuple(config.log_sn2_bounds),
+            tuple(config.log_lengthscale_bounds),
+            fixed=config.hyper_steps == 0,
+        )
+
+    @property
+    def hyperparameters(self) -> tuple[Hyperparameter, ...]:
+        """sf2, sn2 and the d lengthscales, in ``theta``'s order."""
+
+        def natural(log_bounds: tuple[float, float]) -> tuple[float, float]:
+            return (math.exp(log_bounds[0]), math.exp(log_bounds[1]))
+
+        return (
+            Hyperparameter("constant_value", "sf2", "target^2", natural(self.log_sf2_bounds), 1, self.fixed, SF2),
+            Hyperparameter("noise_level", "sn2", "target^2", natural(self.log_sn2_bounds), 1, self.fixed, SN2),
+            Hyperparameter(
+                "length_scale",
+                "l",
+                "input",
+                natural(self.log_lengthscale_bounds),
+                self.n_inputs,
+                self.fixed,
+                LENGTHSCALES,
+            ),
+        )
+
+    @property
+    def n_dims(self) -> int:
+        """The length of ``theta``: d + 2."""
+        return sum(h.n_elements for h in self.hyperparameters)
+
+    def __getitem__(self, name: str) -> Hyperparameter:
+        """The hyperparameter called ``name`` (scikit-learn's name or the paper's symbol)."""
+        for hyperparameter in self.hyperparameters:
+            if name in (hyperparameter.name, hyperparameter.symbol):
+                return hyperparameter
+        raise KeyError(f"{name!r}: the SE-ARD kernel has {', '.join(h.name for h in self.hyperparameters)}")
+
+    @property
+    def log_bounds(self) -> np.ndarray:
+        """(d + 2, 2): the natural-log (low, high) of every entry of ``theta``, in its order
+        (scikit-learn's ``kernel.bounds``, fixed ones included)."""
+        rows = [self.log_sf2_bounds, self.log_sn2_bounds] + [self.log_lengthscale_bounds] * self.n_inputs
+        return np.array(rows, dtype=float)
+
+    def named(self, theta) -> dict[str, float | np.ndarray]:
+        """``theta`` (d + 2,) by name: floats for sf2 and sn2, the (d,) lengthscales."""
+        theta = np.asarray(theta, dtype=float)
+        problem = self.check_theta(theta)
+        if problem is not None:
+            raise ValueError(f"theta: {problem}")
+        return {
+            h.name: (float(theta[h.index]) if h.n_elements == 1 and isinstance(h.index, int) else theta[h.index].copy())
+            for h in self.hyperparameters
+        }
+
+    def theta(self, *, constant_value: float, noise_level: float, length_scale) -> np.ndarray:
+        """The vector ``theta`` (d + 2,) from the hyperparameters by name (a scalar
+        ``length_scale`` for every input, or d of them)."""
+        theta = np.empty(self.n_dims)
+        theta[SF2], theta[SN2] = constant_value, noise_level
+        theta[LENGTHSCALES] = np.broadcast_to(np.asarray(length_scale, dtype=float), (self.n_inputs,))
+        return theta
+
+    def check_theta(self, theta) -> str | None:
+        """None if ``theta`` has one value per entry of the description, else what is wrong."""
+        size = len(theta)
+        if size == self.n_dims:
+            return None
+        layout = ", ".join(
+            h.symbol + (f"_1..{h.symbol}_{h.n_elements}" if h.n_elements > 1 else "") for h in self.hyperparameters
+        )
+        return f"{size} values: give {self.n_dims} [{layout}] for {self.n_inputs} inputs"
 
 
 def se_ard_kernel(X1: np.ndarray, X2: np.ndarray, sf2: float, lengthscales: np.ndarray) -> np.ndarray:
@@ -91,7 +227,7 @@ def predict(X, y, X_star, theta, *, include_noise: bool = True, jitter: float = 
     X_star = _check_matrix("X_star", X_star, n_cols=d)
     theta = _check_theta("theta", theta, d)
     jitter = _check_jitter(jitter)
-    sf2, sn2, lengthscales = theta[0], theta[1], theta[2:]
+    sf2, sn2, lengthscales = theta[SF2], theta[SN2], theta[LENGTHSCALES]
 
     K = se_ard_kernel(X, X, sf2, lengthscales)
     K[np.diag_indices_from(K)] += sn2 + jitter
@@ -125,7 +261,7 @@ def log_marginal_likelihood(X, y, theta, *, jitter: float = 0.0):
     y = _check_vector("y", y, n)
     theta = _check_theta("theta", theta, d)
     jitter = _check_jitter(jitter)
-    sf2, sn2, lengthscales = theta[0], theta[1], theta[2:]
+    sf2, sn2, lengthscales = theta[SF2], theta[SN2], theta[LENGTHSCALES]
 
     K_signal = se_ard_kernel(X, X, sf2, lengthscales)
     K = K_signal.copy()
@@ -138,17 +274,17 @@ def log_marginal_likelihood(X, y, theta, *, jitter: float = 0.0):
     W = np.outer(alpha, alpha) - K_inv
     sq_diff = (X[:, None, :] - X[None, :, :]) ** 2  # (n, n, d)
     grad = np.empty(d + 2)
-    grad[0] = 0.5 * np.sum(W * K_signal) / sf2
-    grad[1] = 0.5 * np.trace(W)
-    grad[2:] = 0.5 * np.einsum("ab,abj->j", W * K_signal, sq_diff) / lengthscales**3
+    grad[SF2] = 0.5 * np.sum(W * K_signal) / sf2
+    grad[SN2] = 0.5 * np.trace(W)
+    grad[LENGTHSCALES] = 0.5 * np.einsum("ab,abj->j", W * K_signal, sq_diff) / lengthscales**3
     return float(lml), grad
 
 
 def _evaluate_or_raise(X, Y, thetas, jitter, with_gradient):
     n_out = Y.shape[1]
     window = _Window(X, np.ascontiguousarray(Y.T), np.zeros(n_out), np.ones(n_out))
-    log_theta = np.log(np.maximum(thetas, np.finfo(float).tiny))  # sn2 = 0 handled via thetas[:, 1]
-    evaluation = _evaluate(window, window.Y_fit, log_theta, thetas[:, 1], jitter, 0, with_gradient)
+    log_theta = np.log(np.maximum(thetas, np.finfo(float).tiny))  # sn2 = 0 handled via thetas[:, SN2]
+    evaluation = _evaluate(window, window.Y_fit, log_theta, thetas[:, SN2], jitter, 0, with_gradient)
     if not evaluation.ok.all():
         raise np.linalg.LinAlgError(
             f"K + (sn2 + jitter) I is not positive definite for outputs {np.flatnonzero(~evaluation.ok).tolist()}; "
@@ -178,7 +314,7 @@ def predict_multi(X, Y, X_star, thetas, *, include_noise: bool = True, jitter: f
     alpha = _solve_with_factor(linv, window.Y_fit)
     mean, var = _predict_with_factor(window, X_star, log_theta, linv, alpha)
     if include_noise:
-        var = var + thetas[:, 1:2]
+        var = var + thetas[:, SN2, None]
     return mean.T, var.T
 
 
@@ -191,5 +327,5 @@ def log_marginal_likelihood_multi(X, Y, thetas, *, jitter: float = 0.0):
     jitter = _check_jitter(jitter)
     _, _, evaluation = _evaluate_or_raise(X, Y, thetas, jitter, with_gradient=True)
     grad = evaluation.grad / thetas  # dL/dtheta = (dL/dlog theta) / theta
-    grad[:, 1] = evaluation.half_trace_w  # direct form, valid at sn2 = 0 too
+    grad[:, SN2] = evaluation.half_trace_w  # direct form, valid at sn2 = 0 too
     return evaluation.lml, grad

@@ -6,7 +6,7 @@ hyperparameters.
 Algorithm 1, made robust: hyperparameter steps in log space, capped, projected onto box
 bounds, warm-started and accepted only if the LML does not decrease
 (`SlidingWindowGP.update_hyperparameters`); the window's factor updated in O(N^2) when
-theta is unchanged (`SlidingWindowGP.add`, `_cholesky`).
+theta is unchanged (`SlidingWindowGP.update`, `_cholesky`).
 
 Faults: a failed Cholesky is retried with a growing diagonal jitter (at most
 ``max_jitter_retries``); if it still fails, the candidate hyperparameters are rejected
@@ -34,7 +34,8 @@ from hydroarm.control.gp._cholesky import _append_sample, _cholesky_inverse, _dr
 from hydroarm.control.gp._compiled import _NO_FACTOR, _evaluate_kernel, _kernel_column, _kernel_matrices
 from hydroarm.control.gp.config import GPConfig
 from hydroarm.control.gp.events import FAULTS, GPStats
-from hydroarm.model.fixed_order import exp
+from hydroarm.control.gp.kernels import SF2, SN2, SEARDKernel
+from hydroarm.model.dynamics.fixed_order import exp
 
 __all__ = ["SlidingWindowGP"]
 
@@ -44,21 +45,26 @@ class SlidingWindowGP:
 
     Usage at control step k::
 
-        gp.add(x_prev, residual_prev)      # newest sample; the oldest drops out when full
+        gp.update(x_prev, residual_prev)   # newest sample; the oldest drops out when full
         gp.update_hyperparameters()        # <= hyper_steps safeguarded gradient steps
         mean, var = gp.predict(x_now)      # (n_outputs,), (n_outputs,)
 
     ``update_hyperparameters`` and ``predict`` meet the faults (jitter, failed Cholesky,
     prior prediction); with ``return_events=True`` they also return the fault events of
-    that call, a tuple of names from :data:`FAULTS`. ``add`` meets none: a failed O(N^2)
+    that call, a tuple of names from :data:`FAULTS`. ``update`` meets none: a failed O(N^2)
     update only leaves the factor to be recomputed by the next call that needs it.
+
+    It is a :class:`~hydroarm.control.interface.DisturbanceEstimator`: ``update(x, r)``, then
+    ``mean(x)`` and ``variance(x)`` (``predict``'s two halves, from one prediction per input and
+    state).
 
     Args:
         n_inputs: d, the input dimension (e.g. 12 for the state).
         n_outputs: number of outputs / independent GPs (default 6 joints).
         config: GPConfig (defaults if None).
 
-    State (read-only from outside): ``config``, ``stats`` (GPStats),
+    State (read-only from outside): ``config``, ``kernel`` (its :class:`SEARDKernel`: the
+    hyperparameters described, names and bounds), ``stats`` (GPStats),
     ``n_samples``, ``theta`` (n_outputs, d+2) natural scale, ``log_theta``,
     ``window_inputs`` (n, d) in original units and ``window_targets``
     (n, n_outputs), oldest first.
@@ -72,27 +78,8 @@ class SlidingWindowGP:
         config = GPConfig() if config is None else config
         if not isinstance(config, GPConfig):
             raise ValueError(f"config must be a GPConfig; got {type(config).__name__}")
-        if config.theta0 is not None and len(config.theta0) != n_inputs + 2:
-            raise field_error(
-                "theta0",
-                config.theta0,
-                f"{len(config.theta0)} values: give d+2 = {n_inputs + 2} for {n_inputs} inputs",
-                prefix="GPConfig.",
-            )
-        if config.input_scale is not None and len(config.input_scale) != n_inputs:
-            raise field_error(
-                "input_scale",
-                config.input_scale,
-                f"{len(config.input_scale)} values: give one per input ({n_inputs})",
-                prefix="GPConfig.",
-            )
-        if config.output_scale is not None and len(config.output_scale) not in (1, n_outputs):
-            raise field_error(
-                "output_scale",
-                config.output_scale,
-                f"{len(config.output_scale)} values: give 1 or one per output ({n_outputs})",
-                prefix="GPConfig.",
-            )
+        for name, problem in config.size_problems(n_inputs, n_outputs).items():
+            raise field_error(name, getattr(config, name), problem, prefix="GPConfig.")
         self.n_inputs = int(n_inputs)
         self.n_outputs = int(n_outputs)
         self.config = config
@@ -104,11 +91,11 @@ class SlidingWindowGP:
         self._output_scale = np.ones(n_outputs)
         if config.output_scale is not None:
             self._output_scale = self._output_scale * np.asarray(config.output_scale, dtype=float)
-        lower = [config.log_sf2_bounds[0], config.log_sn2_bounds[0]] + [config.log_lengthscale_bounds[0]] * n_inputs
-        upper = [config.log_sf2_bounds[1], config.log_sn2_bounds[1]] + [config.log_lengthscale_bounds[1]] * n_inputs
-        self._log_lower = np.array(lower)
-        self._log_upper = np.array(upper)
-        theta0 = np.ones(n_inputs + 2) if config.theta0 is None else np.asarray(config.theta0, dtype=float)
+        self.kernel = SEARDKernel.for_config(config, n_inputs)
+        log_bounds = self.kernel.log_bounds
+        self._log_lower = log_bounds[:, 0].copy()
+        self._log_upper = log_bounds[:, 1].copy()
+        theta0 = np.ones(self.kernel.n_dims) if config.theta0 is None else np.asarray(config.theta0, dtype=float)
         self._log_theta0 = np.log(theta0)
         self.reset()
 
@@ -125,6 +112,7 @@ class SlidingWindowGP:
         self._window = None  # _Window cache for the current samples
         self._previous_gradient = None  # dL/dlog theta at the current theta, previous window
         self._invalidate_factor()
+        self._prediction = None  # (x, mean, var) of the last mean/variance call, this state
 
     def _invalidate_factor(self) -> None:
         self._linv = None  # (o, n, n) inverse Cholesky factors for the current theta and window
@@ -174,10 +162,10 @@ class SlidingWindowGP:
     def set_theta(self, theta) -> None:
         """Set hyperparameters: (d+2,) for every output or (n_outputs, d+2); within the bounds."""
         theta = np.asarray(theta, dtype=float)
-        if theta.shape == (self.n_inputs + 2,):
+        if theta.shape == (self.kernel.n_dims,):
             theta = np.tile(theta, (self.n_outputs, 1))
         theta = _check_thetas(theta, self.n_outputs, self.n_inputs)
-        if theta[:, 1].min() <= 0:
+        if theta[:, SN2].min() <= 0:
             raise ValueError("theta: sn2 (index 1) must be > 0 for SlidingWindowGP")
         log_theta = np.log(theta)
         tolerance = 1e-12
@@ -188,18 +176,21 @@ class SlidingWindowGP:
         self._log_theta = np.clip(log_theta, self._log_lower, self._log_upper)
         self._previous_gradient = None
         self._invalidate_factor()
+        self._prediction = None
 
     # ----- data ---------------------------------------------------------------
 
-    def add(self, x, y) -> None:
-        """Append one sample x (d,), y (n_outputs,); drop the oldest when the window is full.
+    def update(self, x, r) -> bool:
+        """Append one sample x (d,), r (n_outputs,); drop the oldest when the window is full.
+        Always True (a sample of the wrong size or non-finite raises ValueError).
 
         If the hyperparameters are unchanged since the last factorisation and
         the window is large enough (GPConfig.incremental_min_window), the
         factor is rank-updated in O(N^2); otherwise it is recomputed lazily.
         """
         x = _check_vector("x", x, self.n_inputs)
-        y = _check_vector("y", y, self.n_outputs)
+        y = _check_vector("y", r, self.n_outputs)
+        self._prediction = None
         x_scaled = x * self._inv_input_scale
         full = self.n_samples >= self.config.window
         n_new = self.n_samples if full else self.n_samples + 1
@@ -217,21 +208,22 @@ class SlidingWindowGP:
         self._alpha = None
         if not use_incremental:
             self._linv = None
-            return
+            return True
         linv = _drop_oldest(self._linv) if full else self._linv
         grown = self._append_to_factor(linv, x_scaled)
         if grown is None:
             self._invalidate_factor()
-            return
+            return True
         self._linv = grown
         self._n_incremental_since_full += 1
         self.stats.n_incremental_updates += 1
+        return True
 
     def _append_to_factor(self, linv: np.ndarray, x_scaled: np.ndarray):
         X_old = np.ascontiguousarray(self._X[:-1])
         k_new = _kernel_column(np.ascontiguousarray(x_scaled, dtype=np.float64), X_old, self._log_theta)
-        noise = exp(self._log_theta[:, 1]) + self.config.jitter + self._extra_diag
-        kappa = exp(self._log_theta[:, 0]) + noise
+        noise = exp(self._log_theta[:, SN2]) + self.config.jitter + self._extra_diag
+        kappa = exp(self._log_theta[:, SF2]) + noise
         # The exact Schur complement is >= the diagonal noise; much less means round-off drift.
         return _append_sample(linv, k_new, kappa, 0.5 * noise)
 
@@ -264,7 +256,7 @@ class SlidingWindowGP:
         if cached is None:
             self.stats.n_full_factorizations += n_repeats
         return _evaluate(
-            window, Y_fit, log_theta, exp(log_theta[:, 1]), cfg.jitter, cfg.max_jitter_retries, True, cached
+            window, Y_fit, log_theta, exp(log_theta[:, SN2]), cfg.jitter, cfg.max_jitter_retries, True, cached
         )
 
     def _count_factorization_events(self, evaluation: _Evaluation, relevant: np.ndarray | None = None) -> None:
@@ -278,7 +270,7 @@ class SlidingWindowGP:
         if self._linv is not None:
             return
         n = window.n
-        sn2 = exp(self._log_theta[:, 1])
+        sn2 = exp(self._log_theta[:, SN2])
         compiled = _evaluate_kernel(
             np.ascontiguousarray(window.X), window.Y_fit, self._log_theta, sn2, float(self.config.jitter),
             _NO_FACTOR, False,
@@ -332,6 +324,7 @@ class SlidingWindowGP:
             see :data:`FAULTS`).
         """
         self._call_faults = [0] * len(FAULTS)
+        self._prediction = None
         trace = self._update_hyperparameters()
         return (trace, self._call_events()) if return_events else trace
 
@@ -447,6 +440,26 @@ class SlidingWindowGP:
         mean, var = self._predict(x_star, include_noise)
         return (mean, var, self._call_events()) if return_events else (mean, var)
 
+    def mean(self, x) -> np.ndarray:
+        """The predictive mean (n_outputs,) at x (d,) (:meth:`predict`'s first half; the fault
+        events are counted in ``stats``)."""
+        return self._predicted(x)[0].copy()
+
+    def variance(self, x) -> np.ndarray:
+        """The predictive variance (n_outputs,) at x (d,), the noise included (:meth:`predict`'s
+        second half)."""
+        return self._predicted(x)[1].copy()
+
+    def _predicted(self, x) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`predict` at x (d,), computed once per input and state: ``mean(x)`` then
+        ``variance(x)`` is one prediction, the same numbers as ``predict(x)``."""
+        x = _check_vector("x_star", x, self.n_inputs)
+        cached = self._prediction
+        if cached is None or not np.array_equal(cached[0], x):
+            mean, var = self.predict(x)
+            cached = self._prediction = (x.copy(), mean, var)
+        return cached[1], cached[2]
+
     def _predict(self, x_star, include_noise: bool):
         """`predict` without the events: (mean, var)."""
         single = np.ndim(x_star) == 1
@@ -456,8 +469,8 @@ class SlidingWindowGP:
             X_star = _check_matrix("x_star", x_star, n_cols=self.n_inputs)
         X_star = X_star * self._inv_input_scale
         log_theta = self._log_theta
-        sn2 = exp(log_theta[:, 1])[:, None] if include_noise else 0.0
-        sf2 = exp(log_theta[:, 0])[:, None]
+        sn2 = exp(log_theta[:, SN2])[:, None] if include_noise else 0.0
+        sf2 = exp(log_theta[:, SF2])[:, None]
         if self.n_samples == 0:
             mean = np.zeros((self.n_outputs, X_star.shape[0]))
             var = np.broadcast_to(sf2 + sn2, mean.shape).copy()

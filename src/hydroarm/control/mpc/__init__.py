@@ -16,7 +16,7 @@ deviation du = u - u_r (n,):
   (default) or the paper's explicit Euler step ``x_{k+1} = x_k + T f(x_k, u_k)``
   (``MPCConfig.discretisation``).
 * Linearisation at every reference sample j (time j T) by
-  :meth:`hydroarm.model.nominal.NominalModel.linearise_into` (Pinocchio's analytical
+  :meth:`hydroarm.model.dynamics.nominal.NominalModel.linearise_into` (Pinocchio's analytical
   ABA derivatives; Euler: ``A_j = I + T df/dx``, ``B_j = T df/du``), at
   (x_r,j, u_r,j) with ``u_r,j = RNEA(q_r, v_r, a_r)`` (nominal inverse dynamics).
   The affine term ``c_j = x_next,j - x_r,j+1`` (``x_next,j`` the discrete model's step
@@ -33,7 +33,7 @@ deviation du = u - u_r (n,):
   algorithm (:func:`solve_riccati`: quadratically convergent, history-free,
   compiled by numba; scipy's ``solve_discrete_are`` is the fallback). The first call
   in a fresh environment JIT-compiles it, then it is cached on disk like
-  hydroarm.model.water.
+  hydroarm.model.water.morison.
 * Condensed QP in the stacked moves dU (N n,): ``min 1/2 dU' H dU + g' dU``
   subject to ``-u_max - u_r <= dU <= u_max - u_r`` (:func:`condense`); the QP
   objective equals the MPC cost minus the constant terms. The condensing runs

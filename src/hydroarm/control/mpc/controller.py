@@ -1,7 +1,7 @@
 """The controller: :class:`LinearMPC`, its fallbacks and its fault events.
 
 One step of :meth:`LinearMPC.compute`: slide the window of linearisations along the
-reference (:meth:`~hydroarm.model.nominal.NominalModel.linearise_into`), the terminal
+reference (:meth:`~hydroarm.model.dynamics.nominal.NominalModel.linearise_into`), the terminal
 weight P at the horizon end (:func:`~hydroarm.control.linear.riccati_solution`), the
 condensed QP (:func:`~hydroarm.control.mpc.condense.condense`) and its torque box, the solve
 (a :class:`~hydroarm.control.qp.BoxQPSolver`, or Clarabel with the terminal set), the
@@ -21,8 +21,8 @@ from hydroarm.control.linear import lqr_gain, riccati_solution
 from hydroarm.control.mpc.condense import CondensedQP, condense
 from hydroarm.control.mpc.config import MPCConfig
 from hydroarm.control.qp import QPResult, make_box_qp_solver, solve_terminal_qp
-from hydroarm.model.arm import Arm
-from hydroarm.model.nominal import NominalModel
+from hydroarm.model.arm.description import Arm
+from hydroarm.model.dynamics.nominal import NominalModel
 
 CLIP_TOLERANCE = 1e-9
 """Relative excess over the torque limit above which the last-guard clip is counted."""

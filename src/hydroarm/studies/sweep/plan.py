@@ -22,8 +22,8 @@ import numpy as np
 
 from hydroarm.config import ConfigError, dotted_keys, unknown_key_message
 from hydroarm.control.registry import controller_sections, settings_read_by
-from hydroarm.model.arm import Arm
-from hydroarm.model.loading import BUILTIN_ARMS, load_arm
+from hydroarm.model.arm.description import Arm
+from hydroarm.model.arm.loading import BUILTIN_ARMS, load_arm
 from hydroarm.sim.experiment import ExperimentConfig, check_settings_for_arm, with_overrides
 from hydroarm.studies.outputs import slug
 from hydroarm.studies.sweep.schema import (

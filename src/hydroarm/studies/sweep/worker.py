@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from hydroarm.model.arm import Arm
+from hydroarm.model.arm.description import Arm
 from hydroarm.sim.experiment import build_experiment, settings_from_record
 from hydroarm.sim.files import file_bytes
 from hydroarm.sim.runner import Trajectory, fault_counts, stop_reason, tracking_metrics
