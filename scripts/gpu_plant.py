@@ -3,13 +3,13 @@
 Two modes (docs/model.md, "A GPU path"):
 
 ``--export FILE.npz`` (here, with hydroarm): the compiled plant's constants
-(:func:`hydroarm.model.arm.description.fast_export.export_constants`), a few seeded copies' initial states and
+(:func:`hydroarm.model.arm.fast_export.export_constants`), a few seeded copies' initial states and
 held torques, the numba :class:`~hydroarm.model.arm.fast.BatchedArm`'s results after 1 and after
 ``--periods`` control periods of 10 ms, and the numba batched rate measured in the same run
 (copy-steps/s, this machine's cores).
 
 ``--run FILE.npz --copies 1024 16384 131072 --steps N --out result.json`` (anywhere with JAX and
-NumPy only: :mod:`hydroarm.model.arm.description.fast_jax` is loaded by file path): the JAX period against the
+NumPy only: :mod:`hydroarm.model.arm.fast_jax` is loaded by file path): the JAX period against the
 file's numba reference (max relative difference per copy, max over copies), then per count of
 copies the compile time, the wall time of ``--steps`` periods (warm-up excluded,
 ``block_until_ready``), copy-steps/s and the ratio to the file's numba rate; the device and the
@@ -50,7 +50,7 @@ def export(path: Path, arm: str, copies: int, periods: int, drag_points: int | N
 
     import numba
 
-    from hydroarm.model.arm.description.fast_export import export_constants
+    from hydroarm.model.arm.fast_export import export_constants
     from hydroarm.model.arm.fast import BatchedArm
     from hydroarm.model.dynamics.integrator import inner_steps
     from hydroarm.sim.experiment import ExperimentConfig, build_experiment, with_overrides

@@ -1,4 +1,4 @@
-"""The JAX control period (hydroarm.model.arm.description.fast_jax, the GPU path) against the numba BatchedArm.
+"""The JAX control period (hydroarm.model.arm.fast_jax, the GPU path) against the numba BatchedArm.
 
 XLA's compile of the unrolled period takes tens of seconds on a CPU and its CPU execution is slow
 (every small operation of the loop body a separate step), so these tests keep one arm (the paper
@@ -19,8 +19,8 @@ import pytest
 
 pytest.importorskip("jax")
 
-from hydroarm.model.arm.description.fast_export import export_constants  # noqa: E402
-from hydroarm.model.arm.description.fast_jax import check_constants, make_period  # noqa: E402
+from hydroarm.model.arm.fast_export import export_constants  # noqa: E402
+from hydroarm.model.arm.fast_jax import check_constants, make_period  # noqa: E402
 from hydroarm.model.arm.fast import BatchedArm  # noqa: E402
 from hydroarm.model.dynamics.integrator import inner_steps  # noqa: E402
 from hydroarm.sim.experiment import ExperimentConfig, build_experiment, with_overrides  # noqa: E402

@@ -145,7 +145,7 @@ def _stress_world(deviation):
     """A world of the stress study (examples/stress.toml) where the unguarded planner diverged
     at 0.04 s: a plant 26 % lighter than the model, C_d 0.65, C_m 1.44, noise 1.3e-3."""
     from hydroarm.model.arm.loading import load_arm
-    from hydroarm.studies.sweep.plan import perturbed_arm
+    from hydroarm.sim.mismatch import perturbed_arm
     from hydroarm.studies.sweep.schema import Mismatch
 
     overrides = {

@@ -1,5 +1,5 @@
 """The compiled arm plant's constants as plain NumPy arrays, for the JAX path
-(:mod:`hydroarm.model.arm.description.fast_jax`, which imports nothing of hydroarm).
+(:mod:`hydroarm.model.arm.fast_jax`, which imports nothing of hydroarm).
 
 :func:`export_constants` reads them out of the compiled handle itself
 (:class:`~hydroarm.model.arm.fast.FastArmDynamics`'s ``compiled``, a numba StructRef, and its
@@ -39,7 +39,7 @@ STRIP_KEYS = ("joint_ids", "start", "axis", "table", "nodes", "weights", "switch
 
 
 def export_constants(fast: FastArmDynamics) -> dict[str, np.ndarray]:
-    """The constants of ``fast`` (:data:`hydroarm.model.arm.description.fast_jax.REQUIRED`, each a NumPy array,
+    """The constants of ``fast`` (:data:`hydroarm.model.arm.fast_jax.REQUIRED`, each a NumPy array,
     ``np.savez``-able; copies, not views of the compiled handle's arrays)."""
     values = dict(zip(ARM_KEYS, _arm_fields(fast.compiled), strict=True))
     values.update(zip(STRIP_KEYS, _strip_fields(fast.compiled), strict=True))

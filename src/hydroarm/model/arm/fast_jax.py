@@ -16,7 +16,7 @@ inner steps; ``jax.vmap`` maps the copies and ``jax.jit`` compiles the period.
 
 This module imports only NumPy and JAX: it is loaded by file path on a machine with JAX but
 without hydroarm's other dependencies (``scripts/gpu_plant.py --run``). Its constants are the
-dict :func:`hydroarm.model.arm.description.fast_export.export_constants` makes from a
+dict :func:`hydroarm.model.arm.fast_export.export_constants` makes from a
 :class:`~hydroarm.model.arm.fast.FastArmDynamics` (NumPy arrays, ``np.savez``-able).
 What the compiled plant models and this does not (the Reynolds drag, the Kirchhoff added mass, a
 floating base) is refused by :func:`check_constants`.
