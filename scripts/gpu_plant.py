@@ -50,8 +50,8 @@ def export(path: Path, arm: str, copies: int, periods: int, drag_points: int | N
 
     import numba
 
-    from hydroarm.model.arm.fast_export import export_constants
     from hydroarm.model.arm.fast import BatchedArm
+    from hydroarm.model.arm.fast_export import export_constants
     from hydroarm.model.dynamics.integrator import inner_steps
     from hydroarm.sim.experiment import ExperimentConfig, build_experiment, with_overrides
 

@@ -19,9 +19,9 @@ import pytest
 
 pytest.importorskip("jax")
 
+from hydroarm.model.arm.fast import BatchedArm  # noqa: E402
 from hydroarm.model.arm.fast_export import export_constants  # noqa: E402
 from hydroarm.model.arm.fast_jax import check_constants, make_period  # noqa: E402
-from hydroarm.model.arm.fast import BatchedArm  # noqa: E402
 from hydroarm.model.dynamics.integrator import inner_steps  # noqa: E402
 from hydroarm.sim.experiment import ExperimentConfig, build_experiment, with_overrides  # noqa: E402
 
