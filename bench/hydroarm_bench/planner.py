@@ -119,7 +119,7 @@ def _replan_breakdown(total, replanned, phases, calls) -> dict:
 
 def bench_planner_step(quick: bool) -> dict:
     """The flagship candidate's step statistics per planner solver (module docstring)."""
-    runs = 2 if quick else 11  # 11 x 999 observed steps: >= 10^4
+    runs = 1 if quick else 11  # 11 x 999 observed steps: >= 10^4; quick (CI): shape only
     warm = _one_run("structured", 0, 0.3)[0]
     out = {"controller": NAME, "runs": runs, "duration_s": DURATION_S, "warmup_first_step_ms": 1e3 * float(warm[0])}
     for solver in SOLVERS:
