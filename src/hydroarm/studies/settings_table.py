@@ -338,17 +338,26 @@ def settings_markdown() -> str:
 
 def system_markdown() -> list[str]:
     """docs/settings.md's section on the system a run simulates and the sections controllers declare."""
-    from hydroarm.sim.vehicle import FIXED_BASE_ONLY_SECTIONS
+    from hydroarm.sim.settings_rules import SYSTEM_ONLY
 
-    fixed = ", ".join(f"`{section}`" for section in FIXED_BASE_ONLY_SECTIONS)
+    only = {system: ", ".join(f"`{key}`" for key in keys) for system, keys in SYSTEM_ONLY.items()}
     return [
         "## One system per run, and the sections controllers declare",
         "",
         "A run simulates one system: the arm on a fixed base (`vehicle.name` null, the default) or the arm on a",
-        "vehicle (`vehicle.name` set, `hydroarm run --vehicle NAME`). A `vehicle.*` setting away from its default on",
-        f"a fixed arm, or a setting of the fixed-base-only sections ({fixed}) away from its default",
-        "on a vehicle run, fails validation with one message naming the field (exit code 2), before anything is",
-        "built. Replaying logs (`hydroarm replay`) takes the settings of its own section above.",
+        "vehicle (`vehicle.name` set, `hydroarm run --vehicle NAME`). What only one system reads is one table",
+        "(`hydroarm.sim.settings_rules.SYSTEM_ONLY`): on a fixed arm only, "
+        f"{only['fixed arm']}; on a vehicle only, {only['arm on a vehicle']}.",
+        "Any of them away from its default on the other system fails validation with one message naming the",
+        "field (exit code 2), before anything is built. Replaying logs (`hydroarm replay`) takes the settings of",
+        "its own section above.",
+        "",
+        "The systems are told apart by that table over one flat layout, not by a union type of one model per",
+        "system: what differs runs through sections both systems read (`water.current` and",
+        "`water.quadrature_points` are read on a fixed arm only, inside the `water` section both read), so a",
+        "union would need a `water` model per system, and a tag that would move keys every settings file,",
+        "`--set` and saved run uses. The table gives the union's guarantee on the flat layout: a test sets each",
+        "of its keys on the other system and expects the refusal (tests/test_settings_homes.py).",
         "",
         "A controller registered from outside hydroarm may declare its own section",
         '(`register(ControllerSpec(..., settings={"toy": ToyConfig}))`): `--set toy.kp=400` and a `[toy]` table',
