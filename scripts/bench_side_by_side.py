@@ -1,11 +1,18 @@
-"""The control step of two checkouts side by side: each checkout's ``bench_control_steps`` (section
-1 of bench.json: every controller's 10 s paper run, per-phase step times) in its own process,
-alternating between the checkouts round by round so that a load change on a shared machine hits
-both alike. Writes the medians, p99 and maxima of each controller's whole step per checkout and
-round, and the ratio new / old of the medians over the rounds.
+"""bench.json's step times of two checkouts side by side: each checkout's own bench sections in its
+own process, alternating between the checkouts round by round so that a load change on a shared
+machine hits both alike. Writes each row's statistics per checkout and round, and the ratio
+new / old of the medians over the rounds.
+
+The rows: ``control`` (section 1 of bench.json, ``bench_control_steps``: every controller's 10 s
+paper run, its whole step), ``plant`` (the paper arm's plant step, the reference path and its
+NumPy twin: ``bench_plant``), ``uvms`` (the vehicle + arm plant step, compiled and reference, and
+the real-time factor: ``bench_uvms``) and ``env`` (one arm env's steps per second, alpha5:
+``bench_envs``, quick).
 
     python scripts/bench_side_by_side.py --old /path/to/old/checkout --new . --rounds 2 \\
         --out bench/results/control_step_side_by_side.json
+    python scripts/bench_side_by_side.py --old OLD --new . --sections control plant uvms env \\
+        --out bench/results/step_side_by_side.json
 """
 
 from __future__ import annotations
@@ -24,16 +31,37 @@ import numpy as np
 CHILD = """
 import json, sys
 from hydroarm_bench.control_steps import bench_control_steps
-breakdown, _, _ = bench_control_steps(quick=False)
-json.dump({name: phases["total"] for name, phases in breakdown.items()}, sys.stdout)
+sections, rows = sys.argv[1:], {}
+breakdown, _, recorded = bench_control_steps(quick=False)
+if "control" in sections:
+    rows.update({name: phases["total"] for name, phases in breakdown.items()})
+if "plant" in sections:
+    from hydroarm_bench.plant import bench_plant
+    plant = bench_plant(recorded, False)
+    rows["plant step (paper arm)"] = plant["plant_step_ms"]
+    rows["plant step, NumPy twin (paper arm)"] = plant["plant_step_reference_ms"]
+if "uvms" in sections:
+    from hydroarm_bench.uvms import bench_uvms
+    uvms = bench_uvms(False)
+    for name in ("compiled", "reference"):
+        row = uvms[name]
+        rows[f"vehicle step, {name}"] = {"median": row["median_step_ms"], "p90": row["p90_step_ms"],
+                                         "real_time_factor": row["real_time_factor"]}
+if "env" in sections:
+    from hydroarm_bench.envs import bench_envs
+    env = bench_envs(True)
+    rows["arm env step (alpha5)"] = {"median": 1e3 / env["single_steps_per_s"]}
+json.dump(rows, sys.stdout)
 """
+SECTIONS = ("control", "plant", "uvms", "env")
 
 
-def measure(checkout: Path) -> dict:
-    """One round: every controller's whole-step statistics (ms) in a fresh process of ``checkout``."""
+def measure(checkout: Path, sections: list[str]) -> dict:
+    """One round: each row's step statistics (ms) in a fresh process of ``checkout``."""
     env = {**os.environ, "PYTHONPATH": f"{checkout / 'src'}{os.pathsep}{checkout / 'bench'}"}
     env.update(OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1", MKL_NUM_THREADS="1")
-    out = subprocess.run([sys.executable, "-c", CHILD], env=env, cwd=checkout, capture_output=True, text=True)
+    command = [sys.executable, "-c", CHILD, *sections]
+    out = subprocess.run(command, env=env, cwd=checkout, capture_output=True, text=True)
     if out.returncode != 0:
         sys.exit(f"{checkout}: the bench failed:\n{out.stderr[-2000:]}")
     return json.loads(out.stdout)
@@ -45,12 +73,13 @@ def main() -> None:
     parser.add_argument("--new", type=Path, required=True, help="the checkout measured as 'new'")
     parser.add_argument("--rounds", type=int, default=2)
     parser.add_argument("--out", type=Path, required=True)
+    parser.add_argument("--sections", nargs="+", choices=SECTIONS, default=["control"])
     args = parser.parse_args()
     rounds: dict[str, list[dict]] = {"old": [], "new": []}
     load = [os.getloadavg()]
     for k in range(args.rounds):
         for label in ("old", "new") if k % 2 == 0 else ("new", "old"):
-            rounds[label].append(measure(getattr(args, label).resolve()))
+            rounds[label].append(measure(getattr(args, label).resolve(), args.sections))
             print(f"round {k + 1}: {label} done", flush=True)
         load.append(os.getloadavg())
     ratios = {}
@@ -65,7 +94,9 @@ def main() -> None:
         for label in ("old", "new")
     }  # fmt: skip
     payload = {
-        "what": "the whole control step (observe + compute), 10 s paper run per controller, per checkout and round",
+        "what": "step times per checkout and round (ms): "
+        + ", ".join(args.sections)
+        + " (control: the whole control step, observe + compute, 10 s paper run per controller)",
         "date": date.today().isoformat(),
         "machine": {"cpus": os.cpu_count(), "processor": platform.processor() or platform.machine()},
         "load_average_between_rounds": load,

@@ -21,25 +21,40 @@ pytest.importorskip("jax")
 
 from hydroarm.model.arm.fast import BatchedArm  # noqa: E402
 from hydroarm.model.arm.fast_export import export_constants  # noqa: E402
-from hydroarm.model.arm.fast_jax import check_constants, make_period  # noqa: E402
-from hydroarm.model.dynamics.integrator import inner_steps  # noqa: E402
+from hydroarm.model.arm.fast_jax import check_constants  # noqa: E402
 from hydroarm.sim.experiment import ExperimentConfig, build_experiment, with_overrides  # noqa: E402
 
 PERIOD = 0.01
 SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "gpu_plant.py"
 
 
-def _plant(**overrides):
-    settings = {"arm": "paper", "plant.compiled": True, "plant.drag_points": 2, **overrides}
+PAPER = Path(__file__).resolve().parents[1] / "src" / "hydroarm" / "arms" / "paper.toml"
+
+
+@pytest.fixture(scope="module")
+def axial_arm(tmp_path_factory):
+    """The paper arm with an axial drag coefficient on every cylinder (the built-in arms give none,
+    so the axial term would be zero and unchecked)."""
+    path = tmp_path_factory.mktemp("arm") / "paper_axial.toml"
+    lines = [line + ("\ncd_axial = 0.8" if line.startswith("buoyancy_kg") else "") for line in
+             PAPER.read_text().splitlines()]  # fmt: skip
+    path.write_text("\n".join(lines) + "\n")
+    return str(path)
+
+
+def _plant(arm="paper", **overrides):
+    settings = {"arm": arm, "plant.compiled": True, "plant.drag_points": 2, **overrides}
     return build_experiment(with_overrides(ExperimentConfig(), settings), None)
 
 
-def _copies(experiment, count, seed=3):
+def _copies(experiment, count, seed=0):
+    """The copies ``scripts/gpu_plant.py --export`` checks: the start moved by U(-0.1, 0.1), torques
+    U(-0.1, 0.1) x the limits, start times 0.37 s apart."""
     rng = np.random.default_rng(seed)
     n = experiment.arm.n_joints
-    x = experiment.x0 + rng.uniform(-0.2, 0.2, (count, 2 * n))
-    tau = 0.2 * np.asarray(experiment.arm.torque_limit) * rng.uniform(-1, 1, (count, n))
-    return x, tau
+    x = experiment.x0 + rng.uniform(-0.1, 0.1, (count, 2 * n))
+    tau = 0.1 * np.asarray(experiment.arm.torque_limit) * rng.uniform(-1, 1, (count, n))
+    return x, tau, 0.37 * np.arange(count)
 
 
 def _relative(a, b):
@@ -47,44 +62,30 @@ def _relative(a, b):
     return float(np.max(np.max(np.abs(a - b), axis=1) / np.max(np.abs(b), axis=1)))
 
 
-def test_jax_period_equals_numba_with_friction_and_current():
-    """Every term on (water strips, buoyancy, axial drag, added mass, the paper's current, the
-    joint friction model and the viscous friction): state, disturbance and first-stage disturbance
-    after one period, the state after five, each within 1e-12 of the numba kernel's, per copy."""
-    experiment = _plant(**{"friction.scale": 1.0, "plant.friction": 0.3})
-    fast = experiment.plant.fast
-    constants = export_constants(fast)
-    assert bool(constants["friction_on"]) and float(constants["uniform"]) == 0.3
-    assert np.any(constants["current_joint"][0] != 0.0) and np.all(constants["switches"][:4] == 1)
-    x, tau = _copies(experiment, 3)
-    steps, h = inner_steps(PERIOD, experiment.plant.inner_step)
-    period = make_period(constants, steps, h)
-    batch = BatchedArm(fast)
-    times = np.array([0.0, 0.37, 1.2])  # different times per copy: the current's phase differs
-    jax_out = period(times, x, tau)
-    numba_out = batch.step(times, x, tau, PERIOD, experiment.plant.inner_step)
-    for ours, theirs in zip(jax_out, numba_out, strict=True):
-        assert _relative(ours, theirs) <= 1e-12
-    state_jax, state_numba = jax_out[0], numba_out[0]
-    for k in range(1, 5):
-        state_jax = period(times + k * PERIOD, state_jax, tau)[0]
-        state_numba = batch.step(times + k * PERIOD, state_numba, tau, PERIOD, experiment.plant.inner_step)[0]
-    assert np.all(np.isfinite(state_numba))
-    assert _relative(state_jax, state_numba) <= 1e-12
+TERMS_OFF = {
+    "drag": {"water.drag": False},
+    "added mass": {"water.added_mass": False},
+    "buoyancy": {"water.buoyancy": False},
+    "axial drag": {"water.axial_drag": False},
+    "the current": {"water.current.model": "none"},
+    "joint friction": {"friction.scale": 0.0},
+    "viscous friction": {"plant.friction": 0.0},
+}
+"""Each term the JAX period must carry, and the settings that switch it off."""
 
 
-def test_a_dropped_term_shows():
-    """The water switched off in the JAX constants only: the period differs from numba's with water
-    (so the test above would fail if a term were dropped)."""
-    experiment = _plant()
-    fast = experiment.plant.fast
-    constants = export_constants(fast)
-    constants["switches"] = np.zeros(6, dtype=np.int64)
-    x, tau = _copies(experiment, 2)
-    steps, h = inner_steps(PERIOD, experiment.plant.inner_step)
-    dry = make_period(constants, steps, h)(np.zeros(2), x, tau)[0]
-    wet = BatchedArm(fast).step(0.0, x, tau, PERIOD, experiment.plant.inner_step)[0]
-    assert _relative(dry, wet) > 1e-6
+@pytest.mark.parametrize("term", list(TERMS_OFF))
+def test_each_term_is_far_above_the_tolerance(term, axial_arm):
+    """Each term switched off changes the numba kernel's state after one period of the test above
+    by far more than its 1e-12 tolerance: a term the JAX port dropped would fail that test (numba
+    both times: no second XLA compile). The same copies and times as the script's export."""
+    settings = {"friction.scale": 1.0, "plant.friction": 0.3}
+    full = _plant(axial_arm, **settings)
+    off = _plant(axial_arm, **{**settings, **TERMS_OFF[term]})
+    x, tau, times = _copies(full, 3)
+    wet = BatchedArm(full.plant.fast).step(times, x, tau, PERIOD, full.plant.inner_step)[0]
+    dry = BatchedArm(off.plant.fast).step(times, x, tau, PERIOD, off.plant.inner_step)[0]
+    assert _relative(dry, wet) > 1e-9
 
 
 @pytest.mark.parametrize(
@@ -99,19 +100,29 @@ def test_what_it_does_not_model_is_refused(field, value, match):
         check_constants(constants)
 
 
-def test_the_gpu_script_runs_small(tmp_path):
-    """``scripts/gpu_plant.py``: ``--export`` a tiny file here, ``--run`` it (8 copies, 2 steps)
-    with no hydroarm on the path (arm_jax loaded by file path): the check passes, the row is there."""
+def test_jax_period_equals_numba_with_every_term(tmp_path, axial_arm):
+    """``scripts/gpu_plant.py`` as on the GPU machine: ``--export`` here, every term on (water
+    strips, buoyancy, axial drag, added mass, the paper's current at a different phase per copy, the
+    joint friction model and the viscous friction), then ``--run`` with no hydroarm on the path (the
+    JAX module loaded by file path), 8 copies of which the 3 reference ones are checked: state,
+    disturbance and first-stage disturbance after one period and the state after five, each within
+    1e-12 of the numba kernel's, per copy. One XLA compile (tens of seconds on a CPU)."""
     data, out = tmp_path / "tiny.npz", tmp_path / "result.json"
-    subprocess.run([sys.executable, str(SCRIPT), "--export", str(data), "--arm", "paper", "--drag-points", "2",
-                    "--periods", "2", "--reference-copies", "2"], check=True, capture_output=True)  # fmt: skip
+    subprocess.run([sys.executable, str(SCRIPT), "--export", str(data), "--arm", axial_arm, "--drag-points", "2",
+                    "--periods", "5", "--reference-copies", "3", "--set", "friction.scale=1",
+                    "--set", "plant.friction=0.3"], check=True, capture_output=True)  # fmt: skip
     assert data.stat().st_size < 2_000_000
+    saved = np.load(data, allow_pickle=False)
+    assert bool(saved["c_friction_on"]) and float(saved["c_uniform"]) == 0.3
+    assert np.any(saved["c_current_joint"][0] != 0.0) and np.all(saved["c_switches"][:4] == 1)
     env = {"PATH": "/usr/bin:/bin", "HOME": str(tmp_path)}  # no PYTHONPATH: only the venv's jax and numpy
     subprocess.run([sys.executable, str(SCRIPT), "--run", str(data), "--copies", "8", "--steps", "2", "--out",
                     str(out)], check=True, capture_output=True, cwd=tmp_path, env=env)  # fmt: skip
     result = json.loads(out.read_text())
-    assert result["check"]["after_1"]["state"] <= 1e-12
-    assert result["check"]["after_periods"]["state"] <= 1e-12
+    check = result["check"]
+    assert check["copies"] == 3 and check["periods"] == 5
+    assert max(check["after_1"].values()) <= 1e-12
+    assert check["after_periods"]["state"] <= 1e-12
     assert [row["copies"] for row in result["rows"]] == [8]
     assert result["rows"][0]["finite"] and result["rows"][0]["copy_steps_per_s"] > 0
 
