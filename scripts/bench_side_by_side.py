@@ -6,8 +6,10 @@ new / old of the medians over the rounds.
 The rows: ``control`` (section 1 of bench.json, ``bench_control_steps``: every controller's 10 s
 paper run, its whole step), ``plant`` (the paper arm's plant step, the reference path and its
 NumPy twin: ``bench_plant``), ``uvms`` (the vehicle + arm plant step, compiled and reference, and
-the real-time factor: ``bench_uvms``) and ``env`` (one arm env's steps per second, alpha5:
-``bench_envs``, quick).
+the real-time factor: ``bench_uvms``), ``env`` (one arm env's steps per second, alpha5:
+``bench_envs``, quick) and ``cpu`` (per controller of section 1, 10 s paper run, seed 0: the
+control step, compute + observe, and the whole loop's step, plant and runner included, in this
+thread's CPU time, which a loaded machine's preemptions do not inflate as they do wall times).
 
     python scripts/bench_side_by_side.py --old /path/to/old/checkout --new . --rounds 2 \\
         --out bench/results/control_step_side_by_side.json
@@ -29,9 +31,50 @@ from pathlib import Path
 import numpy as np
 
 CHILD = """
-import json, sys
-from hydroarm_bench.control_steps import bench_control_steps
+import json, sys, time
+import numpy as np
+from hydroarm_bench.control_steps import PHASES, bench_control_steps
+from hydroarm_bench.loop import paper_experiment
 sections, rows = sys.argv[1:], {}
+
+
+class CPUTimed:
+    def __init__(self, inner):
+        self.inner, self.name, self.control_period = inner, inner.name, inner.control_period
+        self.cpu_ns, self.last = [], 0
+    def reset(self):
+        self.inner.reset()
+    def compute(self, t, y, reference):
+        start = time.thread_time_ns()
+        out = self.inner.compute(t, y, reference)
+        self.last = time.thread_time_ns() - start
+        return out
+    def observe(self, t, y, u, y_next):
+        start = time.thread_time_ns()
+        self.inner.observe(t, y, u, y_next)
+        self.cpu_ns.append(self.last + time.thread_time_ns() - start)
+
+
+def stats(ns):
+    ms = np.asarray(ns, dtype=float) * 1e-6
+    return {"median": float(np.median(ms)), "p99": float(np.percentile(ms, 99)), "max": float(ms.max())}
+
+
+if "cpu" in sections:
+    for name in PHASES:
+        paper_experiment(name, 0.3).run(0)  # warm-up: JIT caches
+        experiment = paper_experiment(name, 10.0)
+        timed = CPUTimed(experiment.controller)
+        experiment.controller = timed
+        start = time.thread_time_ns()
+        traj = experiment.run(0)
+        whole = time.thread_time_ns() - start
+        rows[f"{name}: control step, thread CPU"] = stats(timed.cpu_ns)
+        steps = len(traj.t) - 1
+        rows[f"{name}: whole loop step, thread CPU"] = {"median": whole * 1e-6 / steps, "steps": steps}
+    if sections == ["cpu"]:
+        json.dump(rows, sys.stdout)
+        raise SystemExit(0)
 breakdown, _, recorded = bench_control_steps(quick=False)
 if "control" in sections:
     rows.update({name: phases["total"] for name, phases in breakdown.items()})
@@ -53,7 +96,7 @@ if "env" in sections:
     rows["arm env step (alpha5)"] = {"median": 1e3 / env["single_steps_per_s"]}
 json.dump(rows, sys.stdout)
 """
-SECTIONS = ("control", "plant", "uvms", "env")
+SECTIONS = ("control", "plant", "uvms", "env", "cpu")
 
 
 def measure(checkout: Path, sections: list[str]) -> dict:
