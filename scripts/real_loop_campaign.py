@@ -142,6 +142,7 @@ def run(task: tuple[str, str, str, dict, dict, int]) -> dict:
         "within_band": within,
         "Ep": float(np.mean(error**2)) if finished else None,
         "max_error_after_2s": float(np.max(error[late])) if finished else None,
+        "max_error_after_2s_per_joint": np.max(error[late], axis=0).tolist() if finished else None,
         "inner_step_s": experiment.plant.inner_step,
         "dropped": (traj.meta.get("sensor") or {}).get("dropped", 0),
         "wall_s": wall,
@@ -279,30 +280,26 @@ def _ran(runs: list[dict], controller: str) -> bool:
 
 def arms_world_table(by_arm: dict[str, list[dict]], controller: str) -> str:
     """``controller``'s runs world by world (the grid, then each effect alone, then the target
-    world's extras), one column per arm: E_p (rad^2), E_p / the arm's ideal loop, the worst
+    world's extras, as :func:`tasks` orders them; no world with a rate limit, left to the rate
+    limit's own rows), one column per arm: E_p (rad^2), E_p / the arm's ideal loop, the worst
     joint error after 2 s (rad); ``*`` out of the band."""
     arms = list(by_arm)
     lines = ["| world | " + " | ".join(arms) + " |", "|---|" + "---|" * len(arms)]
-    worlds: dict[str, dict[str, dict]] = {}
+    runs_of = enumerate(t for t in tasks("paper", [controller]) if t[0] in ("grid", "alone", "target+"))
+    order = {(t[0], t[1]): k for k, t in runs_of}
+    worlds: dict[tuple[str, str], dict[str, dict]] = {}
     for arm, runs in by_arm.items():
         for r in runs:
-            if r["controller"] != controller or r["group"] not in ("grid", "alone", "target+"):
+            rated = "actuator.rate_limit" in r["overrides"]
+            if r["controller"] != controller or (r["group"], r["world"]) not in order or rated:
                 continue
-            o = r["overrides"]
-            name = (
-                grid_label(o["sensor.delay"], o["friction.scale"], o["sensor.dropout"])
-                if r["group"] == "grid"
-                else r["world"]
-            )
-            worlds.setdefault(f"{r['group']}|{name}", {})[arm] = r
-    order = {"grid": 0, "alone": 1, "target+": 2}
-    grid_keys = sorted((k for k in worlds if k.startswith("grid|")), key=lambda k: _grid_key(worlds[k]))
-    rest = sorted((k for k in worlds if not k.startswith("grid|")), key=lambda k: order[k.split("|")[0]])
+            worlds.setdefault((r["group"], r["world"]), {})[arm] = r
     ideals = {arm: ideal_ep(runs).get(controller) for arm, runs in by_arm.items()}
-    for key in grid_keys + rest:
+    for group, world in sorted(worlds, key=lambda key: (key[0] != "grid", order[key])):
+        by = worlds[(group, world)]
         cells = []
         for arm in arms:
-            r = worlds[key].get(arm)
+            r = by.get(arm)
             if r is None:
                 cells.append("")
             elif r["Ep"] is None or r["diverged"]:
@@ -310,11 +307,13 @@ def arms_world_table(by_arm: dict[str, list[dict]], controller: str) -> str:
             else:
                 star = "" if r["within_band"] else "*"
                 cells.append(f"{r['Ep']:.4f}{star} ({r['Ep'] / ideals[arm]:.2f}x, {r['max_error_after_2s']:.2f} rad)")
-        lines.append(f"| {key.split('|', 1)[1]} | " + " | ".join(cells) + " |")
+        label = grid_label(*_grid_key(by)) if group == "grid" else world
+        lines.append(f"| {label} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 
-def _grid_key(by: dict[str, dict]) -> tuple:
+def _grid_key(by: dict[str, dict]) -> tuple[int, float, float]:
+    """(sensor delay, friction scale, dropout) of a grid world's runs."""
     o = next(iter(by.values()))["overrides"]
     return (o["sensor.delay"], o["friction.scale"], o["sensor.dropout"])
 
