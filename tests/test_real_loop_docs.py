@@ -95,3 +95,13 @@ def test_the_reference_torque_is_the_plants_inverse_dynamics():
         assert values == pytest.approx(stored["ur5"][key], rel=1e-9, abs=1e-9), key
     assert max(stored["paper"]["share_over_limit"]) == 0.0
     assert max(stored["paper"]["peak_Nm"]) < min(stored["paper"]["limit_Nm"])
+
+
+def test_the_observer_variants_in_the_paper_grid_are_its_results_file():
+    script = _script("real_loop_campaign")
+    runs = json.loads((ROOT / "docs" / "data" / "real_loop.json").read_text())["runs"]
+    variants = [name for name in script.VARIANTS if any(r["controller"] == name for r in runs)]
+    assert {"IDMPC+TDE", "IDMPC+TDE-gated", "IDMPC+NDOB", "IDMPC+NDOB-gated"} <= set(variants)
+    page = (ROOT / "docs" / "robustness.md").read_text()
+    assert script.table(runs, variants) in page
+    assert script.grid_table(runs, variants) in page
