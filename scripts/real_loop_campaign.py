@@ -9,6 +9,15 @@ Runs every controller on the paper task (10 s, Table 1's noise-free sensor other
   drives' rate limit and bandwidth, and two flagship-only controls (no delay prediction; the
   filter's default sigma_a^2).
 
+``--arm`` runs the same worlds on another arm's task (ur5, alpha5, or iiwa14: the 7-joint arm of
+examples/urdf/iiwa14.urdf), the sweep file's base with only its arm changed: the same 16-bit
+encoder, the same friction (the arm files carry none: every arm takes the published per-joint
+values of :mod:`hydroarm.model.real_loop.friction`, Gaz et al. 2019's Panda, joint i for joint i),
+and E_p relative to that arm's own ideal loop. The paper arm writes ``docs/data/real_loop.json``;
+the other arms merge into one file (``--out docs/data/real_loop_arms.json``), keyed by arm.
+Besides the registry's controllers the observer variants run (:data:`VARIANTS`: IDMPC, SMC and
+MPC over the TDE or the NDOB, gated or not), named as in the learning study (``IDMPC+TDE-gated``).
+
 Every run is on default settings (issue 32: no hand-set filter): ``estimator.kind = "auto"`` puts
 every controller behind the Kalman filter wherever the sensor is not the ideal one or the loop has
 a delay, with sigma_a^2 derived from the sensor; on the ideal sensor that filter passes the
@@ -18,6 +27,8 @@ over joints and samples, rad^2), and E_p relative to the same controller's ideal
 ``--out`` (JSON) and prints the tables.
 
 Usage: python scripts/real_loop_campaign.py [--out docs/data/real_loop.json] [--workers 2]
+       python scripts/real_loop_campaign.py --arm ur5 --out docs/data/real_loop_arms.json --workers 1 \
+           --groups grid alone --controllers GP-IDMPC IDMPC --skip-worlds "rate limit 1000 N m/s"
 """
 
 from __future__ import annotations
@@ -25,6 +36,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import platform
 import time
 from concurrent.futures import ProcessPoolExecutor
@@ -37,10 +49,30 @@ from hydroarm.sim.experiment import ExperimentConfig, build_experiment, with_ove
 from hydroarm.studies.sweep.plan import plan_sweep
 from hydroarm.studies.sweep.schema import load_sweep
 
-SWEEP = Path(__file__).resolve().parents[1] / "examples" / "real_loop.toml"
+ROOT = Path(__file__).resolve().parents[1]
+SWEEP = ROOT / "examples" / "real_loop.toml"
 BAND, AFTER = 0.5, 2.0  # rad, s: the stress study's bound
 FLAGSHIP = "GP-IDMPC"
 SIXTEEN_BIT = 2 * math.pi / 2**16
+ARMS: dict[str, str] = {
+    "paper": "paper",
+    "ur5": "ur5",
+    "alpha5": "alpha5",
+    "iiwa14": "examples/urdf/iiwa14.urdf",
+}
+"""--arm's choices -> the arm (built-in name, or a path relative to the repository root)."""
+
+OBSERVERS: dict[str, dict] = {
+    "TDE": {"observer.kind": "tde"},
+    "TDE-gated": {"observer.kind": "tde", "observer.gate": True},
+    "NDOB": {"observer.kind": "ndob"},
+    "NDOB-gated": {"observer.kind": "ndob", "observer.gate": True},
+}
+VARIANTS: dict[str, tuple[str, dict]] = {
+    f"{name}+{label}": (name, overrides) for name in ("IDMPC", "SMC", "MPC") for label, overrides in OBSERVERS.items()
+}
+"""The observer variants: label -> (the registry's controller, its observer settings; every
+other setting at its default, the NDOB's gain L = 0.1)."""
 RATE_LIMIT = 1000.0  # N m/s: 10 N m per period, below the ideal loop's 95th percentile on joint 1 (1490 N m/s)
 BANDWIDTH = 20.0  # Hz
 
@@ -75,16 +107,23 @@ SENSITIVITY_VARIANCE = 0.01
 """sigma_a^2 of the sensitivity group: the flagship's dropout-with-friction worlds with a slower filter."""
 
 
+def arm_base(target: ExperimentConfig, arm: str) -> ExperimentConfig:
+    """The sweep file's base on ``arm`` (a key of :data:`ARMS`): its arm alone changed."""
+    path = ARMS[arm]
+    return with_overrides(target, {"arm": str(ROOT / path) if path.endswith(".urdf") else path})
+
+
 def ideal_base(target: ExperimentConfig) -> ExperimentConfig:
     """The ideal loop: every real-loop setting at its default (the target's filter settings, its defaults too)."""
     return ExperimentConfig(arm=target.arm, duration=target.duration, estimator=target.estimator)
 
 
 def run(task: tuple[str, str, str, dict, dict, int]) -> dict:
-    """One run: ``(group, world, controller, base settings (JSON), overrides, seed)``."""
+    """One run: ``(group, world, controller or variant, base settings (JSON), overrides, seed)``."""
     group, world, controller, base, overrides, seed = task
-    config = with_overrides(ExperimentConfig.model_validate(base), overrides)
-    experiment = build_experiment(config, controller)
+    name, settings = VARIANTS.get(controller, (controller, {}))
+    config = with_overrides(ExperimentConfig.model_validate(base), {**overrides, **settings})
+    experiment = build_experiment(config, name)
     start = time.perf_counter()
     traj = experiment.run(seed)
     wall = time.perf_counter() - start
@@ -103,26 +142,31 @@ def run(task: tuple[str, str, str, dict, dict, int]) -> dict:
         "within_band": within,
         "Ep": float(np.mean(error**2)) if finished else None,
         "max_error_after_2s": float(np.max(error[late])) if finished else None,
+        "max_error_after_2s_per_joint": np.max(error[late], axis=0).tolist() if finished else None,
         "inner_step_s": experiment.plant.inner_step,
         "dropped": (traj.meta.get("sensor") or {}).get("dropped", 0),
         "wall_s": wall,
     }
 
 
-def tasks() -> list[tuple]:
+def tasks(arm: str = "paper", controllers: list[str] | None = None) -> list[tuple]:
+    """Every run of the campaign on ``arm``: the sweep file's grid, each effect alone, the
+    target world's extras for ``controllers`` (default: the registry's), the flagship's controls."""
     sweep = load_sweep(SWEEP)
     plan = plan_sweep(sweep, SWEEP.parent)
-    target = sweep.base
+    target = sweep.base if arm == "paper" else arm_base(sweep.base, arm)
     ideal = ideal_base(target).model_dump(mode="json")
     target_json = target.model_dump(mode="json")
+    names = list(CONTROLLERS) if controllers is None else controllers
+    grid = list(dict.fromkeys((tuple(row.params.items()), row.seed) for row in plan.rows))
     out: list[tuple] = []
-    for row in plan.rows:
-        world = ", ".join(f"{k.split('.')[-1]}={v:g}" for k, v in row.params.items())
-        out.append(("grid", world, row.controller, target_json, dict(row.params), row.seed))
+    for params, seed in grid:
+        world = ", ".join(f"{k.split('.')[-1]}={v:g}" for k, v in params)
+        out += [("grid", world, name, target_json, dict(params), seed) for name in names]
     for world, overrides in EFFECTS.items():
-        out += [("alone", world, name, ideal, overrides, 0) for name in CONTROLLERS]
+        out += [("alone", world, name, ideal, overrides, 0) for name in names]
     for world, overrides in TARGET_EXTRA.items():
-        out += [("target+", world, name, target_json, overrides, 0) for name in CONTROLLERS]
+        out += [("target+", world, name, target_json, overrides, 0) for name in names]
     for world, overrides in CONTROLS.items():
         out.append(("control", world, FLAGSHIP, target_json, overrides, 0))
     for row in plan.rows:
@@ -135,12 +179,17 @@ def tasks() -> list[tuple]:
     return out
 
 
-def table(results: list[dict]) -> str:
-    ideal = {r["controller"]: r["Ep"] for r in results if r["group"] == "alone" and r["world"] == "ideal"}
-    lines = ["| controller | runs | diverged | within 0.5 rad after 2 s | mean E_p (rad^2) | mean E_p / ideal |"]
-    lines.append("|---|---|---|---|---|---|")
+def ideal_ep(results: list[dict]) -> dict[str, float]:
+    """Each controller's E_p in the ideal loop (rad^2): the reference of its E_p / ideal."""
+    return {r["controller"]: r["Ep"] for r in results if r["group"] == "alone" and r["world"] == "ideal"}
+
+
+def summary_rows(results: list[dict], controllers: list[str] | tuple[str, ...]) -> list[str]:
+    """``| controller | runs | diverged | within | mean E_p | mean E_p / ideal |`` over the grid's runs."""
+    ideal = ideal_ep(results)
     grid = [r for r in results if r["group"] == "grid"]
-    for name in CONTROLLERS:
+    lines = []
+    for name in controllers:
         rows = [r for r in grid if r["controller"] == name]
         eps = [r["Ep"] for r in rows if r["Ep"] is not None and not r["diverged"]]
         mean = float(np.mean(eps)) if eps else math.nan
@@ -148,7 +197,15 @@ def table(results: list[dict]) -> str:
             f"| {name} | {len(rows)} | {sum(r['diverged'] or bool(r['stopped']) for r in rows)} | "
             f"{sum(r['within_band'] for r in rows)} | {mean:.4f} | {mean / ideal[name]:.2f} |"
         )
-    lines += ["", "| world | " + " | ".join(CONTROLLERS) + " |", "|---|" + "---|" * len(CONTROLLERS)]
+    return lines
+
+
+def table(results: list[dict], controllers: list[str] | tuple[str, ...] = tuple(CONTROLLERS)) -> str:
+    ideal = ideal_ep(results)
+    lines = ["| controller | runs | diverged | within 0.5 rad after 2 s | mean E_p (rad^2) | mean E_p / ideal |"]
+    lines.append("|---|---|---|---|---|---|")
+    lines += summary_rows(results, controllers)
+    lines += ["", "| world | " + " | ".join(controllers) + " |", "|---|" + "---|" * len(controllers)]
     for group in ("alone", "grid-target", "target+", "control", "sensitivity"):
         worlds: dict[str, dict[str, dict]] = {}
         for r in results:
@@ -161,8 +218,10 @@ def table(results: list[dict]) -> str:
                 name = "target" if group == "grid-target" else r["world"]
                 worlds.setdefault(name, {})[r["controller"]] = r
         for world, by in worlds.items():
+            if not any(name in by for name in controllers):
+                continue
             cells = []
-            for name in CONTROLLERS:
+            for name in controllers:
                 r = by.get(name)
                 if r is None:
                     cells.append("")
@@ -175,11 +234,17 @@ def table(results: list[dict]) -> str:
     return "\n".join(lines)
 
 
-def grid_table(results: list[dict]) -> str:
+def grid_label(delay: int, scale: float, dropout: float) -> str:
+    """A grid world's row label: ``1, 1x, 10 %``; the target world in bold."""
+    label = f"{delay}, {f'{scale:g}x' if scale else '0'}, {f'{dropout * 100:g} %' if dropout else '0'}"
+    return f"**{label} (target)**" if (delay, scale, dropout) == (1, 1.0, 0.0) else label
+
+
+def grid_table(results: list[dict], controllers: list[str] | tuple[str, ...] = tuple(CONTROLLERS)) -> str:
     """The grid's worlds, one row each (sensor delay, friction, dropout), every controller's mean
     E_p (rad^2), ``*`` out of the band; docs/robustness.md prints it."""
-    lines = ["| sensor delay, friction, dropout | " + " | ".join(CONTROLLERS) + " |"]
-    lines.append("|---|" + "---|" * len(CONTROLLERS))
+    lines = ["| sensor delay, friction, dropout | " + " | ".join(controllers) + " |"]
+    lines.append("|---|" + "---|" * len(controllers))
     worlds: dict[tuple, dict[str, dict]] = {}
     for r in results:
         if r["group"] == "grid":
@@ -187,11 +252,9 @@ def grid_table(results: list[dict]) -> str:
             key = (o["sensor.delay"], o["friction.scale"], o["sensor.dropout"])
             worlds.setdefault(key, {})[r["controller"]] = r
     for (delay, scale, dropout), by in sorted(worlds.items()):
-        label = f"{delay}, {f'{scale:g}x' if scale else '0'}, {f'{dropout * 100:g} %' if dropout else '0'}"
-        if (delay, scale, dropout) == (1, 1.0, 0.0):
-            label = f"**{label} (target)**"
+        label = grid_label(delay, scale, dropout)
         cells = []
-        for name in CONTROLLERS:
+        for name in controllers:
             r = by[name]
             diverged = r["Ep"] is None or r["diverged"]
             cells.append("diverged" if diverged else f"{r['Ep']:.4f}{'' if r['within_band'] else '*'}")
@@ -199,38 +262,179 @@ def grid_table(results: list[dict]) -> str:
     return "\n".join(lines)
 
 
+def arms_table(by_arm: dict[str, list[dict]], controllers: list[str] | tuple[str, ...]) -> str:
+    """Per arm (``arm -> its runs``) and controller: the grid's runs, divergences, runs within
+    the band, mean E_p (rad^2) and mean E_p / the arm's own ideal loop; docs/robustness.md prints it."""
+    lines = [
+        "| arm | controller | runs | diverged | within 0.5 rad after 2 s | mean E_p (rad^2) | mean E_p / ideal |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for arm, runs in by_arm.items():
+        lines += [f"| {arm} {row}" for row in summary_rows(runs, [c for c in controllers if _ran(runs, c)])]
+    return "\n".join(lines)
+
+
+def _ran(runs: list[dict], controller: str) -> bool:
+    return any(r["group"] == "grid" and r["controller"] == controller for r in runs)
+
+
+def arms_world_table(by_arm: dict[str, list[dict]], controller: str) -> str:
+    """``controller``'s runs world by world (the grid, then each effect alone, then the target
+    world's extras, as :func:`tasks` orders them; no world with a rate limit, left to the rate
+    limit's own rows), one column per arm: E_p (rad^2), E_p / the arm's ideal loop, the worst
+    joint error after 2 s (rad); ``*`` out of the band."""
+    arms = list(by_arm)
+    lines = ["| world | " + " | ".join(arms) + " |", "|---|" + "---|" * len(arms)]
+    runs_of = enumerate(t for t in tasks("paper", [controller]) if t[0] in ("grid", "alone", "target+"))
+    order = {(t[0], t[1]): k for k, t in runs_of}
+    worlds: dict[tuple[str, str], dict[str, dict]] = {}
+    for arm, runs in by_arm.items():
+        for r in runs:
+            rated = "actuator.rate_limit" in r["overrides"]
+            if r["controller"] != controller or (r["group"], r["world"]) not in order or rated:
+                continue
+            worlds.setdefault((r["group"], r["world"]), {})[arm] = r
+    ideals = {arm: ideal_ep(runs).get(controller) for arm, runs in by_arm.items()}
+    for group, world in sorted(worlds, key=lambda key: (key[0] != "grid", order[key])):
+        by = worlds[(group, world)]
+        cells = []
+        for arm in arms:
+            r = by.get(arm)
+            if r is None:
+                cells.append("")
+            elif r["Ep"] is None or r["diverged"]:
+                cells.append("diverged")
+            else:
+                star = "" if r["within_band"] else "*"
+                cells.append(f"{r['Ep']:.4f}{star} ({r['Ep'] / ideals[arm]:.2f}x, {r['max_error_after_2s']:.2f} rad)")
+        label = grid_label(*_grid_key(by)) if group == "grid" else world
+        lines.append(f"| {label} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def _grid_key(by: dict[str, dict]) -> tuple[int, float, float]:
+    """(sensor delay, friction scale, dropout) of a grid world's runs."""
+    o = next(iter(by.values()))["overrides"]
+    return (o["sensor.delay"], o["friction.scale"], o["sensor.dropout"])
+
+
+def reference_torque(arm: str) -> dict:
+    """The torque the true plant (the arm's water and current, no joint friction) needs to follow
+    ``arm``'s 10 s reference exactly, sampled every control period: per joint its peak (N m), the
+    arm's torque limit (N m) and the share of the samples over the limit. The plant's acceleration
+    is affine in the torque, ``a = A tau + b``: A and b from n + 1 evaluations, tau = A^-1 (a_r - b)."""
+    target = arm_base(load_sweep(SWEEP).base, arm)
+    config = ideal_base(target)
+    experiment = build_experiment(config, "IDMPC")
+    plant, reference = experiment.plant, experiment.reference
+    n = reference.n_joints
+    limit = np.broadcast_to(np.asarray(experiment.arm.torque_limit, dtype=float), (n,))
+    times = np.arange(round(config.duration / config.control_period)) * config.control_period
+    needed = np.empty((len(times), n))
+    for k, t in enumerate(times):
+        q, v, a = reference.sample(t)
+        b = plant.acceleration(t, q, v, np.zeros(n))
+        gain = np.column_stack([plant.acceleration(t, q, v, e) - b for e in np.eye(n)])
+        needed[k] = np.linalg.solve(gain, a - b)
+    over = np.abs(needed) > limit
+    return {
+        "peak_Nm": np.abs(needed).max(axis=0).tolist(),
+        "limit_Nm": limit.tolist(),
+        "share_over_limit": over.mean(axis=0).tolist(),
+    }
+
+
+def _select(args: argparse.Namespace) -> list[tuple]:
+    todo = tasks(args.arm, args.controllers)
+    if args.groups is not None:
+        todo = [t for t in todo if t[0] in args.groups]
+    if args.worlds is not None:
+        todo = [t for t in todo if t[1] in args.worlds]
+    if args.skip_worlds:
+        todo = [t for t in todo if t[1] not in args.skip_worlds]
+    if args.controllers is not None:
+        todo = [t for t in todo if t[2] in args.controllers]
+    return todo
+
+
+def _merge_arm(path: Path, arm: str, todo: list[tuple], results: list[dict], wall: float, label: str) -> list[dict]:
+    """Merge ``arm``'s new runs into the per-arm file at ``path`` (its other arms and runs kept)."""
+    data = json.loads(path.read_text()) if path.exists() else {
+        "sweep_file": "examples/real_loop.toml",
+        "band_rad": BAND,
+        "after_s": AFTER,
+        "rate_limit_Nm_per_s": RATE_LIMIT,
+        "bandwidth_Hz": BANDWIDTH,
+        "friction": "the published per-joint values (Gaz et al. 2019's Panda, joint i for joint i) on every arm",
+        "arms": {},
+    }  # fmt: skip
+    entry = data["arms"].setdefault(arm, {"arm": ARMS[arm], "runs": [], "wall_time_s": {}})
+    done = {(t[0], t[1], t[2]) for t in todo}
+    entry["runs"] = [r for r in entry["runs"] if (r["group"], r["world"], r["controller"]) not in done] + results
+    entry["wall_time_s"][label] = wall
+    entry["machine"] = {"cpus": os.cpu_count(), "python": platform.python_version()}
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(data, indent=1) + "\n")
+    return entry["runs"]
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--out", type=Path, default=Path("docs/data/real_loop.json"))
+    parser.add_argument("--out", type=Path, default=None, help="default: docs/data/real_loop.json (paper arm)")
+    parser.add_argument("--arm", choices=list(ARMS), default="paper", help="the arm whose task the worlds run on")
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument(
         "--groups", nargs="*", default=None, help="run only these groups and merge them into --out (grid, alone, ...)"
     )
-    parser.add_argument("--worlds", nargs="*", default=None, help="with --groups: only these worlds of them")
-    parser.add_argument("--controllers", nargs="*", default=None, help="with --groups: only these controllers")
+    parser.add_argument("--worlds", nargs="*", default=None, help="only these worlds")
+    parser.add_argument("--skip-worlds", nargs="*", default=None, help="not these worlds")
+    parser.add_argument(
+        "--controllers", nargs="*", default=None, help="only these controllers (registry names or VARIANTS' labels)"
+    )
+    parser.add_argument(
+        "--reference-torque",
+        action="store_true",
+        help="run nothing: store in --out the torque each arm's reference needs against its limits",
+    )
     args = parser.parse_args()
-    todo = tasks() if args.groups is None else [t for t in tasks() if t[0] in args.groups]
-    if args.worlds is not None:
-        todo = [t for t in todo if t[1] in args.worlds]
-    if args.controllers is not None:
-        todo = [t for t in todo if t[2] in args.controllers]
+    if args.out is None:
+        if args.arm != "paper":
+            parser.error("--arm other than paper: give --out (docs/data/real_loop_arms.json, keyed by arm)")
+        args.out = Path("docs/data/real_loop.json")
+    unknown = [c for c in args.controllers or [] if c not in CONTROLLERS and c not in VARIANTS]
+    if unknown:
+        parser.error(f"--controllers: unknown {unknown}; known: {list(CONTROLLERS) + list(VARIANTS)}")
+    if args.reference_torque:
+        data = json.loads(args.out.read_text())
+        data["reference_torque"] = {arm: reference_torque(arm) for arm in ARMS}
+        args.out.write_text(json.dumps(data, indent=1) + "\n")
+        print(json.dumps(data["reference_torque"], indent=1))
+        return
+    todo = _select(args)
     start = time.perf_counter()
     results = []
     with ProcessPoolExecutor(args.workers) as pool:
         for k, result in enumerate(pool.map(run, todo), 1):
+            if args.arm != "paper":
+                result["arm"] = args.arm
             results.append(result)
             print(f"[{k}/{len(todo)}] {result['group']} {result['world']} {result['controller']}: "
                   f"Ep={result['Ep']} within={result['within_band']}", flush=True)  # fmt: skip
     wall = time.perf_counter() - start
-    if args.groups is not None:  # merge: keep the other groups' runs and the first wall time
+    label = ",".join((args.groups or ["all"]) + (args.worlds or []) + (args.controllers or []))
+    if args.arm != "paper":
+        runs = _merge_arm(args.out, args.arm, todo, results, wall, label)
+        names = list(dict.fromkeys(r["controller"] for r in runs))
+        print(arms_table({args.arm: runs}, names))
+        return
+    if args.groups is not None or args.controllers is not None:  # merge: keep the other runs and the first wall time
         previous = json.loads(args.out.read_text())
         done = {(t[0], t[1], t[2]) for t in todo}
         kept = [r for r in previous["runs"] if (r["group"], r["world"], r["controller"]) not in done]
         previous["runs"] = kept + results
-        label = ",".join(args.groups + (args.worlds or []) + (args.controllers or []))
         previous.setdefault("extra_wall_time_s", {})[label] = wall
         args.out.write_text(json.dumps(previous, indent=1) + "\n")
-        print(table(previous["runs"]))
+        print(table(previous["runs"], list(dict.fromkeys(r["controller"] for r in previous["runs"]))))
         return
     payload = {
         "sweep_file": "examples/real_loop.toml",
@@ -241,7 +445,7 @@ def main() -> None:
         "workers": args.workers,
         "wall_time_s": wall,
         "cpu_time_s": sum(r["wall_s"] for r in results),
-        "machine": {"cpus": __import__("os").cpu_count(), "python": platform.python_version()},
+        "machine": {"cpus": os.cpu_count(), "python": platform.python_version()},
         "runs": results,
     }
     args.out.parent.mkdir(parents=True, exist_ok=True)

@@ -8,6 +8,8 @@ import json
 import math
 from pathlib import Path
 
+import pytest
+
 from hydroarm.control.estimator import EstimatorConfig
 from hydroarm.studies.sweep.schema import load_sweep
 
@@ -46,3 +48,60 @@ def test_the_campaign_tables_are_its_results_file():
     assert script.grid_table(data["runs"]) in (ROOT / "docs" / "robustness.md").read_text()
     # run on defaults: the sweep file sets no estimator setting
     assert load_sweep(ROOT / "examples" / "real_loop.toml").base.estimator == EstimatorConfig()
+
+
+ARM_CONTROLLERS = ["GP-IDMPC", "IDMPC"]
+
+
+def _by_arm(script) -> dict[str, list[dict]]:
+    paper = json.loads((ROOT / "docs" / "data" / "real_loop.json").read_text())["runs"]
+    arms = json.loads((ROOT / "docs" / "data" / "real_loop_arms.json").read_text())["arms"]
+    return {"paper": paper, **{arm: arms[arm]["runs"] for arm in script.ARMS if arm in arms}}
+
+
+def test_the_campaign_on_every_arm_is_its_results_file():
+    script = _script("real_loop_campaign")
+    by_arm = _by_arm(script)
+    assert list(by_arm) == ["paper", "ur5", "alpha5", "iiwa14"]
+    page = (ROOT / "docs" / "robustness.md").read_text()
+    assert script.arms_table(by_arm, ARM_CONTROLLERS) in page
+    assert script.arms_world_table(by_arm, "GP-IDMPC") in page
+
+
+def test_every_arm_runs_the_sweep_files_grid_and_its_own_ideal_loop():
+    """Each arm's runs are keyed by it and cover the sweep file's 18 worlds for each controller,
+    with that controller's ideal loop on the same arm (the reference of E_p / ideal)."""
+    script = _script("real_loop_campaign")
+    data = json.loads((ROOT / "docs" / "data" / "real_loop_arms.json").read_text())
+    worlds = {t[1]: t[4] for t in script.tasks("paper") if t[0] == "grid"}
+    assert len(worlds) == 18
+    for arm, entry in data["arms"].items():
+        assert entry["arm"] == script.ARMS[arm]
+        for controller in ARM_CONTROLLERS:
+            runs = [r for r in entry["runs"] if r["controller"] == controller]
+            assert all(r["arm"] == arm for r in runs)
+            grid = {r["world"]: r["overrides"] for r in runs if r["group"] == "grid"}
+            assert grid == worlds, (arm, controller)
+            assert [r["world"] for r in runs if r["group"] == "alone" and r["world"] == "ideal"] == ["ideal"]
+
+
+def test_the_reference_torque_is_the_plants_inverse_dynamics():
+    """The stored torque the ur5's reference needs is recomputed, and on the paper arm (500 N m
+    per joint) the reference never asks more than the limit."""
+    script = _script("real_loop_campaign")
+    stored = json.loads((ROOT / "docs" / "data" / "real_loop_arms.json").read_text())["reference_torque"]
+    again = script.reference_torque("ur5")
+    for key, values in again.items():
+        assert values == pytest.approx(stored["ur5"][key], rel=1e-9, abs=1e-9), key
+    assert max(stored["paper"]["share_over_limit"]) == 0.0
+    assert max(stored["paper"]["peak_Nm"]) < min(stored["paper"]["limit_Nm"])
+
+
+def test_the_observer_variants_in_the_paper_grid_are_its_results_file():
+    script = _script("real_loop_campaign")
+    runs = json.loads((ROOT / "docs" / "data" / "real_loop.json").read_text())["runs"]
+    variants = [name for name in script.VARIANTS if any(r["controller"] == name for r in runs)]
+    assert {"IDMPC+TDE", "IDMPC+TDE-gated", "IDMPC+NDOB", "IDMPC+NDOB-gated"} <= set(variants)
+    page = (ROOT / "docs" / "robustness.md").read_text()
+    assert script.table(runs, variants) in page
+    assert script.grid_table(runs, variants) in page
