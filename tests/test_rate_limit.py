@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 import quadprog
 
+from hydroarm import load_arm
 from hydroarm.control.idmpc import InverseDynamicsMPC, rate_horizon
 from hydroarm.control.idmpc_limits import HorizonQP
-from hydroarm import load_arm
 from hydroarm.model.real_loop.sensing import Actuator, ActuatorConfig
 from hydroarm.sim.experiment import ExperimentConfig, build_experiment, with_overrides
 
@@ -97,8 +97,16 @@ def test_the_rate_rows_plan_agrees_with_quadprog_and_ramps_from_the_drives_outpu
         ("GP-IDMPC", {}),
         ("PI-IDMPC", {}),
         ("IDMPC", {"estimator.kind": "none"}),  # told by a copy of the drives of its own
-        ("IDMPC", {"sensor.velocity": "differenced", "sensor.resolution": 9.5874e-05, "sensor.delay": 1,
-                   "friction.scale": 1.0, "actuator.bandwidth": 20.0}),  # the target world + drives; fmt: skip
+        (
+            "IDMPC",
+            {
+                "sensor.velocity": "differenced",
+                "sensor.resolution": 9.5874e-05,
+                "sensor.delay": 1,
+                "friction.scale": 1.0,
+                "actuator.bandwidth": 20.0,
+            },
+        ),  # the target world + drives; fmt: skip
     ],
 )
 def test_a_rate_limited_loop_commands_what_the_drives_give_and_does_not_diverge(controller, overrides):
