@@ -47,6 +47,11 @@ The real loop (issue 23, :mod:`hydroarm.model.real_loop.sensing`):
   (the pass-through filter of a noise-free sensor too), and the transitions into and out of the
   bridged sample are not passed to a learning controller (as the runner does for a held one).
 
+* **the drives' rate limit** (``actuator.rate_limit``): the filter's copy of the drives tells the
+  controller, before each step, the output they give before its command acts and ``rate_limit T``
+  (``drive_limits``: the ID-MPCs hold their command in that box, :mod:`hydroarm.control.idmpc`);
+  without a filter :class:`DrivesTold` keeps the copy.
+
 Defaults that follow the sensor (``kind = "auto"``, a derived ``acceleration_variance``):
 :mod:`hydroarm.control.filter_design`; on the idealised loop every number is as before.
 """
