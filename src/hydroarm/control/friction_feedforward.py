@@ -88,26 +88,39 @@ class FrictionFeedforward:
         self.n = n
         self._sent: deque[tuple[float, np.ndarray]] = deque(maxlen=64)
         self._on = np.zeros(n, dtype=bool)
+        self._rate: tuple[np.ndarray, np.ndarray] | None = None
 
     def reset(self) -> None:
         self.controller.reset()
         self._sent.clear()
         self._on = np.zeros(self.n, dtype=bool)
+        self._rate = None
+
+    def drive_limits(self, output: np.ndarray, step: np.ndarray) -> None:
+        """The drives' rate limit for the next command (``output``, ``step`` (n,) N m:
+        :meth:`~hydroarm.control.idmpc.InverseDynamicsMPC.drive_limits`): the wrapped controller
+        is told the drives' output less this step's feed-forward, so that its torque plus the
+        feed-forward stays within ``step`` of ``output`` (the clip to the limits keeps it there)."""
+        self._rate = (np.asarray(output, dtype=float), np.asarray(step, dtype=float))
 
     def torque(self, velocity: np.ndarray) -> np.ndarray:
         """f_hat (n,) N m at joint velocities (n,) rad/s."""
         return friction_torque(np.ascontiguousarray(velocity, dtype=float), *self._arrays)
 
     def compute(self, t: float, y: np.ndarray, reference: Reference) -> ControlOutput:
-        out = self.controller.compute(t, y, reference)
         start = time.perf_counter()
         q_r, v_r, _ = reference.sample(t)
         error = np.abs(np.asarray(y[: self.n], dtype=float) - q_r)
         self._on = np.where(self._on, error <= GATE_OFF, error <= GATE_ON)
         feedforward = np.where(self._on, self.torque(v_r), 0.0)
         self._sent.append((t, feedforward))
-        out.tau = np.clip(np.asarray(out.tau, dtype=float) + feedforward, -self.torque_limit, self.torque_limit)
+        if self._rate is not None:
+            self.controller.drive_limits(self._rate[0] - feedforward, self._rate[1])
         elapsed = time.perf_counter() - start
+        out = self.controller.compute(t, y, reference)
+        start = time.perf_counter()
+        out.tau = np.clip(np.asarray(out.tau, dtype=float) + feedforward, -self.torque_limit, self.torque_limit)
+        elapsed += time.perf_counter() - start
         out.timings["friction"] = elapsed
         out.timings["total"] = out.timings.get("total", 0.0) + elapsed
         return out

@@ -66,6 +66,15 @@ joints whose torque fits keep their planned acceleration, the others take their 
 torque and the acceleration the dynamics then gives. ``"clip"``: each torque clipped alone
 (plain computed-torque saturation, for comparison).
 
+The drives' rate limit (issue 32; the loop's ``actuator.rate_limit`` r, N m/s): told it with the
+drives' output before each command acts (:meth:`InverseDynamicsMPC.drive_limits`, called by the
+state estimator's copy of the drives every step), the torque is held in the box
+``tau_{-1} - r T <= tau <= tau_{-1} + r T`` (within the torque limits) as it is held within the
+limits: nothing changes while the unconstrained torque fits the box; else the horizon QP with the
+rate rows (:class:`~hydroarm.control.idmpc_limits.HorizonQP`) plans a torque ramp from the
+drives' output, or the allocation (``limits``) holds the box. The command is what the drives
+give. Never told (no rate limit): every path as before.
+
 The GP (:class:`~hydroarm.control.gp.SlidingWindowGP`) learns the one-step residual of the
 dry model (:meth:`~hydroarm.model.dynamics.nominal.NominalModel.residual`), n outputs, from the state
 y (2n,) and, with ``gp_features = "state+acceleration"`` (default), the planned acceleration
@@ -165,6 +174,29 @@ class IDMPCConfig(FrozenModel):
         if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= 1000:
             raise ValueError(f"must be 'plant' or a whole number of periods 0 <= x <= 1000, got {value!r}")
         return value
+
+
+RATE_HORIZON_CAP = 100
+"""The most steps (-) of the rate-limited horizon QP (:func:`rate_horizon`)."""
+
+
+def rate_horizon(horizon: int, torque_limit: np.ndarray, step: np.ndarray) -> int:
+    """The horizon (steps) of the QP with the drives' rate rows: the steps the slowest drive needs
+    to bring its full torque to zero, ``ceil(max_j tau_max,j / (r_j T))`` (``step`` = r T (n,) N m),
+    at least ``horizon`` (the MPC's N) and at most :data:`RATE_HORIZON_CAP`. A plan that cannot
+    see its braking ramp does not brake in time: on the paper arm (500 N m at 1000 N m/s, 50 steps)
+    the 5-step plan overshot by 6 rad within 1 s (docs/robustness.md, section 6)."""
+    ramp = int(np.ceil(np.max(np.asarray(torque_limit, dtype=float) / np.asarray(step, dtype=float))))
+    return int(min(max(horizon, ramp), max(horizon, RATE_HORIZON_CAP)))
+
+
+def box_allocate(mass: np.ndarray, bias: np.ndarray, acceleration: np.ndarray, lower: np.ndarray, upper: np.ndarray):
+    """:func:`~hydroarm.control.idmpc_limits.allocate` in the box ``lower <= tau <= upper`` (n,)
+    N m: about its centre c the box is the symmetric one of half-width ``(upper - lower) / 2`` on
+    ``tau - c = M a + (bias - c)``. Returns ``(tau (n,), a (n,), saturated (n,) bool)``."""
+    centre = 0.5 * (lower + upper)
+    tau, a, saturated = allocate(mass, bias - centre, acceleration, 0.5 * (upper - lower))
+    return np.clip(tau + centre, lower, upper), a, saturated
 
 
 def gp_input_size(features: str, n_joints: int) -> int:
@@ -340,6 +372,7 @@ class InverseDynamicsMPC:
             self.P[j], self.K[j], self._g[j] = joint_lqr(self.control_period, q_pos[j], q_vel[j], r_acc[j])
         self._offsets = np.arange(cfg.horizon + 1) * self.control_period
         self.qp = None
+        self.rate_qp = None  # the horizon QP with the drives' rate rows (built when the rate is told)
         if cfg.limits == "qp":
             self.qp = HorizonQP(
                 arm,
@@ -370,8 +403,34 @@ class InverseDynamicsMPC:
         if self.gp is not None:
             self.gp.reset()
         self.saturated_steps = 0
+        self.drive_rate: tuple[np.ndarray, np.ndarray] | None = None  # the drives' (output, r T) for the next command
         self._pending_events: list[str] = []
         self._gp_input: np.ndarray | None = None  # the GP input of the last compute
+
+    def drive_limits(self, output: np.ndarray, step: np.ndarray) -> None:
+        """Tell the drives' rate limit for the next command: ``output`` (n,) N m, the torque the
+        drives give in the period before it acts, and ``step`` (n,) N m, the most it may differ
+        from it (``rate_limit T``): the torque is held in that box (module docstring)."""
+        self.drive_rate = (np.asarray(output, dtype=float), np.asarray(step, dtype=float))
+        horizon = rate_horizon(self.config.horizon, self.torque_limit, self.drive_rate[1])
+        if self.qp is not None and (self.rate_qp is None or self.rate_qp.horizon != horizon):
+            cfg, n = self.config, self.n
+            self.rate_qp = HorizonQP(
+                self.arm, self.control_period, horizon,
+                per_joint(cfg.q_position, n, "q_position"), per_joint(cfg.q_velocity, n, "q_velocity"),
+                self.r_acceleration, self.P, self.torque_limit, cfg.sqp_iterations,
+            )  # fmt: skip
+            self.rate_qp.disturbance_model = self.qp.disturbance_model
+            self._rate_offsets = np.arange(horizon + 1) * self.control_period
+
+    def torque_box(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(lower, upper)`` (n,) N m: the torque limits, within ``output -+ step`` when the drives'
+        rate limit is told (:meth:`drive_limits`; never empty: the rate box is clipped into the limits)."""
+        if self.drive_rate is None:
+            return -self.torque_limit, self.torque_limit
+        output, step = self.drive_rate
+        lower = np.clip(output - step, -self.torque_limit, self.torque_limit)
+        return lower, np.clip(output + step, -self.torque_limit, self.torque_limit)
 
     # --- pieces (public for tests) ------------------------------------------------------
     def planned_acceleration(
@@ -382,6 +441,13 @@ class InverseDynamicsMPC:
         ``remember``: keep this step's horizon problem for :meth:`constrained_acceleration` (the
         torque rows of this step); False for a look-ahead at another state or time (e.g. PI-IDMPC's
         rollout of this MPC along a plan), which leaves the step's problem as it was."""
+        if remember and self.drive_rate is not None and self.rate_qp is not None:  # the rate QP's longer horizon
+            q_r, v_r, a_r = sample_times(reference, t + self._rate_offsets)  # (N_r + 1, n) each
+            n, period, horizon = self.n, self.control_period, self.config.horizon
+            e0 = np.stack([y[:n] - q_r[0], y[n:] - v_r[0]], axis=1)
+            c = reference_defects(q_r, v_r, a_r, period)  # (N_r, n, 2)
+            self._last_problem = (e0, c, a_r[:-1], q_r, v_r)
+            return a_r[0] + unconstrained_move(e0, c[:horizon], self.P, self.K, self._g, period)
         q_r, v_r, a_r = sample_times(reference, t + self._offsets)  # (N + 1, n) each
         return self.acceleration_from_samples(y, q_r, v_r, a_r, remember=remember)
 
@@ -403,6 +469,8 @@ class InverseDynamicsMPC:
         :meth:`planned_acceleration` that kept it (``remember``); ``bias`` = h - w_hat (n,); None if
         DAQP fails."""
         e0, c, a_r, q_r, v_r = self._last_problem
+        if self.drive_rate is not None and self.rate_qp is not None and c.shape[0] == self.rate_qp.horizon:
+            return self.rate_qp.solve(e0, c, q_r, v_r, a_r, mass, bias, w_hat, rate=self.drive_rate)
         return self.qp.solve(e0, c, q_r, v_r, a_r, mass, bias, w_hat)
 
     def torque_map(
@@ -428,6 +496,8 @@ class InverseDynamicsMPC:
 
     def limited_torque(self, mass: np.ndarray, bias: np.ndarray, acceleration: np.ndarray, w_hat: np.ndarray):
         """:meth:`torque_map` on given :meth:`dynamics_terms`."""
+        if self.drive_rate is not None:
+            return self._rate_limited_torque(mass, bias, acceleration, w_hat)
         if self.config.limits == "clip":
             tau = mass @ acceleration + bias
             clipped = np.clip(tau, -self.torque_limit, self.torque_limit)
@@ -442,6 +512,27 @@ class InverseDynamicsMPC:
                 clipped = np.clip(tau, -self.torque_limit, self.torque_limit)
                 return clipped, constrained, np.abs(tau) >= self.torque_limit * (1.0 - 1e-9)
         return allocate(mass, bias, acceleration, self.torque_limit)
+
+    def _rate_limited_torque(self, mass, bias, acceleration, w_hat):
+        """:meth:`limited_torque` within :meth:`torque_box` (the drives' rate told): the QP with
+        the rate rows (``limits = "qp"``), else the box's allocation (:func:`box_allocate`), or
+        each torque clipped into it (``"clip"``)."""
+        lower, upper = self.torque_box()
+        tau = mass @ acceleration + bias
+        fits = bool(np.all((tau >= lower) & (tau <= upper)))
+        if fits and self.config.limits != "qp":
+            return tau, acceleration, np.zeros(self.n, dtype=bool)
+        if self.config.limits == "clip":
+            clipped = np.clip(tau, lower, upper)
+            return clipped, acceleration, clipped != tau
+        if self.config.limits == "qp":
+            constrained = self.constrained_acceleration(mass, bias, w_hat)
+            if constrained is not None:
+                tau = mass @ constrained + bias
+                clipped = np.clip(tau, lower, upper)  # the QP's rounding (DAQP's tolerance: 1e-6 N m)
+                tight = 1e-9 * np.maximum(np.abs(lower), np.abs(upper))
+                return clipped, constrained, (tau <= lower + tight) | (tau >= upper - tight)
+        return box_allocate(mass, bias, acceleration, lower, upper)
 
     def gp_input(self, y: np.ndarray, acceleration: np.ndarray) -> np.ndarray:
         """The GP's input (2n,) or (3n,) for the state y (2n,) and planned acceleration a_0 (n,)."""

@@ -35,6 +35,18 @@ so the plan knows how its own motion changes M(q) and the Coriolis terms: while 
 is saturated, the plan folds the other joints the way that lowers the base joint's inertia.
 Each solve is warm-started with the previous one's multipliers (DAQP ``dual_start``). The first
 acceleration of the last successful solve is returned; None if the first solve fails.
+
+The drives' rate limit (``rate``: issue 32, the loop's ``actuator.rate_limit`` r, N m/s): N n rows
+more, below the torque rows, on the torque's change per step and joint::
+
+    -r T <= tau_k(U) - tau_{k-1}(U) <= r T,   k = 0..N-1,   tau_{-1} = the drives' output
+
+(the differences of the torque rows, frozen or linearised: row block k minus row block k - 1, the
+first against the torque the drives give before the plan's first command acts), so the plan
+starts from what the drives give and ramps as fast as they can. Like the torque rows they couple
+the joints through M; per torque component they are per joint. The structured solver takes the
+N n torque rows only (its working set is indexed by the step of a row): with the rate rows every
+solve goes to DAQP (``rate_solves`` counts them; ``fallbacks`` does not).
 """
 
 from __future__ import annotations
@@ -182,6 +194,9 @@ class HorizonQP:
         self.limit = np.tile(np.asarray(torque_limit, dtype=float), horizon)
         self.nominal = NominalModel(arm, inner_step=None)  # own workspace
         self._sense = np.zeros(horizon * n, dtype=np.int32)
+        self._sense_rate = np.zeros(2 * horizon * n, dtype=np.int32)  # the torque and the rate rows
+        self._base = np.zeros(horizon * n)  # the torque rows' affine part: tau(U) = rows U + base
+        self.rate_solves = 0  # solves with the rate rows (DAQP)
         self._rows = np.zeros((horizon * n, horizon * n))
         self._d_q = np.empty((horizon, n, n))
         self._d_v = np.empty((horizon, n, n))
@@ -206,7 +221,7 @@ class HorizonQP:
         problem it does not settle within ``N n`` iterations (as many as rows) to DAQP: measured on
         the iiwa14 (245 rows, up to 240 active), its cost per iteration grows with the working set and
         the longest solves took 3x DAQP's; on the paper arm no solve takes more than 112."""
-        if self._factors is not None:
+        if self._factors is not None and rows.shape[0] == gradient.shape[0]:  # the torque rows alone
             size = gradient.shape[0]
             try:
                 moves, new_lam, flag, _ = solve_plan_qp(
@@ -217,10 +232,11 @@ class HorizonQP:
             if int(flag) == 1 and np.all(np.isfinite(moves)) and np.all(np.isfinite(new_lam)):
                 return moves, new_lam, True
             self.fallbacks += 1  # not settled, or a working set too close to dependent rows
+        sense = self._sense if rows.shape[0] == self._sense.shape[0] else self._sense_rate
         if lam is None:
-            moves, _, flag, info = daqp.solve(self.hessian, gradient, rows, upper, lower, self._sense)
+            moves, _, flag, info = daqp.solve(self.hessian, gradient, rows, upper, lower, sense)
         else:
-            moves, _, flag, info = daqp.solve(self.hessian, gradient, rows, upper, lower, self._sense, dual_start=lam)
+            moves, _, flag, info = daqp.solve(self.hessian, gradient, rows, upper, lower, sense, dual_start=lam)
         return np.asarray(moves), np.asarray(info["lam"]), int(flag) == 1
 
     def gradient(self, e0: np.ndarray, c: np.ndarray) -> np.ndarray:
@@ -232,6 +248,7 @@ class HorizonQP:
         horizon = self.horizon
         rows = np.kron(np.eye(horizon), mass)
         base = (a_r @ mass.T).ravel() + np.tile(bias, horizon)  # M a_r,k + bias, step-major
+        self._base = base
         return rows, self.limit - base, -self.limit - base
 
     def linearised_rows(self, moves, e0, c, q_r, v_r, a_r, w_hat):
@@ -253,9 +270,31 @@ class HorizonQP:
             base -= np.tile(w_hat, self.horizon)
         fill_linearised_rows(self._d_q, self._d_v, self._mass, period, self._rows)
         shift = self._rows @ moves.ravel() - base
+        self._base = -shift  # tau(U) = base + rows (U - moves)
         return self._rows, self.limit + shift, -self.limit + shift
 
-    def solve(self, e0, c, q_r, v_r, a_r, mass, bias, w_hat, initial_moves=None, initial_lam=None) -> np.ndarray | None:
+    def rate_rows(self, rows, upper, lower, rate):
+        """The torque rows ``(rows, upper, lower)`` of the last :meth:`frozen_rows` or
+        :meth:`linearised_rows` with the rate rows below them (module docstring): ``rate`` =
+        ``(previous (n,), step (n,))``, the drives' output before the first command acts (N m) and
+        ``r T`` (N m); ``(2 N n, N n)``, ``(2 N n,)`` twice."""
+        previous, step = rate
+        n = self.n
+        difference = rows.copy()
+        difference[n:] -= rows[:-n]
+        change = self._base.copy()
+        change[n:] -= self._base[:-n]
+        change[:n] -= previous
+        bound = np.tile(np.asarray(step, dtype=float), self.horizon)
+        return (
+            np.vstack([rows, difference]),
+            np.concatenate([upper, bound - change]),
+            np.concatenate([lower, -bound - change]),
+        )
+
+    def solve(
+        self, e0, c, q_r, v_r, a_r, mass, bias, w_hat, initial_moves=None, initial_lam=None, rate=None
+    ) -> np.ndarray | None:
         """The first acceleration (n,) rad/s^2 of the constrained horizon problem, or None.
 
         ``e0`` (n, 2), ``c`` (N, n, 2), ``q_r, v_r`` (>= N, n), ``a_r`` (N, n): the outer
@@ -265,7 +304,8 @@ class HorizonQP:
         solve from (the signs of a last plan's multipliers, shifted; the structured solver only:
         DAQP's path starts cold as it always did). The whole plan's moves (N n) are left in
         ``last_moves``, its multipliers in ``last_lam``, whether a torque row is active in
-        ``last_active``."""
+        ``last_active``. ``rate``: ``(previous (n,), step (n,))`` N m, the drives' rate rows
+        (:meth:`rate_rows`), or None (none: the torque rows alone, as without a rate limit)."""
         gradient = self.gradient(e0, c)
         self.last_iterations = 0
         if initial_moves is None:
@@ -274,6 +314,10 @@ class HorizonQP:
             rows, upper, lower = self.linearised_rows(
                 np.asarray(initial_moves, dtype=float), e0, c, q_r, v_r, a_r, w_hat
             )
+        if rate is not None:
+            rows, upper, lower = self.rate_rows(rows, upper, lower, rate)
+            initial_lam = None  # the structured solver's working set: not with the rate rows
+            self.rate_solves += 1
         moves, lam, ok = self._solve_qp(
             gradient, rows, upper, lower, initial_lam if self._factors is not None else None
         )
@@ -282,6 +326,9 @@ class HorizonQP:
         for _ in range(self.sqp_iterations):
             plan = np.asarray(moves).reshape(self.horizon, self.n)
             rows, upper, lower = self.linearised_rows(plan, e0, c, q_r, v_r, a_r, w_hat)
+            if rate is not None:
+                rows, upper, lower = self.rate_rows(rows, upper, lower, rate)
+                self.rate_solves += 1
             new, new_lam, ok = self._solve_qp(gradient, rows, upper, lower, lam)
             if not ok:
                 break

@@ -194,6 +194,13 @@ class ObservedController:
         self._saturated = False
         self._hold = False
 
+    def drive_limits(self, output: np.ndarray, step: np.ndarray) -> None:
+        """The drives' rate limit, passed to the controller if it takes it (the estimate is inside
+        its torque: :meth:`~hydroarm.control.idmpc.InverseDynamicsMPC.drive_limits`)."""
+        tell = getattr(self.controller, "drive_limits", None)
+        if tell is not None:
+            tell(output, step)
+
     def compute(self, t: float, y: np.ndarray, reference: Reference) -> ControlOutput:
         start = time.perf_counter()
         w_hat = np.zeros(self.torque_limit.shape[0]) if self.gate and self._hold else self.estimator.mean(y)

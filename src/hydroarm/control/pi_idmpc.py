@@ -34,6 +34,13 @@ predicted for step k (:meth:`_plan_job`), in the step (``plan_worker = "inline"`
 worker process (``"process"``) whose answer step k takes: the same run either way, since a job's
 inputs are its step's, not the time it takes.
 
+The drives' rate limit (issue 32, :meth:`PhysicsInformedIDMPC.drive_limits`): its IDMPC holds the
+box of the drives' rate (:meth:`~hydroarm.control.idmpc.InverseDynamicsMPC.torque_box`), the
+planner's QP takes the rate rows from the drives' output, a plan is followed within the box
+(:func:`~hydroarm.control.idmpc.box_allocate`) and ``"auto"`` plans while the box binds. A plan
+solved beside the loop (``plan_latency`` > 0) starts from a state L steps ahead, whose drives'
+output is not known yet: it has no rate rows, and is followed within the box.
+
 After the step (``observe``) the model learns the transition (recursive least squares) and the
 remainder observer takes ``r - model(midpoint)``. A model saved by :meth:`save_model` and given
 back with :meth:`load_model` (``hydroarm run --model FILE``) starts a run knowing the water;
@@ -52,7 +59,7 @@ import numpy as np
 import pydantic
 
 from hydroarm.config import FrozenModel, per_joint
-from hydroarm.control.idmpc import IDMPCConfig, InverseDynamicsMPC
+from hydroarm.control.idmpc import IDMPCConfig, InverseDynamicsMPC, box_allocate
 from hydroarm.control.idmpc_limits import HorizonQP, allocate, predicted_plan
 from hydroarm.control.interface import ControlOutput, Reference, sample_times
 from hydroarm.control.linear import reference_defects
@@ -224,6 +231,24 @@ class PhysicsInformedIDMPC:
             self._start_worker()
 
     # --- the controller interface ---------------------------------------------------
+    def drive_limits(self, output: np.ndarray, step: np.ndarray) -> None:
+        """The drives' rate limit for the next command (``output``, ``step`` (n,) N m:
+        :meth:`~hydroarm.control.idmpc.InverseDynamicsMPC.drive_limits`; module docstring)."""
+        self.mpc.drive_limits(output, step)
+
+    def _fits(self, tau: np.ndarray) -> bool:
+        """Whether the torque ``tau`` (n,) is within the limits (and the drives' rate box, when told)."""
+        if self.mpc.drive_rate is None:
+            return bool(np.all(np.abs(tau) <= self.torque_limit))
+        lower, upper = self.mpc.torque_box()
+        return bool(np.all((tau >= lower) & (tau <= upper)))
+
+    def _held(self, mass, bias, a):
+        """``(tau, a, saturated)`` realising ``a`` (n,) within the limits (and the drives' rate box)."""
+        if self.mpc.drive_rate is None:
+            return allocate(mass, bias, a, self.torque_limit)
+        return box_allocate(mass, bias, a, *self.mpc.torque_box())
+
     def _along_plan(self, q: np.ndarray, v: np.ndarray, a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(w (N, n), M_A (N, n, n))`` at the planned states and accelerations (N, n) each:
         the model's force (+ the remainder's estimate), clipped to the torque limits, and its
@@ -255,7 +280,8 @@ class PhysicsInformedIDMPC:
             initial[: moves.shape[0] - shift] = moves[shift:]
             initial_lam = np.zeros_like(lam)
             initial_lam[: lam.shape[0] - shift * n] = lam[shift * n :]
-        if self.planner.solve(e0, c, q_r, v_r, a_r[:-1], None, None, None, initial, initial_lam) is None:
+        rate = self.mpc.drive_rate if self.config.plan_latency == 0 else None  # beside the loop: not known yet
+        if self.planner.solve(e0, c, q_r, v_r, a_r[:-1], None, None, None, initial, initial_lam, rate=rate) is None:
             return None
         moves = self.planner.last_moves
         q_p, v_p, a_p = predicted_plan(e0, c, moves, q_r, v_r, a_r[:-1], period)
@@ -378,14 +404,14 @@ class PhysicsInformedIDMPC:
         if self._plan is None or self._plan_step >= hold:
             if mode == "auto" and (self._plan is None or not self.planner.last_active):
                 self._plan = None
-                if np.all(np.abs(mass @ acceleration + bias) <= self.torque_limit):
+                if self._fits(mass @ acceleration + bias):
                     return None, None, None  # the IDMPC's own plan fits the limits
             warm = None if self._plan is None else (self._plan[3], self._plan[4], self._plan_step)
             self._plan, self._plan_step = self._replan(t, y, reference, acceleration, warm), 0
             if self._plan is None:
                 return None, None, None
         a = self._follow_plan(q, v)
-        return allocate(mass, bias, a, self.torque_limit)
+        return self._held(mass, bias, a)
 
     # --- the planner beside the loop (plan_latency > 0) ------------------------------------
     def _latent_planned_torque(self, q, v, mass, bias):
@@ -407,7 +433,7 @@ class PhysicsInformedIDMPC:
                 self._plan = None  # no newer plan: the chain stopped (auto) or its last plan was refused
         if self._plan is None:
             return None, None, None
-        return allocate(mass, bias, self._follow_plan(q, v), self.torque_limit)
+        return self._held(mass, bias, self._follow_plan(q, v))
 
     def _launch(self, t, y, reference, realised, fits) -> None:
         """After step k's torque: launch the plan of step k + L (:meth:`_plan_job`) if one is

@@ -22,7 +22,7 @@ import pydantic
 
 from hydroarm.config import ConfigError, per_joint
 from hydroarm.control.delay_design import delayed_observer_gain
-from hydroarm.control.estimator import EstimatorConfig, FilteredController, JointKalmanFilter
+from hydroarm.control.estimator import DrivesTold, EstimatorConfig, FilteredController, JointKalmanFilter
 from hydroarm.control.friction_feedforward import FrictionFeedforward, told_friction
 from hydroarm.control.gpmpc import GPMPC, feature_size
 from hydroarm.control.idmpc import InverseDynamicsMPC, gp_input_size
@@ -166,6 +166,9 @@ REGISTRY: dict[str, ControllerSpec] = {
     )
 }
 
+RATE_AWARE: tuple[str, ...] = ("IDMPC", "GP-IDMPC", "PI-IDMPC")
+"""The controllers that take the drives' rate limit (``drive_limits``: the ID-MPCs)."""
+
 CONTROLLERS: tuple[str, ...] = tuple(REGISTRY)
 """The built-in controllers' canonical names, in the order tables show them (every registered
 one, including those added by :func:`register`: :func:`controller_names`)."""
@@ -302,7 +305,9 @@ def build_controller(
     what ``estimator.measurement_variance = "plant"`` stands for; needed only then. ``sensor``:
     the plant's sensor (None: q and v measured) and ``loop_delay`` (periods, ``sensor.delay +
     actuator.delay``): what ``estimator.measures`` and ``estimator.delay = "plant"`` stand for;
-    ``actuator``: the drives (their clip, lag and rate limit go into the filter's prediction);
+    ``actuator``: the drives (their clip, lag and rate limit go into the filter's prediction, and
+    a controller with ``drive_limits`` (the ID-MPCs) is told their rate limit every step, from the
+    filter's copy of the drives or, without a filter, from :class:`DrivesTold`'s);
     ``friction``: the arm's joint friction model (the ``friction`` section), fed forward under an
     ID-MPC at the scale ``idmpc.friction_feedforward`` tells it
     (:class:`~hydroarm.control.friction_feedforward.FrictionFeedforward`; never the plant's scale)."""
@@ -326,6 +331,8 @@ def build_controller(
     if told is not None:
         limit = per_joint(arm.torque_limit, arm.n_joints, "torque_limit")
         controller = FrictionFeedforward(controller, told, arm.n_joints, limit)
+    if not filtered and actuator is not None and actuator.rate_limit is not None and spec.name in RATE_AWARE:
+        controller = DrivesTold(controller, actuator, arm.n_joints, control_period)  # told without the filter's copy
     if filtered:
         if sensor_variance is not None:
             config = config.for_sensor(sensor_variance)

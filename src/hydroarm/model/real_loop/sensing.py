@@ -196,12 +196,27 @@ class Actuator:
         """The torque (n,) the plant gets this period for the command u (n,) N m."""
         self._queue.append(np.asarray(u, dtype=float))
         target = self._queue.popleft() if self.config.delay > 0 else self._queue.pop()
+        self._applied = self._output(self._applied, target)
+        return self._applied.copy()
+
+    def _output(self, previous: np.ndarray, target: np.ndarray) -> np.ndarray:
+        """The output (n,) N m of one period that follows the output ``previous`` with the command
+        ``target`` arriving (clip, lag, rate limit: module docstring)."""
         if self.torque_limit is not None:
             target = np.clip(target, -self.torque_limit, self.torque_limit)
         applied = target
         if self.lag is not None:
-            applied = self._applied + self.lag * (applied - self._applied)
+            applied = previous + self.lag * (applied - previous)
         if self.max_step is not None:
-            applied = self._applied + np.clip(applied - self._applied, -self.max_step, self.max_step)
-        self._applied = np.array(applied, dtype=float)
-        return self._applied.copy()
+            applied = previous + np.clip(applied - previous, -self.max_step, self.max_step)
+        return np.array(applied, dtype=float)
+
+    def pending_output(self) -> np.ndarray:
+        """The output (n,) N m the drives give in the period before the next command acts: their
+        output now with the ``delay`` commands already on their way passed through first (the
+        output now without a delay). A command within ``rate_limit T`` of it is not slowed by the
+        rate limit (nor by the lag, which moves less than its target)."""
+        output = self._applied
+        for target in self._queue:  # the commands in flight, oldest first (delay of them)
+            output = self._output(output, target)
+        return output.copy()
