@@ -26,6 +26,7 @@ import numpy as np
 from numba.core import types
 from numba.experimental import structref
 
+from hydroarm.model.dynamics.fixed_order import cholesky_solve_into
 from hydroarm.model.dynamics.integrator import rk4_disturbance_stage
 from hydroarm.model.dynamics.tree_kernels import (
     body_force,
@@ -36,7 +37,7 @@ from hydroarm.model.dynamics.tree_kernels import (
     place_joint,
 )
 from hydroarm.model.real_loop.friction import friction_torque
-from hydroarm.model.vehicle.fast_kernels import _cholesky_solve, body_frame
+from hydroarm.model.vehicle.fast_kernels import body_frame
 from hydroarm.model.water.current import current_at
 from hydroarm.model.water.effects import DRAG_REYNOLDS, cylinder_water, new_frame
 from hydroarm.model.water.strips import STRIPS_TYPE
@@ -305,7 +306,7 @@ def evaluate(t, q, v, tau, arm, work, out_acc, out_dist, out_drag):  # pragma: n
     uniform = arm.uniform
     for i in range(n):
         rhs[i] = applied[i] - nle[i] + water_force[i] - uniform * v[i]
-    _cholesky_solve(mass, rhs, out_acc)
+    cholesky_solve_into(mass, rhs, out_acc)
     for i in range(n):
         out_acc[i] += joint_acceleration[i]
     mass_times(arm, work, out_acc, out_dist)
