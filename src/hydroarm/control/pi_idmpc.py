@@ -4,7 +4,7 @@ Each step, at the (filtered) state y = [q, v] (2n,):
 
 1. the outer MPC plans the acceleration a_0 (n,) (:class:`~hydroarm.control.idmpc.InverseDynamicsMPC`;
    the plan does not depend on the disturbance);
-2. the water model (:class:`~hydroarm.control.water_model.PhysicsInformedModel`) predicts the
+2. the water model (:class:`~hydroarm.control.learned_water.PhysicsInformedModel`) predicts the
    water's generalised force at (q, v, a_0): drag, added mass (it answers a_0) and buoyancy;
 3. the remainder observer (``remainder``: TDE or NDOB, :mod:`hydroarm.control.observers`) adds
    what the state model cannot know (the paper's time-varying current, a plant mismatch): it
@@ -53,11 +53,11 @@ from hydroarm.config import FrozenModel, per_joint
 from hydroarm.control.idmpc import IDMPCConfig, InverseDynamicsMPC
 from hydroarm.control.idmpc_limits import HorizonQP, allocate, predicted_plan
 from hydroarm.control.interface import ControlOutput, Reference, sample_times
+from hydroarm.control.learned_water import PhysicsInformedModel, WaterModelConfig
 from hydroarm.control.linear import reference_defects
 from hydroarm.control.observers import DisturbanceObserver
 from hydroarm.control.plan_rollout import rollout_step, water_along_plan
 from hydroarm.control.plan_worker import LatentPlanner
-from hydroarm.control.water_model import PhysicsInformedModel, WaterModelConfig
 from hydroarm.model.arm.description import Arm
 from hydroarm.model.dynamics import fixed_order
 
