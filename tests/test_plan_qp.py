@@ -6,8 +6,8 @@ import daqp
 import numpy as np
 import pytest
 
-from hydroarm.control.idmpc import joint_lqr
 from hydroarm.control.idmpc_limits import HorizonQP, condensed_problem
+from hydroarm.control.linear import joint_lqr
 from hydroarm.control.plan_qp import (
     DUAL_TOL,
     ITERATION_LIMIT,

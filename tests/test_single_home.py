@@ -15,8 +15,8 @@ import scipy.linalg
 
 import hydroarm
 from hydroarm.control import linear
-from hydroarm.control.idmpc import joint_lqr
 from hydroarm.control.learned_water import PhysicsInformedModel
+from hydroarm.control.linear import joint_lqr
 from hydroarm.control.observers import DisturbanceObserver, ObservedController, ObserverConfig
 from hydroarm.control.smc import SlidingModeController
 from hydroarm.model.dynamics import fixed_order
