@@ -35,6 +35,8 @@ import math
 import numba
 import numpy as np
 
+from hydroarm.model.dynamics.fixed_order import cholesky_substitute
+
 PRIMAL_TOL = 1e-6
 """A constraint violated by at most this (N m, the rows' unit) does not join (DAQP's default)."""
 DUAL_TOL = 1e-12
@@ -176,10 +178,9 @@ def _append_cholesky(gram, chol, count):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True)
-def _unconstrained_multipliers(
-    active, sign, upper, lower, m_rows, d, chol, count, target, tmp, star
-):  # pragma: no cover
-    """``star`` = lambda* = -(M_A M_A')^-1 (b_A + M_A d) of the working set (in place)."""
+def _unconstrained_multipliers(active, sign, upper, lower, m_rows, d, chol, count, target, star):  # pragma: no cover
+    """``star`` = lambda* = -(M_A M_A')^-1 (b_A + M_A d) of the working set (in place), on the Gram
+    matrix's factor ``chol`` (:func:`~hydroarm.model.dynamics.fixed_order.cholesky_substitute`)."""
     n, horizon = d.shape
     for p in range(count):
         r = active[p]
@@ -188,16 +189,7 @@ def _unconstrained_multipliers(
             for k in range(horizon):
                 total += m_rows[p, j, k] * d[j, k]
         target[p] = -total
-    for p in range(count):
-        total = target[p]
-        for i in range(p):
-            total -= chol[p, i] * tmp[i]
-        tmp[p] = total / chol[p, p]
-    for p in range(count - 1, -1, -1):
-        total = tmp[p]
-        for i in range(p + 1, count):
-            total -= chol[i, p] * star[i]
-        star[p] = total / chol[p, p]
+    cholesky_substitute(chol[:count, :count], target[:count], star[:count])
 
 
 @numba.njit(cache=True)
@@ -272,7 +264,6 @@ def solve_plan_qp(
     lam = np.zeros(size)  # multipliers of the working set, by position
     target = np.empty(size)
     star = np.empty(size)
-    tmp = np.empty(size)
     x = np.empty((n, horizon))
     moves = np.empty(size)
     slack = np.empty(size)
@@ -282,7 +273,7 @@ def solve_plan_qp(
     flag = ITERATION_LIMIT
     while iterations < max_iterations:
         iterations += 1
-        _unconstrained_multipliers(active, sign, upper, lower, m_rows, d, chol, count, target, tmp, star)
+        _unconstrained_multipliers(active, sign, upper, lower, m_rows, d, chol, count, target, star)
         blocking = -1
         alpha = 1.0
         for p in range(count):  # the first multiplier to change sign on the way to lambda*
