@@ -35,7 +35,7 @@ import math
 import numba
 import numpy as np
 
-from hydroarm.model.dynamics.fixed_order import cholesky_substitute
+from hydroarm.model.dynamics.fixed_order import cholesky_factor, cholesky_substitute, forward_substitute
 
 PRIMAL_TOL = 1e-6
 """A constraint violated by at most this (N m, the rows' unit) does not join (DAQP's default)."""
@@ -48,35 +48,15 @@ SOLVED, ITERATION_LIMIT = 1, -4
 @numba.njit(cache=True)
 def joint_factors(hessian, n):  # pragma: no cover - compiled
     """The Cholesky factors ``L_j`` (n, N, N), lower, of the per-joint blocks of ``hessian``
-    (N n, N n), step-major (joint j's block: rows and columns ``k n + j``). A block that is not
-    positive definite raises."""
+    (N n, N n), step-major (joint j's block: rows and columns ``k n + j``;
+    :func:`~hydroarm.model.dynamics.fixed_order.cholesky_factor`). A block that is not positive
+    definite raises."""
     horizon = hessian.shape[0] // n
     factors = np.zeros((n, horizon, horizon))
     for j in range(n):
-        factor = factors[j]
-        for r in range(horizon):
-            for c in range(r + 1):
-                total = hessian[r * n + j, c * n + j]
-                for i in range(c):
-                    total -= factor[r, i] * factor[c, i]
-                if r == c:
-                    if total <= 0.0:
-                        raise ValueError("a joint's block of the Hessian is not positive definite")
-                    factor[r, r] = math.sqrt(total)
-                else:
-                    factor[r, c] = total / factor[c, c]
+        if not cholesky_factor(hessian[j::n, j::n], factors[j]):
+            raise ValueError("a joint's block of the Hessian is not positive definite")
     return factors
-
-
-@numba.njit(cache=True)
-def _forward(factor, rhs, out):  # pragma: no cover - compiled
-    """``out = factor^-1 rhs`` (lower triangular factor (N, N))."""
-    size = rhs.shape[0]
-    for r in range(size):
-        total = rhs[r]
-        for i in range(r):
-            total -= factor[r, i] * out[i]
-        out[r] = total / factor[r, r]
 
 
 @numba.njit(cache=True)
@@ -100,7 +80,7 @@ def _row(factors, rows, r, out, work_in, work_out):  # pragma: no cover - compil
     for j in range(n):
         for k in range(horizon):
             work_in[k] = rows[r, k * n + j] if k <= last else 0.0
-        _forward(factors[j], work_in, work_out)
+        forward_substitute(factors[j], work_in, work_out)
         for k in range(horizon):
             out[j, k] = work_out[k]
 
@@ -145,7 +125,7 @@ def _whiten(factors, gradient, d, work_in, work_out):  # pragma: no cover - comp
     for j in range(n):
         for k in range(horizon):
             work_in[k] = gradient[k * n + j]
-        _forward(factors[j], work_in, work_out)
+        forward_substitute(factors[j], work_in, work_out)
         for k in range(horizon):
             d[j, k] = work_out[k]
 

@@ -23,6 +23,7 @@ __all__ = [
     "matvec",
     "matmul",
     "cholesky_factor",
+    "forward_substitute",
     "cholesky_substitute",
     "cholesky_solve",
     "cholesky_solve_into",
@@ -102,15 +103,24 @@ def cholesky_factor(a, chol, shift=0.0, floor=0.0):  # pragma: no cover - compil
 
 
 @numba.njit(cache=True)
-def cholesky_substitute(chol, b, x):  # pragma: no cover - compiled
-    """x (n,) = (L L^T)^-1 b for b (n,), L the lower triangle of ``chol`` (:func:`cholesky_factor`):
-    L z = b forward, then L^T x = z backward, into ``x`` (b and x may be strided views; x may be b)."""
+def forward_substitute(chol, b, x):  # pragma: no cover - compiled
+    """x (n,) = L^-1 b for b (n,), L the lower triangle of ``chol`` (n, n), row by row, each sum in
+    index order (b and x may be strided views; x may be b)."""
     n = chol.shape[0]
     for i in range(n):
         s = b[i]
         for p in range(i):
             s -= chol[i, p] * x[p]
         x[i] = s / chol[i, i]
+
+
+@numba.njit(cache=True)
+def cholesky_substitute(chol, b, x):  # pragma: no cover - compiled
+    """x (n,) = (L L^T)^-1 b for b (n,), L the lower triangle of ``chol`` (:func:`cholesky_factor`):
+    L z = b forward (:func:`forward_substitute`), then L^T x = z backward, into ``x`` (b and x may
+    be strided views; x may be b)."""
+    n = chol.shape[0]
+    forward_substitute(chol, b, x)
     for i in range(n - 1, -1, -1):
         s = x[i]
         for p in range(i + 1, n):
