@@ -33,7 +33,7 @@ import numba
 import numpy as np
 
 from hydroarm.model.arm.description import fast_kernels as kernels
-from hydroarm.model.vehicle.fast_kernels import _cholesky_solve
+from hydroarm.model.dynamics.fixed_order import cholesky_solve_into
 from hydroarm.model.water.current import current_at
 from hydroarm.sim.experiment import build_experiment, with_overrides
 
@@ -68,7 +68,7 @@ def _evaluate(t, q, v, tau, arm, work, out_acc, out_dist, out_drag, flags, saved
     for i in range(n):
         rhs[i] = tau[i] - nle[i] + water_force[i]
     if flags[2]:
-        _cholesky_solve(mass, rhs, out_acc)
+        cholesky_solve_into(mass, rhs, out_acc)
     else:
         out_acc[:] = rhs
     if flags[3]:

@@ -1,5 +1,5 @@
 """Identify the water from a logged run: C_d, C_m and volumes of the paper arm's cylinders by
-:func:`hydroarm.control.water_model.fit_water` (smoothing splines, weighted least squares,
+:func:`hydroarm.control.learned_water.fit_water` (smoothing splines, weighted least squares,
 instrumental variables), from an identification run in still water.
 
 The IDMPC tracks examples/tasks/identification.toml, started on it, for 60 s, in the paper's
@@ -19,7 +19,7 @@ import argparse
 import json
 from pathlib import Path
 
-from hydroarm.control.water_model import PhysicsInformedModel, fit_water
+from hydroarm.control.learned_water import PhysicsInformedModel, fit_water
 from hydroarm.model.arm.loading import load_arm
 from hydroarm.sim.experiment import ExperimentConfig, build_experiment, with_overrides
 

@@ -27,10 +27,6 @@ that has parts worth naming), and splitting it along that boundary is the way do
 LONG_MODULES: dict[str, str] = {
     "envs/vector.py": "the multi-process vector env as one Gymnasium VectorEnv: its lanes' commands, "
     "errors, a dead worker, Ctrl-C and closing (the workers' side is envs/vector_lanes.py)",
-    "control/idmpc.py": "the inverse-dynamics MPC as one controller: its settings (bandwidth, told delay, friction "
-    "feed-forward), the per-joint condensed plan and its closed-form move, the torque allocation",
-    "control/pi_idmpc.py": "PI-IDMPC as one controller: its settings, the learned water model in the computed "
-    "torque, and its planner chain (replan, rollout, follow; inline or beside the loop in a worker)",
     "sim/experiment.py": "one experiment as validated data and its one builder: ExperimentConfig (every "
     "section, its compact form for run ids, reading settings of any schema) and build_experiment "
     "(the migrations and the settings rules are sim/settings_schema.py and sim/settings_rules.py)",

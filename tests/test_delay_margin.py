@@ -8,7 +8,9 @@ import numpy as np
 import pytest
 from numpy.polynomial import polynomial as P
 
-from hydroarm.control.idmpc import MARGIN_RADIUS, IDMPCConfig, InverseDynamicsMPC, delay_margin_weight, joint_lqr
+from hydroarm.control.delay_design import MARGIN_RADIUS, delay_margin_weight
+from hydroarm.control.idmpc import IDMPCConfig, InverseDynamicsMPC
+from hydroarm.control.linear import joint_lqr
 from hydroarm.model.arm.loading import load_arm
 from hydroarm.sim.experiment import ExperimentConfig, build_experiment, with_overrides
 

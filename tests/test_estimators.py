@@ -14,8 +14,8 @@ import pytest
 
 from hydroarm.control.gp import GPConfig, SlidingWindowGP
 from hydroarm.control.interface import DisturbanceEstimator, estimator_of
+from hydroarm.control.learned_water import PhysicsInformedModel, WaterModelConfig
 from hydroarm.control.observers import DisturbanceObserver, ObservedController, ObserverConfig
-from hydroarm.control.water_model import PhysicsInformedModel, WaterModelConfig
 from hydroarm.model.arm.loading import load_arm
 from hydroarm.model.arm.plant import PlantConfig, UnderwaterPlant
 from hydroarm.model.water.morison import Water

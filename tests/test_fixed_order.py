@@ -83,3 +83,38 @@ def test_gp_incremental_factor_is_the_full_factor():
     alpha = _solve_kernel(grown, y)
     for o in range(2):
         np.testing.assert_allclose(alpha[o], np.linalg.solve(K[o], y[o]), rtol=1e-8)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_cholesky_in_place_is_the_allocating_solve_bit_for_bit(seed):
+    """The compiled plants' in-place solve (the vehicle's and the fast arm's) and the allocating
+    one are one factor and one substitution: the same bits; against SciPy; a matrix that is not
+    positive definite leaves NaN (a diverging state), not a number."""
+    rng = np.random.default_rng(seed)
+    a = rng.normal(size=(7, 7))
+    spd = a @ a.T + 0.1 * np.eye(7)
+    b = rng.normal(size=7)
+    x, ok = fixed_order.cholesky_solve(spd, b)
+    work, out = spd.copy(), np.empty(7)
+    assert fixed_order.cholesky_solve_into(work, b, out) and ok
+    np.testing.assert_array_equal(out, x)
+    np.testing.assert_array_equal(np.triu(work, 1), np.triu(spd, 1))  # the upper triangle untouched
+    np.testing.assert_allclose(np.tril(work), np.linalg.cholesky(spd), rtol=1e-12, atol=1e-14)
+    np.testing.assert_allclose(out, scipy.linalg.cho_solve(scipy.linalg.cho_factor(spd, lower=True), b), rtol=1e-10)
+    assert not fixed_order.cholesky_solve_into(-spd, b, out)
+    assert np.isnan(out).all()
+
+
+def test_cholesky_factor_shift_and_floor():
+    """``a + shift I`` factored without forming it (the GP's ``K + sigma_n^2 I``), against NumPy; a
+    pivot not above ``floor`` times its diagonal fails even when it is positive."""
+    rng = np.random.default_rng(5)
+    v = rng.normal(size=(5, 3))
+    singular = v @ v.T  # rank 3: K alone is not positive definite
+    chol = np.zeros((5, 5))
+    assert not fixed_order.cholesky_factor(singular, chol, 0.0, 1e-6)
+    assert fixed_order.cholesky_factor(singular, chol, 0.25, 1e-6)
+    np.testing.assert_allclose(np.tril(chol), np.linalg.cholesky(singular + 0.25 * np.eye(5)), rtol=1e-12, atol=1e-14)
+    near = np.array([[1.0, 1.0 - 1e-8], [1.0 - 1e-8, 1.0]])  # second pivot ~2e-8 of its diagonal 1
+    assert not fixed_order.cholesky_factor(near, np.zeros((2, 2)), 0.0, 1e-6)
+    assert fixed_order.cholesky_factor(near, np.zeros((2, 2)))

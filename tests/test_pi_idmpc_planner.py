@@ -214,7 +214,7 @@ def test_a_plan_solved_by_the_worker_process_gives_the_inline_run_exactly():
     latency = {"pi_idmpc.plan_latency": 2}
     inline, _, first = _recorded_run(0.3, **latency)
     beside, _, second = _recorded_run(0.3, **latency, **{"pi_idmpc.plan_worker": "process"})
-    assert second._worker is not None and second._worker[0].is_alive()
+    assert second.latent.worker is not None and second.latent.worker[0].is_alive()
     second.close()
     assert first.plans > 10 and (second.plans, second.rejected) == (first.plans, first.rejected)
     np.testing.assert_array_equal(beside.q, inline.q)
@@ -230,8 +230,8 @@ def test_a_failing_worker_process_stops_the_run_with_its_cause():
     def failing(*_args):
         raise ZeroDivisionError("a zero pivot")
 
-    controller._plan_job = failing  # the worker forked at the run's reset holds it
+    controller.latent.plan_job = failing  # the worker forked at the run's reset holds it
     traj = experiment.run(seed=0)
     assert traj.meta["stopped"] == "controller_error" and traj.meta["steps"] == 1  # the first plan's step
     assert "planner worker process failed: ZeroDivisionError: a zero pivot" in traj.meta["error"]
-    assert controller._worker is None
+    assert controller.latent.worker is None

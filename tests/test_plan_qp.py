@@ -6,8 +6,8 @@ import daqp
 import numpy as np
 import pytest
 
-from hydroarm.control.idmpc import joint_lqr
 from hydroarm.control.idmpc_limits import HorizonQP, condensed_problem
+from hydroarm.control.linear import joint_lqr
 from hydroarm.control.plan_qp import (
     DUAL_TOL,
     ITERATION_LIMIT,
@@ -176,7 +176,7 @@ def test_unknown_solver_is_refused():
 @pytest.mark.parametrize("arm_name", ["paper", "alpha5"])
 def test_water_terms_along_a_plan_are_the_per_state_terms(arm_name):
     """The planner's water at N states in one compiled pass: bit for bit the N single calls."""
-    from hydroarm.control.water_model import PhysicsInformedModel
+    from hydroarm.control.learned_water import PhysicsInformedModel
 
     arm = load_arm(arm_name)
     model = PhysicsInformedModel(arm)

@@ -15,10 +15,10 @@ import scipy.linalg
 
 import hydroarm
 from hydroarm.control import linear
-from hydroarm.control.idmpc import joint_lqr
+from hydroarm.control.learned_water import PhysicsInformedModel
+from hydroarm.control.linear import joint_lqr
 from hydroarm.control.observers import DisturbanceObserver, ObservedController, ObserverConfig
 from hydroarm.control.smc import SlidingModeController
-from hydroarm.control.water_model import PhysicsInformedModel
 from hydroarm.model.dynamics import fixed_order
 from hydroarm.model.dynamics.nominal import NominalModel
 

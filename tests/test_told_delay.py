@@ -11,9 +11,11 @@ from hydroarm.control.delay_design import (
     ROBUST_RADIUS,
     delayed_observer_gain,
     told_delay_radius,
+    told_delay_weight,
     worst_told_delay_radius,
 )
-from hydroarm.control.idmpc import IDMPCConfig, InverseDynamicsMPC, joint_lqr, told_delay_weight
+from hydroarm.control.idmpc import IDMPCConfig, InverseDynamicsMPC
+from hydroarm.control.linear import joint_lqr
 from hydroarm.model.arm.loading import load_arm
 from hydroarm.sim.experiment import ExperimentConfig, build_experiment, with_overrides
 

@@ -1,4 +1,5 @@
-"""A closed-loop bandwidth chosen for the loop delay the controller is told (issue 32).
+"""A closed-loop bandwidth chosen for the loop delay the controller is told (issue 32), and for a
+delay margin it is not told of (:func:`delay_margin_weight`).
 
 The ID-MPCs (:mod:`hydroarm.control.idmpc`) are told the loop delay d (periods, ``sensor.delay +
 actuator.delay``) and handed the filtered state predicted across it on the dry model
@@ -25,7 +26,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from hydroarm.control.linear import double_integrator
+from hydroarm.control.linear import double_integrator, joint_lqr
 from hydroarm.model.arm.description import Arm
 from hydroarm.model.water.morison import Water, added_mass_matrix
 
@@ -94,3 +95,76 @@ def delayed_observer_gain(delay: int) -> float:
     published friction, one period of sensor delay, 10 s, seed 0, 2026-12-04): its TDE remainder
     (L = 1) gave E_p 0.111 rad^2, L = 0.5 0.049, L* = 0.25 0.0345, 0.2 0.0330, 0.05 0.0364."""
     return float(delay**delay / (delay + 1) ** (delay + 1))
+
+
+MARGIN_RADIUS = 0.9
+"""The spectral radius (-) a joint's loop must keep with ``delay_margin`` periods of delay it is
+not told of (:func:`delay_margin_weight`)."""
+
+
+def delayed_radius(period: float, gain: np.ndarray, extra: int) -> float:
+    """The spectral radius (-) of one joint's loop ``u_k = -K x_k`` on the sampled double integrator
+    when the move acts ``extra`` periods late (a delay nothing predicts across); ``gain`` K (2,)."""
+    a_mat, b_vec = double_integrator(period)
+    size = 2 + extra
+    loop = np.zeros((size, size))
+    loop[:2, :2] = a_mat
+    if extra == 0:
+        loop[:2, :2] -= np.outer(b_vec, gain)
+    else:
+        loop[:2, 1 + extra] = b_vec  # the oldest move acts now
+        loop[2, :2] = -gain
+        for k in range(3, size):
+            loop[k, k - 1] = 1.0
+    return float(np.max(np.abs(np.linalg.eigvals(loop))))
+
+
+def delay_margin_weight(period: float, q_position: float, q_velocity: float, margin: int) -> float:
+    """The smallest acceleration weight R_a (s^4/rad^2) whose LQR
+    (:func:`~hydroarm.control.linear.joint_lqr`) keeps the joint's loop at a spectral radius of at
+    most :data:`MARGIN_RADIUS` with ``margin`` periods of delay it is not told of: the closed-loop
+    bandwidth chosen for a stated delay margin. The radius first falls as R_a grows (the loop
+    leaves the deadbeat law) and then rises towards 1 (a slow loop): the smallest R_a that meets
+    it is found on a grid of 20 per decade from 1e-9 and refined by bisection. On the paper's
+    weights (q_position 300, q_velocity 0.01, T = 10 ms) and a margin of one period it is 5.6e-5
+    (the default wrist's 1e-6 has 1.33)."""
+
+    def radius(weight: float) -> float:
+        return delayed_radius(period, joint_lqr(period, q_position, q_velocity, weight)[1], margin)
+
+    return _smallest_weight(radius, MARGIN_RADIUS, 1e-9, f"idmpc.delay_margin = {margin}")
+
+
+def _smallest_weight(radius, limit: float, low: float, what: str) -> float:
+    """The smallest weight >= ``low`` whose ``radius(weight)`` is at most ``limit``: a grid of 20
+    per decade, then 60 bisections (the radius first falls as the weight grows, then rises)."""
+    if radius(low) <= limit:
+        return low
+    for _ in range(400):
+        high = low * 10.0**0.05
+        if radius(high) <= limit:
+            break
+        low = high
+    else:
+        raise ValueError(f"{what}: no acceleration weight up to {high:.3g} meets it")
+    for _ in range(60):
+        middle = float(np.sqrt(low * high))
+        low, high = (middle, high) if radius(middle) > limit else (low, middle)
+    return high
+
+
+def told_delay_weight(
+    period: float, q_position: float, q_velocity: float, weight: float, delay: int, gain_low: float
+) -> float:
+    """The smallest acceleration weight R_a >= ``weight`` (s^4/rad^2) whose LQR keeps the joint's
+    loop, told ``delay`` periods and predicted across them on the model, at a spectral radius of
+    at most :data:`ROBUST_RADIUS` on every plant gain in
+    ``[gain_low, 1]`` (:func:`worst_told_delay_radius`); ``weight``
+    itself when ``delay`` is 0 or it meets it already."""
+    if delay == 0:
+        return weight
+
+    def radius(r: float) -> float:
+        return worst_told_delay_radius(period, joint_lqr(period, q_position, q_velocity, r)[1], delay, gain_low)
+
+    return _smallest_weight(radius, ROBUST_RADIUS, weight, f"idmpc.loop_delay = {delay}")

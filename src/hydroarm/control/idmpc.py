@@ -25,13 +25,15 @@ margin for a plant lighter than the model: ``r_floor`` keeps the lightest joints
 ``"uniform"``: ``R_a,j = r_acceleration``.
 
 Delay margin (``delay_margin`` = m > 0, off by default): every ``R_a,j`` is floored at
-:func:`delay_margin_weight`, the smallest weight whose LQR keeps the joint's loop at a spectral
-radius of at most :data:`MARGIN_RADIUS` (0.9) when its moves act m periods later than the loop
+:func:`~hydroarm.control.delay_design.delay_margin_weight`, the smallest weight whose LQR keeps
+the joint's loop at a spectral radius of at most
+:data:`~hydroarm.control.delay_design.MARGIN_RADIUS` (0.9) when its moves act m periods later than the loop
 was told (the filter predicts across the told delay only): a closed-loop bandwidth chosen for a
 stated margin (docs/robustness.md, section 6: what it buys and what it costs).
 
 The told loop delay (``loop_delay`` = d, on by default; ``"plant"``: the filter's, resolved by
-the registry): with d > 0 every ``R_a,j`` is floored at :func:`told_delay_weight`, the smallest
+the registry): with d > 0 every ``R_a,j`` is floored at
+:func:`~hydroarm.control.delay_design.told_delay_weight`, the smallest
 weight whose loop, predicted across d periods on the dry model, keeps a spectral radius of at most
 0.95 on a plant up to ``inertia_margin`` times heavier than the dry arm plus its own added mass
 (:mod:`hydroarm.control.delay_design`). At d = 0 nothing changes.
@@ -94,11 +96,11 @@ import numpy as np
 import pydantic
 
 from hydroarm.config import FrozenModel, per_joint
-from hydroarm.control.delay_design import INERTIA_MARGIN, ROBUST_RADIUS, wet_inertia_ratio, worst_told_delay_radius
+from hydroarm.control.delay_design import INERTIA_MARGIN, delay_margin_weight, told_delay_weight, wet_inertia_ratio
 from hydroarm.control.gp import GPConfig, SlidingWindowGP
 from hydroarm.control.idmpc_limits import HorizonQP, allocate  # noqa: F401 (allocate: public here too)
 from hydroarm.control.interface import DEFAULT_CONTROL_PERIOD, ControlOutput, Reference, require_period, sample_times
-from hydroarm.control.linear import double_integrator, reference_defects, solve_dare
+from hydroarm.control.linear import joint_lqr, reference_defects
 from hydroarm.model.arm.description import Arm
 from hydroarm.model.dynamics.nominal import NominalModel
 
@@ -202,92 +204,6 @@ def box_allocate(mass: np.ndarray, bias: np.ndarray, acceleration: np.ndarray, l
 def gp_input_size(features: str, n_joints: int) -> int:
     """The GP's input count d for ``gp_features`` on n joints: 2n (state) or 3n (+ a_0)."""
     return 3 * n_joints if features == "state+acceleration" else 2 * n_joints
-
-
-def joint_lqr(period: float, q_position: float, q_velocity: float, r_acceleration: float):
-    """``(P (2, 2), K (2,), G (2,))`` of one joint's double integrator: the DARE solution
-    (scipy's, :func:`~hydroarm.control.linear.solve_dare` with ``method="scipy"``), the LQR gain
-    ``K = (R + B'PB)^-1 B'PA`` and ``G = (R + B'PB)^-1 B'``."""
-    a_mat, b_vec = double_integrator(period)
-    b_mat = b_vec[:, None]
-    q_mat = np.diag([q_position, q_velocity])
-    r_mat = np.array([[r_acceleration]])
-    p_mat, _, _ = solve_dare(a_mat, b_mat, q_mat, r_mat, method="scipy")
-    scale = 1.0 / (r_acceleration + float(b_mat[:, 0] @ p_mat @ b_mat[:, 0]))
-    gain = scale * (b_mat[:, 0] @ p_mat @ a_mat)
-    return p_mat, gain, scale * b_mat[:, 0]
-
-
-MARGIN_RADIUS = 0.9
-"""The spectral radius (-) a joint's loop must keep with ``delay_margin`` periods of delay it is
-not told of (:func:`delay_margin_weight`)."""
-
-
-def delayed_radius(period: float, gain: np.ndarray, extra: int) -> float:
-    """The spectral radius (-) of one joint's loop ``u_k = -K x_k`` on the sampled double integrator
-    when the move acts ``extra`` periods late (a delay nothing predicts across); ``gain`` K (2,)."""
-    a_mat, b_vec = double_integrator(period)
-    size = 2 + extra
-    loop = np.zeros((size, size))
-    loop[:2, :2] = a_mat
-    if extra == 0:
-        loop[:2, :2] -= np.outer(b_vec, gain)
-    else:
-        loop[:2, 1 + extra] = b_vec  # the oldest move acts now
-        loop[2, :2] = -gain
-        for k in range(3, size):
-            loop[k, k - 1] = 1.0
-    return float(np.max(np.abs(np.linalg.eigvals(loop))))
-
-
-def delay_margin_weight(period: float, q_position: float, q_velocity: float, margin: int) -> float:
-    """The smallest acceleration weight R_a (s^4/rad^2) whose LQR (``joint_lqr``) keeps the joint's
-    loop at a spectral radius of at most :data:`MARGIN_RADIUS` with ``margin`` periods of delay it
-    is not told of: the closed-loop bandwidth chosen for a stated delay margin. The radius first
-    falls as R_a grows (the loop leaves the deadbeat law) and then rises towards 1 (a slow loop):
-    the smallest R_a that meets it is found on a grid of 20 per decade from 1e-9 and refined by
-    bisection. On the paper's weights (q_position 300, q_velocity 0.01, T = 10 ms) and a margin of
-    one period it is 5.6e-5 (the default wrist's 1e-6 has 1.33)."""
-
-    def radius(weight: float) -> float:
-        return delayed_radius(period, joint_lqr(period, q_position, q_velocity, weight)[1], margin)
-
-    return _smallest_weight(radius, MARGIN_RADIUS, 1e-9, f"idmpc.delay_margin = {margin}")
-
-
-def _smallest_weight(radius, limit: float, low: float, what: str) -> float:
-    """The smallest weight >= ``low`` whose ``radius(weight)`` is at most ``limit``: a grid of 20
-    per decade, then 60 bisections (the radius first falls as the weight grows, then rises)."""
-    if radius(low) <= limit:
-        return low
-    for _ in range(400):
-        high = low * 10.0**0.05
-        if radius(high) <= limit:
-            break
-        low = high
-    else:
-        raise ValueError(f"{what}: no acceleration weight up to {high:.3g} meets it")
-    for _ in range(60):
-        middle = float(np.sqrt(low * high))
-        low, high = (middle, high) if radius(middle) > limit else (low, middle)
-    return high
-
-
-def told_delay_weight(
-    period: float, q_position: float, q_velocity: float, weight: float, delay: int, gain_low: float
-) -> float:
-    """The smallest acceleration weight R_a >= ``weight`` (s^4/rad^2) whose LQR keeps the joint's
-    loop, told ``delay`` periods and predicted across them on the model, at a spectral radius of
-    at most :data:`~hydroarm.control.delay_design.ROBUST_RADIUS` on every plant gain in
-    ``[gain_low, 1]`` (:func:`~hydroarm.control.delay_design.worst_told_delay_radius`); ``weight``
-    itself when ``delay`` is 0 or it meets it already."""
-    if delay == 0:
-        return weight
-
-    def radius(r: float) -> float:
-        return worst_told_delay_radius(period, joint_lqr(period, q_position, q_velocity, r)[1], delay, gain_low)
-
-    return _smallest_weight(radius, ROBUST_RADIUS, weight, f"idmpc.loop_delay = {delay}")
 
 
 def authority_weights(inertia: np.ndarray, torque_limit: np.ndarray, r_acceleration: np.ndarray, r_floor: float):

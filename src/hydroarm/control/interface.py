@@ -221,7 +221,7 @@ class WrapsController(Protocol):
 class DisturbanceEstimator(Protocol):
     """What every disturbance learner implements: the sliding-window GP
     (:class:`~hydroarm.control.gp.SlidingWindowGP`, GP-MPC's, GP-IDMPC's and the vehicle
-    controller's), PI-IDMPC's water model (:class:`~hydroarm.control.water_model.PhysicsInformedModel`)
+    controller's), PI-IDMPC's water model (:class:`~hydroarm.control.learned_water.PhysicsInformedModel`)
     and the observers (:class:`~hydroarm.control.observers.DisturbanceObserver`).
 
     The disturbance w (n,) N m (the force the dry model misses) is learned as a function of an

@@ -21,7 +21,7 @@ solvers here, and each user keeps the one its numbers were made with (:func:`sol
   converged. Used by the linear MPC's terminal weight (:mod:`hydroarm.control.mpc`: a 2n x 2n
   DARE at every new horizon end, where the compiled doubling is the fast one).
 * ``"scipy"``: ``scipy.linalg.solve_discrete_are`` alone (the Schur method). Used by the ID-MPCs'
-  per-joint 2 x 2 DARE (:func:`hydroarm.control.idmpc.joint_lqr`: solved at construction and in
+  per-joint 2 x 2 DARE (:func:`joint_lqr`: solved at the ID-MPCs' construction and in
   the bandwidth searches of :mod:`hydroarm.control.delay_design`).
 
 The filter's DARE (its dual, for the steady-state prior covariance) is solved by fixed-point
@@ -229,6 +229,20 @@ def double_integrator(period: float) -> tuple[np.ndarray, np.ndarray]:
 def double_integrator_step(q, v, acceleration, period: float):
     """``(q + T v + T^2/2 a, v + T a)``: one period of the double integrator (arrays of one shape)."""
     return q + period * v + 0.5 * period * period * acceleration, v + period * acceleration
+
+
+def joint_lqr(period: float, q_position: float, q_velocity: float, r_acceleration: float):
+    """``(P (2, 2), K (2,), G (2,))`` of one joint's double integrator: the DARE solution
+    (scipy's, :func:`solve_dare` with ``method="scipy"``), the LQR gain
+    ``K = (R + B'PB)^-1 B'PA`` and ``G = (R + B'PB)^-1 B'``."""
+    a_mat, b_vec = double_integrator(period)
+    b_mat = b_vec[:, None]
+    q_mat = np.diag([q_position, q_velocity])
+    r_mat = np.array([[r_acceleration]])
+    p_mat, _, _ = solve_dare(a_mat, b_mat, q_mat, r_mat, method="scipy")
+    scale = 1.0 / (r_acceleration + float(b_mat[:, 0] @ p_mat @ b_mat[:, 0]))
+    gain = scale * (b_mat[:, 0] @ p_mat @ a_mat)
+    return p_mat, gain, scale * b_mat[:, 0]
 
 
 def reference_defects(q_r: np.ndarray, v_r: np.ndarray, a_r: np.ndarray, period: float) -> np.ndarray:

@@ -4,7 +4,7 @@ Each step, at the (filtered) state y = [q, v] (2n,):
 
 1. the outer MPC plans the acceleration a_0 (n,) (:class:`~hydroarm.control.idmpc.InverseDynamicsMPC`;
    the plan does not depend on the disturbance);
-2. the water model (:class:`~hydroarm.control.water_model.PhysicsInformedModel`) predicts the
+2. the water model (:class:`~hydroarm.control.learned_water.PhysicsInformedModel`) predicts the
    water's generalised force at (q, v, a_0): drag, added mass (it answers a_0) and buoyancy;
 3. the remainder observer (``remainder``: TDE or NDOB, :mod:`hydroarm.control.observers`) adds
    what the state model cannot know (the paper's time-varying current, a plant mismatch): it
@@ -30,9 +30,9 @@ IDMPC's LQR gains on the deviation from it; ``"auto"`` stops at the first plan w
 torque row. Measured: docs/controllers.md, "PI-IDMPC".
 
 Beside the loop (``plan_latency`` L > 0): the plan of step k is solved at step k - L from the state
-predicted for step k (:meth:`_plan_job`), in the step (``plan_worker = "inline"``) or by a forked
-worker process (``"process"``) whose answer step k takes: the same run either way, since a job's
-inputs are its step's, not the time it takes.
+predicted for step k, in the step (``plan_worker = "inline"``) or by a forked worker process
+(``"process"``) whose answer step k takes: the same run either way
+(:class:`~hydroarm.control.plan_worker.LatentPlanner`).
 
 The drives' rate limit (issue 32, :meth:`PhysicsInformedIDMPC.drive_limits`): its IDMPC holds the
 box of the drives' rate (:meth:`~hydroarm.control.idmpc.InverseDynamicsMPC.torque_box`), the
@@ -49,9 +49,7 @@ back with :meth:`load_model` (``hydroarm run --model FILE``) starts a run knowin
 
 from __future__ import annotations
 
-import multiprocessing
 import time
-from collections import deque
 from pathlib import Path
 from typing import Literal
 
@@ -62,10 +60,11 @@ from hydroarm.config import FrozenModel, per_joint
 from hydroarm.control.idmpc import IDMPCConfig, InverseDynamicsMPC, box_allocate
 from hydroarm.control.idmpc_limits import HorizonQP, allocate, predicted_plan
 from hydroarm.control.interface import ControlOutput, Reference, sample_times
+from hydroarm.control.learned_water import PhysicsInformedModel, WaterModelConfig
 from hydroarm.control.linear import reference_defects
 from hydroarm.control.observers import DisturbanceObserver
 from hydroarm.control.plan_rollout import rollout_step, water_along_plan
-from hydroarm.control.water_model import PhysicsInformedModel, WaterModelConfig
+from hydroarm.control.plan_worker import LatentPlanner
 from hydroarm.model.arm.description import Arm
 from hydroarm.model.dynamics import fixed_order
 
@@ -188,8 +187,7 @@ class PhysicsInformedIDMPC:
             self.planner.disturbance_model = self._along_plan
             self._plan_offsets = np.arange(pcfg.planner_horizon + 1) * self.control_period
         self._saturated = False
-        self._worker = None  # (process, connection) of plan_worker = "process"
-        self._worker_reference = None
+        self.latent = LatentPlanner(self)
         self.reset()
 
     # --- memory -------------------------------------------------------------------
@@ -219,16 +217,7 @@ class PhysicsInformedIDMPC:
         self._plan_step = 0
         self.plans = 0  # replans this run
         self.rejected = 0  # plans refused (planner_deviation, PLAN_TRUST)
-        self._step = 0  # control steps this run (plan_latency's clock)
-        self._pending: deque[tuple[int, tuple | None]] = deque()  # (the step a plan starts at, plan or None)
-        self._launched_at: int | None = None  # the step the newest plan launched starts at
-        self._chain = False  # plans are being launched (auto: until one has no active torque row)
-        self._in_flight: deque[int] = deque()  # the steps of the plans the worker is solving
-        self._history: deque[tuple[int, tuple | None]] = deque(maxlen=self.config.plan_latency + 1)
-        self._replan_time = self._replan_cpu = self._wait_time = 0.0
-        self.close()  # a worker's copy holds the run that ends here
-        if self.planner is not None and self.config.plan_worker == "process":
-            self._start_worker()
+        self.latent.reset()  # last: a worker process forks a copy of the controller as reset here
 
     # --- the controller interface ---------------------------------------------------
     def drive_limits(self, output: np.ndarray, step: np.ndarray) -> None:
@@ -363,7 +352,7 @@ class PhysicsInformedIDMPC:
         t_torque = time.perf_counter()
         if latency > 0:  # the plan of step k + latency, from the state this step's move leads to
             fits = bool(np.all(np.abs(mass @ acceleration + bias) <= self.torque_limit))
-            self._launch(t, y, reference, realised, fits)
+            self.latent.launch(t, y, reference, realised, fits)
         self._saturated = bool(saturated.any())
         self._commanded = realised
         w_hat = w_free
@@ -377,13 +366,8 @@ class PhysicsInformedIDMPC:
             "learn": learn_time,
             "total": end - start,
         }
-        if latency > 0:
-            # the plan's solve: inline, within this step; with the worker, its own time on the job
-            # answered this step, and what this step waited for it (in "total")
-            timings["replan"] = self._replan_time
-            if self._worker is not None:
-                timings["wait"] = self._wait_time
-                timings["replan_cpu"] = self._replan_cpu
+        if latency > 0:  # the plan's solve (LatentPlanner.timings); the torque's without it
+            timings.update(self.latent.timings())
             timings["torque"] = t_torque - t_model
         return ControlOutput(
             tau=tau,
@@ -413,134 +397,21 @@ class PhysicsInformedIDMPC:
         a = self._follow_plan(q, v)
         return self._held(mass, bias, a)
 
-    # --- the planner beside the loop (plan_latency > 0) ------------------------------------
+    # --- the planner beside the loop (plan_latency > 0: hydroarm.control.plan_worker) -------
     def _latent_planned_torque(self, q, v, mass, bias):
         """``(tau, a, saturated)`` following the plan solved ``plan_latency`` steps ago for this
-        step (or the one before it, within ``planner_hold`` steps), or ``(None, None, None)``.
-        ``"auto"``: a plan with no active torque row (or refused) ends the chain of launches."""
-        k = self._step
-        self._replan_time = self._wait_time = self._replan_cpu = 0.0
-        if self._in_flight and self._in_flight[0] == k:
-            self._in_flight.popleft()
-            self._receive()  # the job launched L steps ago: blocks only while the worker is late
-        if self._pending and self._pending[0][0] == k:
-            self._plan, self._plan_step = self._pending.popleft()[1], 0
-            if self.config.planner == "auto" and (self._plan is None or not self._plan[5]):
-                self._chain = False
-        elif self._plan is not None:
-            self._plan_step += 1
-            if self._plan_step >= self.config.planner_hold:
-                self._plan = None  # no newer plan: the chain stopped (auto) or its last plan was refused
+        step (or the one before it, within ``planner_hold`` steps; :meth:`LatentPlanner.take`), or
+        ``(None, None, None)``."""
+        self._plan, self._plan_step = self.latent.take(self._plan, self._plan_step)
         if self._plan is None:
             return None, None, None
         return self._held(mass, bias, self._follow_plan(q, v))
 
-    def _launch(self, t, y, reference, realised, fits) -> None:
-        """After step k's torque: launch the plan of step k + L (:meth:`_plan_job`) if one is
-        due (the newest launched covers k + L within ``planner_hold`` no more) and wanted
-        (``"always"``; ``"auto"``: the chain runs, or the IDMPC's own move of this step does not fit
-        the limits, ``fits`` False). It is solved here (``plan_worker = "inline"``) or handed to
-        the worker process (``"process"``), and step k + L takes it. The job's inputs are the
-        step's (state, realised acceleration, the water model's estimate and the remainder's of
-        now), so the run is the same either way."""
-        k = self._step
-        self._step += 1
-        target, last = k + self.config.plan_latency, self._launched_at
-        if last is not None and target < last + self.config.planner_hold:
-            return  # the newest plan launched still covers step k + L
-        if self.config.planner == "auto" and not self._chain and fits:
-            return  # the limits do not bind: the IDMPC's own plan
-        shift = target - last if (self._chain and last is not None) else None  # warm from the newest, or cold
-        self._chain, self._launched_at = True, target
-        if self.config.plan_worker == "inline":
-            start = time.perf_counter()
-            self._pending.append(self._plan_job(k, t, y, reference, realised, shift))
-            self._replan_time = time.perf_counter() - start
-            return
-        if self._worker is None:
-            self._start_worker()
-        sent = None if reference is self._worker_reference else reference  # pickled once per reference
-        self._worker_reference = reference
-        job = (k, t, np.asarray(y, dtype=float), np.asarray(realised, dtype=float), shift, self.model.theta, self._rest)
-        self._worker[1].send((*job, sent))
-        self._in_flight.append(target)
-
-    def _receive(self) -> None:
-        """The worker's answer to the oldest job: its plan, its counts and its time."""
-        start = time.perf_counter()
-        try:
-            answer = self._worker[1].recv()
-        except EOFError:
-            answer = ("error", "it ended")
-        self._wait_time = time.perf_counter() - start
-        if answer[0] == "error":
-            self.close()
-            raise RuntimeError(f"PI-IDMPC's planner worker process failed: {answer[1]}")
-        launched, plans, rejected, seconds = answer
-        self._pending.append(launched)
-        self.plans += plans
-        self.rejected += rejected
-        self._replan_time, self._replan_cpu = seconds  # the worker's own time on this solve, wall and CPU
-
-    def _start_worker(self) -> None:
-        """Fork the worker: a copy of this controller (the plans launched so far included) that
-        answers jobs in order (:func:`_serve_plans`); at :meth:`reset`, before the loop runs."""
-        self.close()
-        context = multiprocessing.get_context("fork")
-        mine, theirs = context.Pipe()
-        self._worker_reference = None
-        process = context.Process(target=_serve_plans, args=(self, theirs), daemon=True)
-        process.start()
-        theirs.close()
-        self._worker = (process, mine)
-
     def close(self) -> None:
         """Stop the planner's worker process, if one runs (``plan_worker = "process"``)."""
-        worker, self._worker = getattr(self, "_worker", None), None
-        if worker is not None:
-            process, connection = worker
-            try:
-                connection.send(None)
-            except OSError:
-                pass
-            connection.close()
-            process.join(timeout=5.0)
-            if process.is_alive():
-                process.terminate()
-
-    def _plan_job(self, k, t, y, reference, realised, shift) -> tuple[int, tuple | None]:
-        """Step k's job: ``(k + L, plan or None)``, the plan of step k + L (L = ``plan_latency``)
-        from the state predicted for it (this step's realised acceleration ``realised`` (n,),
-        then the plans already launched for the steps between, on the model's double
-        integrator), warm-started from the newest plan launched, ``shift`` steps before this one
-        (None: cold). Its result depends on its inputs only, not on when it ends."""
-        n, period, latency = self.n, self.control_period, self.config.plan_latency
-        q, v = y[:n].copy(), y[n:].copy()
-        a = np.asarray(realised, dtype=float)
-        for j in range(1, latency + 1):
-            q, v = q + period * v + 0.5 * period * period * a, v + period * a
-            if j < latency:
-                a = self._predicted_move(k + j, t + j * period, q, v, reference)
-        y_hat = np.concatenate([q, v])
-        t_hat = t + latency * period
-        idmpc = self.mpc.planned_acceleration(t_hat, y_hat, reference, remember=False)
-        warm = None
-        if shift is not None and self._history and self._history[-1][1] is not None:
-            warm = (self._history[-1][1][3], self._history[-1][1][4], shift)
-        plan = self._replan(t_hat, y_hat, reference, idmpc, warm)
-        self._history.append((k + latency, plan))
-        return k + latency, plan
-
-    def _predicted_move(self, step, t, q, v, reference) -> np.ndarray:
-        """The acceleration (n,) a later step ``step`` will follow at the predicted state (q, v):
-        that of the newest plan launched for a step at or before it, within its hold, or the
-        IDMPC's own move."""
-        for start, plan in reversed(self._history):
-            if start <= step:
-                if plan is not None and step - start < self.config.planner_hold:
-                    return self._plan_acceleration(plan, step - start, q, v)
-                break
-        return self.mpc.planned_acceleration(t, np.concatenate([q, v]), reference, remember=False)
+        latent = getattr(self, "latent", None)
+        if latent is not None:
+            latent.close()
 
     def observe(self, t: float, y: np.ndarray, u: np.ndarray, y_next: np.ndarray) -> None:
         """Learn the transition (the basis's added mass at the commanded acceleration, free of the
@@ -553,29 +424,3 @@ class PhysicsInformedIDMPC:
             q_mid, v_mid, a = self.model.transition_features(y, y_next, self.control_period)
             self.remainder.update(None, residual - self.model.predict(q_mid, v_mid, a), self._saturated)
         self._learn_time = time.perf_counter() - start
-
-
-def _serve_plans(controller: PhysicsInformedIDMPC, connection) -> None:  # pragma: no cover - a child
-    """The worker process of ``plan_worker = "process"``: for each job of the control loop (in
-    order) the water model's and the remainder's estimate of its step, then
-    :meth:`PhysicsInformedIDMPC._plan_job`; answers ``(launched, plans, rejected, (wall s, CPU s))``."""
-    reference = None
-    while True:
-        try:
-            job = connection.recv()
-        except EOFError:
-            return
-        if job is None:
-            return
-        k, t, y, realised, shift, theta, rest, sent = job
-        reference = sent if sent is not None else reference
-        controller.model.theta, controller._rest = theta, rest
-        plans, rejected = controller.plans, controller.rejected
-        start, start_cpu = time.perf_counter(), time.process_time()
-        try:
-            launched = controller._plan_job(k, t, y, reference, realised, shift)
-        except Exception as error:  # the control loop raises it, with its cause
-            connection.send(("error", f"{type(error).__name__}: {error}"))
-            return
-        seconds = (time.perf_counter() - start, time.process_time() - start_cpu)
-        connection.send((launched, controller.plans - plans, controller.rejected - rejected, seconds))

@@ -35,6 +35,8 @@ import math
 import numba
 import numpy as np
 
+from hydroarm.model.dynamics.fixed_order import cholesky_factor, cholesky_substitute, forward_substitute
+
 PRIMAL_TOL = 1e-6
 """A constraint violated by at most this (N m, the rows' unit) does not join (DAQP's default)."""
 DUAL_TOL = 1e-12
@@ -46,35 +48,15 @@ SOLVED, ITERATION_LIMIT = 1, -4
 @numba.njit(cache=True)
 def joint_factors(hessian, n):  # pragma: no cover - compiled
     """The Cholesky factors ``L_j`` (n, N, N), lower, of the per-joint blocks of ``hessian``
-    (N n, N n), step-major (joint j's block: rows and columns ``k n + j``). A block that is not
-    positive definite raises."""
+    (N n, N n), step-major (joint j's block: rows and columns ``k n + j``;
+    :func:`~hydroarm.model.dynamics.fixed_order.cholesky_factor`). A block that is not positive
+    definite raises."""
     horizon = hessian.shape[0] // n
     factors = np.zeros((n, horizon, horizon))
     for j in range(n):
-        factor = factors[j]
-        for r in range(horizon):
-            for c in range(r + 1):
-                total = hessian[r * n + j, c * n + j]
-                for i in range(c):
-                    total -= factor[r, i] * factor[c, i]
-                if r == c:
-                    if total <= 0.0:
-                        raise ValueError("a joint's block of the Hessian is not positive definite")
-                    factor[r, r] = math.sqrt(total)
-                else:
-                    factor[r, c] = total / factor[c, c]
+        if not cholesky_factor(hessian[j::n, j::n], factors[j]):
+            raise ValueError("a joint's block of the Hessian is not positive definite")
     return factors
-
-
-@numba.njit(cache=True)
-def _forward(factor, rhs, out):  # pragma: no cover - compiled
-    """``out = factor^-1 rhs`` (lower triangular factor (N, N))."""
-    size = rhs.shape[0]
-    for r in range(size):
-        total = rhs[r]
-        for i in range(r):
-            total -= factor[r, i] * out[i]
-        out[r] = total / factor[r, r]
 
 
 @numba.njit(cache=True)
@@ -98,7 +80,7 @@ def _row(factors, rows, r, out, work_in, work_out):  # pragma: no cover - compil
     for j in range(n):
         for k in range(horizon):
             work_in[k] = rows[r, k * n + j] if k <= last else 0.0
-        _forward(factors[j], work_in, work_out)
+        forward_substitute(factors[j], work_in, work_out)
         for k in range(horizon):
             out[j, k] = work_out[k]
 
@@ -143,7 +125,7 @@ def _whiten(factors, gradient, d, work_in, work_out):  # pragma: no cover - comp
     for j in range(n):
         for k in range(horizon):
             work_in[k] = gradient[k * n + j]
-        _forward(factors[j], work_in, work_out)
+        forward_substitute(factors[j], work_in, work_out)
         for k in range(horizon):
             d[j, k] = work_out[k]
 
@@ -176,10 +158,9 @@ def _append_cholesky(gram, chol, count):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True)
-def _unconstrained_multipliers(
-    active, sign, upper, lower, m_rows, d, chol, count, target, tmp, star
-):  # pragma: no cover
-    """``star`` = lambda* = -(M_A M_A')^-1 (b_A + M_A d) of the working set (in place)."""
+def _unconstrained_multipliers(active, sign, upper, lower, m_rows, d, chol, count, target, star):  # pragma: no cover
+    """``star`` = lambda* = -(M_A M_A')^-1 (b_A + M_A d) of the working set (in place), on the Gram
+    matrix's factor ``chol`` (:func:`~hydroarm.model.dynamics.fixed_order.cholesky_substitute`)."""
     n, horizon = d.shape
     for p in range(count):
         r = active[p]
@@ -188,16 +169,7 @@ def _unconstrained_multipliers(
             for k in range(horizon):
                 total += m_rows[p, j, k] * d[j, k]
         target[p] = -total
-    for p in range(count):
-        total = target[p]
-        for i in range(p):
-            total -= chol[p, i] * tmp[i]
-        tmp[p] = total / chol[p, p]
-    for p in range(count - 1, -1, -1):
-        total = tmp[p]
-        for i in range(p + 1, count):
-            total -= chol[i, p] * star[i]
-        star[p] = total / chol[p, p]
+    cholesky_substitute(chol[:count, :count], target[:count], star[:count])
 
 
 @numba.njit(cache=True)
@@ -272,7 +244,6 @@ def solve_plan_qp(
     lam = np.zeros(size)  # multipliers of the working set, by position
     target = np.empty(size)
     star = np.empty(size)
-    tmp = np.empty(size)
     x = np.empty((n, horizon))
     moves = np.empty(size)
     slack = np.empty(size)
@@ -282,7 +253,7 @@ def solve_plan_qp(
     flag = ITERATION_LIMIT
     while iterations < max_iterations:
         iterations += 1
-        _unconstrained_multipliers(active, sign, upper, lower, m_rows, d, chol, count, target, tmp, star)
+        _unconstrained_multipliers(active, sign, upper, lower, m_rows, d, chol, count, target, star)
         blocking = -1
         alpha = 1.0
         for p in range(count):  # the first multiplier to change sign on the way to lambda*

@@ -38,12 +38,12 @@ from hydroarm.control.gp import GPConfig
 from hydroarm.control.gpmpc import GPMPCConfig
 from hydroarm.control.idmpc import IDMPCConfig
 from hydroarm.control.interface import CONTROL_PERIOD_RANGE, DEFAULT_CONTROL_PERIOD, Controller, Reference
+from hydroarm.control.learned_water import WaterModelConfig
 from hydroarm.control.mpc import MPCConfig
 from hydroarm.control.observers import ObserverConfig
 from hydroarm.control.pi_idmpc import PIIDMPCConfig
 from hydroarm.control.registry import CONTROLLERS, canonical_name, controller_sections, controller_spec
 from hydroarm.control.smc import SMCConfig
-from hydroarm.control.water_model import WaterModelConfig
 from hydroarm.model.arm.description import Arm, TorqueLimit
 from hydroarm.model.arm.loading import BUILTIN_ARMS, load_arm
 from hydroarm.model.arm.plant import PlantConfig, UnderwaterPlant

@@ -19,6 +19,8 @@ import math
 import numba
 import numpy as np
 
+from hydroarm.model.dynamics.fixed_order import cholesky_factor
+
 _PIVOT_FLOOR = 8.0 * 2.220446049250313e-16
 """A Cholesky pivot must exceed this times its diagonal entry: a pivot at round-off level is
 what an exactly singular K (two equal samples, no noise) leaves, and its sign is chance (LAPACK
@@ -219,22 +221,10 @@ def _factor_inverse(k, noise, chol, lr):  # pragma: no cover - compiled
     """The inverse lower Cholesky factor ``lr`` (n, n) of ``k + noise I`` (k's lower triangle
     read), ``chol`` (n, n) a work array: 0 done, 1 a pivot not above `_PIVOT_FLOOR` times its
     diagonal entry or NaN (``lr`` undefined), 2 the inverse is not finite. Fixed-order loops
-    (no LAPACK / BLAS)."""
+    (no LAPACK / BLAS; the factor is :func:`hydroarm.model.dynamics.fixed_order.cholesky_factor`)."""
     n = k.shape[0]
-    for j in range(n):
-        diagonal = k[j, j] + noise
-        s = diagonal
-        for p in range(j):
-            s -= chol[j, p] * chol[j, p]
-        if not s > _PIVOT_FLOOR * diagonal:
-            return 1
-        pivot = math.sqrt(s)
-        chol[j, j] = pivot
-        for i in range(j + 1, n):
-            s = k[i, j]
-            for p in range(j):
-                s -= chol[i, p] * chol[j, p]
-            chol[i, j] = s / pivot
+    if not cholesky_factor(k, chol, noise, _PIVOT_FLOOR):
+        return 1
     for j in range(n):  # L^-1, lower triangular
         lr[j, j] = 1.0 / chol[j, j]
         for i in range(j + 1, n):

@@ -358,7 +358,7 @@ def _crba(arm: _Arm, rot, pos):
 
 def _cholesky_solve(a, b, jnp):
     """a^-1 b, a symmetric positive definite (n x n lists), unrolled
-    (:func:`hydroarm.model.vehicle.fast_kernels._cholesky_solve`)."""
+    (:func:`hydroarm.model.dynamics.fixed_order.cholesky_solve_into`)."""
     n = len(b)
     low = [[None] * n for _ in range(n)]
     for j in range(n):

@@ -12,7 +12,7 @@ RNEA pass. Then the reference plant's equation
 (:func:`hydroarm.model.water.strips.solve_underwater`) ``(M + M_A)(q'' - a_c) = tau - nle - h_A + f - b v``
 with a Cholesky solve, the joint friction and the Reynolds drag joining tau as
 :func:`hydroarm.model.arm.plant.rk4_stage_kernel` does, and its RK4 bookkeeping
-(:func:`hydroarm.model.dynamics.integrator.rk4_second_order_stage`).
+(:func:`hydroarm.model.dynamics.integrator.rk4_disturbance_stage`).
 
 Everything allocates its scratch per call (a few small arrays per control period) so that
 copies stepped in parallel (:func:`batch_step_kernel`, ``numba.prange``) share nothing but the
@@ -26,7 +26,8 @@ import numpy as np
 from numba.core import types
 from numba.experimental import structref
 
-from hydroarm.model.dynamics.integrator import rk4_second_order_stage
+from hydroarm.model.dynamics.fixed_order import cholesky_solve_into
+from hydroarm.model.dynamics.integrator import rk4_disturbance_stage
 from hydroarm.model.dynamics.tree_kernels import (
     body_force,
     crba_column,
@@ -36,7 +37,7 @@ from hydroarm.model.dynamics.tree_kernels import (
     place_joint,
 )
 from hydroarm.model.real_loop.friction import friction_torque
-from hydroarm.model.vehicle.fast_kernels import _cholesky_solve, body_frame
+from hydroarm.model.vehicle.fast_kernels import body_frame
 from hydroarm.model.water.current import current_at
 from hydroarm.model.water.effects import DRAG_REYNOLDS, cylinder_water, new_frame
 from hydroarm.model.water.strips import STRIPS_TYPE
@@ -305,7 +306,7 @@ def evaluate(t, q, v, tau, arm, work, out_acc, out_dist, out_drag):  # pragma: n
     uniform = arm.uniform
     for i in range(n):
         rhs[i] = applied[i] - nle[i] + water_force[i] - uniform * v[i]
-    _cholesky_solve(mass, rhs, out_acc)
+    cholesky_solve_into(mass, rhs, out_acc)
     for i in range(n):
         out_acc[i] += joint_acceleration[i]
     mass_times(arm, work, out_acc, out_dist)
@@ -338,19 +339,7 @@ def step_kernel(t, x, tau, steps, h, arm):  # pragma: no cover - compiled
         for stage in range(4):
             stage_time = time if stage == 0 else (time + h if stage == 3 else half)
             evaluate(stage_time, xs[:n], xs[n:], tau, arm, work, acc, dist, drag)
-            for i in range(n):
-                dists[stage, i] = dist[i]
-            rk4_second_order_stage(stage, h, state, xs, ks, acc)
-            if stage == 3:
-                for i in range(2 * n):
-                    state[i] = xs[i]
-                for i in range(n):
-                    average[i] += dists[0, i] + 2.0 * dists[1, i] + 2.0 * dists[2, i] + dists[3, i]
-            if reynolds:
-                for i in range(n):
-                    dists[stage, i] += drag[i]
-                    if stage == 3:
-                        average[i] += drag[i]
+            rk4_disturbance_stage(stage, h, state, xs, ks, acc, dist, dists, average, drag, reynolds)
         finite = True
         for i in range(2 * n):
             if not np.isfinite(state[i]):

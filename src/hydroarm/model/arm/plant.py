@@ -37,7 +37,7 @@ from hydroarm.model.dynamics.integrator import (
     StepInfo,
     inner_step_setting,
     inner_steps,
-    rk4_second_order_stage,
+    rk4_disturbance_stage,
     rk4_step,
 )
 from hydroarm.model.real_loop.friction import FrictionConfig, friction_torque
@@ -386,7 +386,7 @@ def rk4_stage_kernel(stage, t, h, tau, mass_upper, nonlinear, jac, djac, strips,
     ``work.xs = [q, v]`` (2n,) and time ``t``; this evaluates the current at ``t``, the water
     (:func:`~hydroarm.model.water.strips.water_terms` on ``strips``) and the solve
     (:func:`~hydroarm.model.water.strips.solve_underwater`), stores the disturbance ``work.dists[stage]``
-    and leaves the RK4 bookkeeping to :func:`hydroarm.model.dynamics.integrator.rk4_second_order_stage`
+    and leaves the RK4 bookkeeping to :func:`hydroarm.model.dynamics.integrator.rk4_disturbance_stage`
     (``work.ks[stage] = [v, q'']``, ``work.xs`` the next stage's state); after the last stage
     (3) ``work.x`` itself becomes ``x + h/6 (k1 + 2 k2 + 2 k3 + k4)`` (``xs`` too) and
     ``work.average`` gets ``d1 + 2 d2 + 2 d3 + d4``. Same operations, in the same order,
@@ -413,16 +413,4 @@ def rk4_stage_kernel(stage, t, h, tau, mass_upper, nonlinear, jac, djac, strips,
     acc, disturbance = solve_underwater(v, applied, joint_acceleration, joints.uniform, rigid, added, bias, force)
     if joints.on:
         disturbance = disturbance - joint_friction
-    for i in range(n):
-        dists[stage, i] = disturbance[i]
-    rk4_second_order_stage(stage, h, x, xs, work.ks, acc)
-    if stage == 3:
-        for i in range(2 * n):
-            x[i] = xs[i]
-        for i in range(n):
-            average[i] += dists[0, i] + 2.0 * dists[1, i] + 2.0 * dists[2, i] + dists[3, i]
-    if reynolds:
-        for i in range(n):
-            dists[stage, i] += tau_force[i]
-            if stage == 3:
-                average[i] += tau_force[i]
+    rk4_disturbance_stage(stage, h, x, xs, work.ks, acc, disturbance, dists, average, tau_force, reynolds)

@@ -18,7 +18,17 @@ import math
 import numba
 import numpy as np
 
-__all__ = ["exp", "matvec", "matmul", "cholesky_solve", "symmetrize"]
+__all__ = [
+    "exp",
+    "matvec",
+    "matmul",
+    "cholesky_factor",
+    "forward_substitute",
+    "cholesky_substitute",
+    "cholesky_solve",
+    "cholesky_solve_into",
+    "symmetrize",
+]
 
 
 def symmetrize(upper: np.ndarray) -> np.ndarray:
@@ -66,6 +76,59 @@ def matmul(a, b):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True)
+def cholesky_factor(a, chol, shift=0.0, floor=0.0):  # pragma: no cover - compiled
+    """The lower Cholesky factor L of ``a + shift I`` (a (n, n) symmetric, its lower triangle
+    read) into the lower triangle of ``chol`` (n, n; ``a`` itself for a factor in place: each
+    entry is read before it is written; the strict upper triangle is left as it was). Column by
+    column, each entry's sum in index order. Returns False (``chol`` partly written) at the first
+    pivot not above ``floor`` times its diagonal entry ``a[j, j] + shift`` (0 by default: not
+    positive), or NaN."""
+    n = a.shape[0]
+    for j in range(n):
+        diagonal = a[j, j] + shift
+        s = diagonal
+        for p in range(j):
+            s -= chol[j, p] * chol[j, p]
+        limit = floor * diagonal if floor != 0.0 else 0.0
+        if not s > limit:
+            return False
+        pivot = math.sqrt(s)
+        chol[j, j] = pivot
+        for i in range(j + 1, n):
+            s = a[i, j]
+            for p in range(j):
+                s -= chol[i, p] * chol[j, p]
+            chol[i, j] = s / pivot
+    return True
+
+
+@numba.njit(cache=True)
+def forward_substitute(chol, b, x):  # pragma: no cover - compiled
+    """x (n,) = L^-1 b for b (n,), L the lower triangle of ``chol`` (n, n), row by row, each sum in
+    index order (b and x may be strided views; x may be b)."""
+    n = chol.shape[0]
+    for i in range(n):
+        s = b[i]
+        for p in range(i):
+            s -= chol[i, p] * x[p]
+        x[i] = s / chol[i, i]
+
+
+@numba.njit(cache=True)
+def cholesky_substitute(chol, b, x):  # pragma: no cover - compiled
+    """x (n,) = (L L^T)^-1 b for b (n,), L the lower triangle of ``chol`` (:func:`cholesky_factor`):
+    L z = b forward (:func:`forward_substitute`), then L^T x = z backward, into ``x`` (b and x may
+    be strided views; x may be b)."""
+    n = chol.shape[0]
+    forward_substitute(chol, b, x)
+    for i in range(n - 1, -1, -1):
+        s = x[i]
+        for p in range(i + 1, n):
+            s -= chol[p, i] * x[p]
+        x[i] = s / chol[i, i]
+
+
+@numba.njit(cache=True)
 def cholesky_solve(a, b):  # pragma: no cover - compiled
     """``(x, ok)``: x = a^-1 b for a symmetric positive definite (n, n) and b (n,) or (n, k),
     by the Cholesky factor a = L L^T (lower triangle of a read) and two triangular solves.
@@ -74,29 +137,21 @@ def cholesky_solve(a, b):  # pragma: no cover - compiled
     rhs = b.reshape(n, -1)
     k = rhs.shape[1]
     chol = np.zeros((n, n))
-    for j in range(n):
-        s = a[j, j]
-        for p in range(j):
-            s -= chol[j, p] * chol[j, p]
-        if not s > 0.0:
-            return np.full(b.shape, np.nan), False
-        pivot = math.sqrt(s)
-        chol[j, j] = pivot
-        for i in range(j + 1, n):
-            s = a[i, j]
-            for p in range(j):
-                s -= chol[i, p] * chol[j, p]
-            chol[i, j] = s / pivot
+    if not cholesky_factor(a, chol):
+        return np.full(b.shape, np.nan), False
     x = np.empty((n, k))
     for c in range(k):
-        for i in range(n):  # L z = b
-            s = rhs[i, c]
-            for p in range(i):
-                s -= chol[i, p] * x[p, c]
-            x[i, c] = s / chol[i, i]
-        for i in range(n - 1, -1, -1):  # L^T x = z
-            s = x[i, c]
-            for p in range(i + 1, n):
-                s -= chol[p, i] * x[p, c]
-            x[i, c] = s / chol[i, i]
+        cholesky_substitute(chol, rhs[:, c], x[:, c])
     return x.reshape(b.shape), True
+
+
+@numba.njit(cache=True)
+def cholesky_solve_into(a, b, out):  # pragma: no cover - compiled
+    """out (n,) = a^-1 b for a symmetric positive definite (n, n) overwritten by its factor (lower
+    triangle) and b (n,): :func:`cholesky_solve` without allocating (the compiled plants' inner
+    loop). Returns ok; when a pivot is not > 0, ``out`` is all NaN (a diverging state)."""
+    if not cholesky_factor(a, a):
+        out[:] = np.nan
+        return False
+    cholesky_substitute(a, b, out)
+    return True

@@ -95,3 +95,35 @@ def rk4_second_order_stage(stage, h, x, xs, ks, acceleration):  # pragma: no cov
     sixth = h / 6.0
     for i in range(2 * n):
         xs[i] = x[i] + sixth * (ks[0, i] + 2.0 * ks[1, i] + 2.0 * ks[2, i] + ks[3, i])
+
+
+@numba.njit(cache=True)
+def rk4_disturbance_stage(stage, h, x, xs, ks, acc, dist, dists, average, drag, with_drag):  # pragma: no cover
+    """:func:`rk4_second_order_stage` for a plant that also reports its disturbance (n,): the one
+    bookkeeping of the fixed-base arm's RK4, shared by the reference plant's compiled stage
+    (:func:`hydroarm.model.arm.plant.rk4_stage_kernel`) and the fast plant's period
+    (:func:`hydroarm.model.arm.fast_kernels.step_kernel`).
+
+    Stores the stage's disturbance ``dists[stage] = dist`` (dists (4, n)), takes the RK4 stage of
+    the acceleration ``acc`` (n,) (``ks`` (4, 2n), ``xs`` (2n,) the next stage's state); after
+    the last stage (3) ``x`` (2n,) itself becomes the step's end state and ``average`` (n,)
+    gains ``d1 + 2 d2 + 2 d3 + d4``. With
+    ``with_drag`` (the Reynolds drag, joined to tau rather than to the water's force) the
+    stage's ``drag`` (n,) is then added to ``dists[stage]`` (stages 0-2 enter the weighted sum
+    with it), and stage 3's straight to ``average`` after the sum (the order the numbers were
+    first made in; the 1-2-2-1 weights hold all the same).
+    """
+    n = acc.shape[0]
+    for i in range(n):
+        dists[stage, i] = dist[i]
+    rk4_second_order_stage(stage, h, x, xs, ks, acc)
+    if stage == 3:
+        for i in range(2 * n):
+            x[i] = xs[i]
+        for i in range(n):
+            average[i] += dists[0, i] + 2.0 * dists[1, i] + 2.0 * dists[2, i] + dists[3, i]
+    if with_drag:
+        for i in range(n):
+            dists[stage, i] += drag[i]
+            if stage == 3:
+                average[i] += drag[i]

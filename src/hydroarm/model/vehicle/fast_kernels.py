@@ -16,6 +16,7 @@ import numpy as np
 from numba.core import types
 from numba.experimental import structref
 
+from hydroarm.model.dynamics.fixed_order import cholesky_solve_into
 from hydroarm.model.dynamics.tree_kernels import (
     body_force,
     crba_column,
@@ -187,7 +188,7 @@ def evaluate(q, v, tau, thrust, water_velocity, tree, vehicle, strips, work, out
             s += allocation[a, b] * thrust[b]
         force[1, a] -= s
     _backward_pass(tau, tree_arrays, scratch)
-    _cholesky_solve(mass, rhs, out)
+    cholesky_solve_into(mass, rhs, out)
 
 
 @numba.njit(cache=True, inline="always")
@@ -271,30 +272,3 @@ def _add_transformed_inertia(x, inertia, out, scratch):  # pragma: no cover - co
             for c in range(6):
                 s += x[c, a] * scratch[c, b]
             out[a, b] += s
-
-
-@numba.njit(cache=True)
-def _cholesky_solve(a, b, out):  # pragma: no cover - compiled
-    """out = a^-1 b for symmetric positive definite ``a`` (overwritten by its factor)."""
-    n = b.shape[0]
-    for j in range(n):
-        s = a[j, j]
-        for k in range(j):
-            s -= a[j, k] * a[j, k]
-        d = np.sqrt(s)
-        a[j, j] = d
-        for i in range(j + 1, n):
-            s = a[i, j]
-            for k in range(j):
-                s -= a[i, k] * a[j, k]
-            a[i, j] = s / d
-    for i in range(n):
-        s = b[i]
-        for k in range(i):
-            s -= a[i, k] * out[k]
-        out[i] = s / a[i, i]
-    for i in range(n - 1, -1, -1):
-        s = out[i]
-        for k in range(i + 1, n):
-            s -= a[k, i] * out[k]
-        out[i] = s / a[i, i]

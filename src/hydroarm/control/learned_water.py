@@ -1,5 +1,8 @@
 """A physics-informed model of the water, learned online: recursive least squares on the Morison basis.
 
+PI-IDMPC's estimate of the water (its settings: the ``water_model`` section), not the true water
+the plants integrate (:mod:`hydroarm.model.water`).
+
 The water's generalised force is linear in three coefficients per wetted cylinder
 (:class:`~hydroarm.model.water.regressor.WaterRegressor`): ``w = Phi(q, v, a) theta``. The
 learner keeps a Gaussian belief ``theta ~ N(theta_hat, P)`` and updates it with each observed

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from hydroarm.config import ConfigError
+from hydroarm.control.learned_water import PhysicsInformedModel, WaterModelConfig, fit_water
 from hydroarm.control.registry import canonical_name
-from hydroarm.control.water_model import PhysicsInformedModel, WaterModelConfig, fit_water
 from hydroarm.model.arm.loading import load_arm
 from hydroarm.model.arm.plant import PlantConfig, UnderwaterPlant
 from hydroarm.model.water.morison import Water, WaterModel
