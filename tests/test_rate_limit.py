@@ -9,7 +9,8 @@ import pytest
 import quadprog
 
 from hydroarm import load_arm
-from hydroarm.control.idmpc import InverseDynamicsMPC, rate_horizon
+from hydroarm.control.drive_limits import rate_horizon
+from hydroarm.control.idmpc import InverseDynamicsMPC
 from hydroarm.control.idmpc_limits import HorizonQP
 from hydroarm.model.real_loop.sensing import Actuator, ActuatorConfig
 from hydroarm.sim.experiment import ExperimentConfig, build_experiment, with_overrides

@@ -46,11 +46,8 @@ The real loop (issue 23, :mod:`hydroarm.model.real_loop.sensing`):
   lost sample) is not corrected with (``estimator.repeated = "skip"``): the filter predicts only
   (the pass-through filter of a noise-free sensor too), and the transitions into and out of the
   bridged sample are not passed to a learning controller (as the runner does for a held one).
-
 * **the drives' rate limit** (``actuator.rate_limit``): the filter's copy of the drives tells the
-  controller, before each step, the output they give before its command acts and ``rate_limit T``
-  (``drive_limits``: the ID-MPCs hold their command in that box, :mod:`hydroarm.control.idmpc`);
-  without a filter :class:`DrivesTold` keeps the copy.
+  controller their output before its command acts (:mod:`hydroarm.control.drive_limits`).
 
 Defaults that follow the sensor (``kind = "auto"``, a derived ``acceleration_variance``):
 :mod:`hydroarm.control.filter_design`; on the idealised loop every number is as before.
@@ -66,6 +63,7 @@ import numpy as np
 import pydantic
 
 from hydroarm.config import ConfigError, FrozenModel
+from hydroarm.control.drive_limits import tell_drive_limits
 from hydroarm.control.filter_design import (
     VARIANCE_FLOOR,
     FilterDesign,
@@ -456,10 +454,7 @@ class FilteredController:
         filtered = self._next if self._next is not None else self.kalman.update(np.asarray(y, dtype=float))
         self._next = None
         state = self.predicted(filtered)
-        if self._drives is not None and self._drives.max_step is not None:
-            tell = getattr(self.controller, "drive_limits", None)
-            if tell is not None:  # the drives' rate limit, from their output before this command acts
-                tell(self._drives.pending_output(), self._drives.max_step)
+        tell_drive_limits(self.controller, self._drives)  # the drives' rate limit, if any
         elapsed = time.perf_counter() - start
         out = self.controller.compute(t, state, reference)
         start = time.perf_counter()
@@ -503,32 +498,3 @@ class FilteredController:
             self.controller.observe(t, previous, u, filtered_next)
         elif len(self._torques) == self.delay + 1:
             self.controller.observe(t - self.delay * self.period_, previous, self._torques[0], filtered_next)
-
-
-class DrivesTold:
-    """A controller told the drives' rate limit without a state estimator in front of it
-    (``estimator.kind = "none"``): a copy of the drives (:class:`Actuator`) is fed its commands,
-    and before each step it is told their output before the command acts and ``rate_limit T``
-    (``controller.drive_limits``), as :class:`FilteredController` tells it from its own copy.
-    ``drives``: the loop's actuator settings (with a rate limit); ``n`` joints; ``period`` (s)."""
-
-    def __init__(self, controller: Controller, drives: ActuatorConfig, n: int, period: float):
-        self.controller = controller
-        self.name = controller.name
-        self.control_period = controller.control_period
-        self.drives = drives
-        self._n, self._period = n, float(period)
-        self._copy = Actuator(drives, n, self._period)
-
-    def reset(self) -> None:
-        self.controller.reset()
-        self._copy = Actuator(self.drives, self._n, self._period)
-
-    def compute(self, t: float, y: np.ndarray, reference: Reference) -> ControlOutput:
-        self.controller.drive_limits(self._copy.pending_output(), self._copy.max_step)
-        out = self.controller.compute(t, y, reference)
-        self._copy.apply(np.asarray(out.tau, dtype=float))
-        return out
-
-    def observe(self, t: float, y: np.ndarray, u: np.ndarray, y_next: np.ndarray) -> None:
-        self.controller.observe(t, y, u, y_next)

@@ -97,6 +97,7 @@ import pydantic
 
 from hydroarm.config import FrozenModel, per_joint
 from hydroarm.control.delay_design import INERTIA_MARGIN, delay_margin_weight, told_delay_weight, wet_inertia_ratio
+from hydroarm.control.drive_limits import box_allocate, rate_horizon
 from hydroarm.control.gp import GPConfig, SlidingWindowGP
 from hydroarm.control.idmpc_limits import HorizonQP, allocate  # noqa: F401 (allocate: public here too)
 from hydroarm.control.interface import DEFAULT_CONTROL_PERIOD, ControlOutput, Reference, require_period, sample_times
@@ -176,29 +177,6 @@ class IDMPCConfig(FrozenModel):
         if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= 1000:
             raise ValueError(f"must be 'plant' or a whole number of periods 0 <= x <= 1000, got {value!r}")
         return value
-
-
-RATE_HORIZON_CAP = 100
-"""The most steps (-) of the rate-limited horizon QP (:func:`rate_horizon`)."""
-
-
-def rate_horizon(horizon: int, torque_limit: np.ndarray, step: np.ndarray) -> int:
-    """The horizon (steps) of the QP with the drives' rate rows: the steps the slowest drive needs
-    to bring its full torque to zero, ``ceil(max_j tau_max,j / (r_j T))`` (``step`` = r T (n,) N m),
-    at least ``horizon`` (the MPC's N) and at most :data:`RATE_HORIZON_CAP`. A plan that cannot
-    see its braking ramp does not brake in time: on the paper arm (500 N m at 1000 N m/s, 50 steps)
-    the 5-step plan overshot by 6 rad within 1 s (docs/robustness.md, section 6)."""
-    ramp = int(np.ceil(np.max(np.asarray(torque_limit, dtype=float) / np.asarray(step, dtype=float))))
-    return int(min(max(horizon, ramp), max(horizon, RATE_HORIZON_CAP)))
-
-
-def box_allocate(mass: np.ndarray, bias: np.ndarray, acceleration: np.ndarray, lower: np.ndarray, upper: np.ndarray):
-    """:func:`~hydroarm.control.idmpc_limits.allocate` in the box ``lower <= tau <= upper`` (n,)
-    N m: about its centre c the box is the symmetric one of half-width ``(upper - lower) / 2`` on
-    ``tau - c = M a + (bias - c)``. Returns ``(tau (n,), a (n,), saturated (n,) bool)``."""
-    centre = 0.5 * (lower + upper)
-    tau, a, saturated = allocate(mass, bias - centre, acceleration, 0.5 * (upper - lower))
-    return np.clip(tau + centre, lower, upper), a, saturated
 
 
 def gp_input_size(features: str, n_joints: int) -> int:

@@ -22,7 +22,8 @@ import pydantic
 
 from hydroarm.config import ConfigError, per_joint
 from hydroarm.control.delay_design import delayed_observer_gain
-from hydroarm.control.estimator import DrivesTold, EstimatorConfig, FilteredController, JointKalmanFilter
+from hydroarm.control.drive_limits import DrivesTold
+from hydroarm.control.estimator import EstimatorConfig, FilteredController, JointKalmanFilter
 from hydroarm.control.friction_feedforward import FrictionFeedforward, told_friction
 from hydroarm.control.gpmpc import GPMPC, feature_size
 from hydroarm.control.idmpc import InverseDynamicsMPC, gp_input_size
