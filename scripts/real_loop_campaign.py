@@ -200,6 +200,21 @@ def summary_rows(results: list[dict], controllers: list[str] | tuple[str, ...]) 
     return lines
 
 
+def _cell(r: dict | None, ideal: float | None, worst_error: bool = False) -> str:
+    """One run's table cell: empty without a run, "diverged", else E_p (rad^2) and E_p / ``ideal``
+    with " (out of band)" when out of the band; ``worst_error``: a * for out of the band and the
+    worst joint error after 2 s (rad) instead."""
+    if r is None:
+        return ""
+    if r["Ep"] is None or r["diverged"]:
+        return "diverged"
+    if worst_error:
+        star = "" if r["within_band"] else "*"
+        return f"{r['Ep']:.4f}{star} ({r['Ep'] / ideal:.2f}x, {r['max_error_after_2s']:.2f} rad)"
+    band = "" if r["within_band"] else " (out of band)"
+    return f"{r['Ep']:.4f} ({r['Ep'] / ideal:.2f}x){band}"
+
+
 def table(results: list[dict], controllers: list[str] | tuple[str, ...] = tuple(CONTROLLERS)) -> str:
     ideal = ideal_ep(results)
     lines = ["| controller | runs | diverged | within 0.5 rad after 2 s | mean E_p (rad^2) | mean E_p / ideal |"]
@@ -220,16 +235,7 @@ def table(results: list[dict], controllers: list[str] | tuple[str, ...] = tuple(
         for world, by in worlds.items():
             if not any(name in by for name in controllers):
                 continue
-            cells = []
-            for name in controllers:
-                r = by.get(name)
-                if r is None:
-                    cells.append("")
-                elif r["Ep"] is None or r["diverged"]:
-                    cells.append("diverged")
-                else:
-                    band = "" if r["within_band"] else " (out of band)"
-                    cells.append(f"{r['Ep']:.4f} ({r['Ep'] / ideal[name]:.2f}x){band}")
+            cells = [_cell(by.get(name), ideal.get(name)) for name in controllers]
             lines.append(f"| {world} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
@@ -297,16 +303,7 @@ def arms_world_table(by_arm: dict[str, list[dict]], controller: str) -> str:
     ideals = {arm: ideal_ep(runs).get(controller) for arm, runs in by_arm.items()}
     for group, world in sorted(worlds, key=lambda key: (key[0] != "grid", order[key])):
         by = worlds[(group, world)]
-        cells = []
-        for arm in arms:
-            r = by.get(arm)
-            if r is None:
-                cells.append("")
-            elif r["Ep"] is None or r["diverged"]:
-                cells.append("diverged")
-            else:
-                star = "" if r["within_band"] else "*"
-                cells.append(f"{r['Ep']:.4f}{star} ({r['Ep'] / ideals[arm]:.2f}x, {r['max_error_after_2s']:.2f} rad)")
+        cells = [_cell(by.get(arm), ideals[arm], worst_error=True) for arm in arms]
         label = grid_label(*_grid_key(by)) if group == "grid" else world
         lines.append(f"| {label} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
