@@ -8,7 +8,9 @@ amplifies last-bit differences (a learner's accept / reject test, a chaotic plan
 then depend on the machine (issue 29, docs/data/reproducibility.md). The functions here are
 plain loops compiled by numba without ``fastmath`` (no reassociation, no contraction into FMA:
 LLVM keeps the source order), summing in index order; ``math.exp`` is one libm call per
-element. Sizes are those of an arm (n <= ~20): BLAS gains nothing there.
+element. Sizes are those of an arm (n <= ~20): BLAS gains nothing there. The Cholesky
+functions are inlined into their callers (``inline="always"``): called from the vehicle's
+compiled step they cost about 1 us of its 43 us otherwise (bench_side_by_side.py).
 """
 
 from __future__ import annotations
@@ -75,7 +77,7 @@ def matmul(a, b):  # pragma: no cover - compiled
     return out
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline="always")
 def cholesky_factor(a, chol, shift=0.0, floor=0.0):  # pragma: no cover - compiled
     """The lower Cholesky factor L of ``a + shift I`` (a (n, n) symmetric, its lower triangle
     read) into the lower triangle of ``chol`` (n, n; ``a`` itself for a factor in place: each
@@ -102,7 +104,7 @@ def cholesky_factor(a, chol, shift=0.0, floor=0.0):  # pragma: no cover - compil
     return True
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline="always")
 def forward_substitute(chol, b, x):  # pragma: no cover - compiled
     """x (n,) = L^-1 b for b (n,), L the lower triangle of ``chol`` (n, n), row by row, each sum in
     index order (b and x may be strided views; x may be b)."""
@@ -114,7 +116,7 @@ def forward_substitute(chol, b, x):  # pragma: no cover - compiled
         x[i] = s / chol[i, i]
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline="always")
 def cholesky_substitute(chol, b, x):  # pragma: no cover - compiled
     """x (n,) = (L L^T)^-1 b for b (n,), L the lower triangle of ``chol`` (:func:`cholesky_factor`):
     L z = b forward (:func:`forward_substitute`), then L^T x = z backward, into ``x`` (b and x may
@@ -145,7 +147,7 @@ def cholesky_solve(a, b):  # pragma: no cover - compiled
     return x.reshape(b.shape), True
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline="always")
 def cholesky_solve_into(a, b, out):  # pragma: no cover - compiled
     """out (n,) = a^-1 b for a symmetric positive definite (n, n) overwritten by its factor (lower
     triangle) and b (n,): :func:`cholesky_solve` without allocating (the compiled plants' inner

@@ -163,7 +163,7 @@ def evaluate(q, v, tau, thrust, water_velocity, tree, vehicle, strips, work, out
     parents, rigid = tree_arrays[0], tree_arrays[4]
     allocation, added_mass, linear_damping, quadratic_damping, cb = vehicle_arrays
     bodies, start, axis, table = strip_arrays
-    _forward_pass(q, v, tree_arrays, scratch)
+    _forward_pass(q, v, parents, tree_arrays[1], tree_arrays[2], tree_arrays[3], rot, pos, rot_world, vel, acc, rj)
     _rigid_forces(parents.shape[0], rigid, tree.gravity, rot_world, vel, acc, tmp, tmp2, force)
     # the arm's water on its bodies
     no_inertia = tmp6[:0, :0]  # the added inertia is in ``total``
@@ -187,18 +187,21 @@ def evaluate(q, v, tau, thrust, water_velocity, tree, vehicle, strips, work, out
         for b in range(thrust.shape[0]):
             s += allocation[a, b] * thrust[b]
         force[1, a] -= s
-    _backward_pass(tau, tree_arrays, scratch)
+    _backward_pass(
+        tau, parents, tree_arrays[3], tree_arrays[5], rot, pos, force, composite, mass, rhs, tmp, tmp2, tmp6, xm
+    )
     cholesky_solve_into(mass, rhs, out)
 
 
 @numba.njit(cache=True, inline="always")
-def _forward_pass(q, v, tree_arrays, scratch):  # pragma: no cover - compiled
+def _forward_pass(
+    q, v, parents, place_rotation, place_translation, axes, rot, pos, rot_world, vel, acc, rj
+):  # pragma: no cover
     """The bodies' placements (``rot``, ``pos`` in the parent; ``rot_world``), twists ``vel`` and
-    velocity-product accelerations ``acc`` (body frames), into ``scratch`` (:func:`workspace`).
-    Root: world placement from q; body twist = v[:6]; no velocity-product acceleration."""
-    rot, pos, rot_world, vel, acc = scratch[0], scratch[1], scratch[2], scratch[3], scratch[4]
-    rj = scratch[15]
-    parents, place_rotation, place_translation, axes = tree_arrays[0], tree_arrays[1], tree_arrays[2], tree_arrays[3]
+    velocity-product accelerations ``acc`` (body frames), into those arrays of the
+    :func:`workspace`. Root: world placement from q; body twist = v[:6]; no velocity-product
+    acceleration. The arrays come one by one, not as the workspace's tuples: unpacking a tuple
+    again here cost about 1 us of the 43 us control step (measured, bench_side_by_side.py)."""
     nj = parents.shape[0]
     rot_world[1] = quaternion_matrix(q[3], q[4], q[5], q[6])
     for i in range(6):
@@ -222,11 +225,12 @@ def _rigid_forces(nj, rigid, gravity, rot_world, vel, acc, tmp, tmp2, force):  #
 
 
 @numba.njit(cache=True, inline="always")
-def _backward_pass(tau, tree_arrays, scratch):  # pragma: no cover - compiled
+def _backward_pass(
+    tau, parents, axes, total, rot, pos, force, composite, mass, rhs, tmp, tmp2, tmp6, xm
+):  # pragma: no cover
     """RNEA's backward pass (``rhs`` = tau - bias) and the CRBA (``mass``, from the composite
-    inertias started at ``total``): the linear system of v', into ``scratch`` (:func:`workspace`)."""
-    rot, pos, rot_world, vel, acc, force, composite, mass, rhs, tmp, tmp2, tmp6, xm, frame, unused, rj = scratch
-    parents, axes, total = tree_arrays[0], tree_arrays[3], tree_arrays[5]
+    inertias started at ``total``): the linear system of v', into those arrays of the
+    :func:`workspace` (one by one, as :func:`_forward_pass`'s)."""
     nj = parents.shape[0]
     nv = rhs.shape[0]
     for a in range(nv):
