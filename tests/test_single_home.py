@@ -80,8 +80,11 @@ def test_one_double_integrator():
 
 
 def test_one_upper_triangle_mirror():
-    """``np.triu(M) + np.triu(M, 1).T`` lives in model/dynamics/fixed_order.py only."""
-    assert _modules(_hits(r"np\.triu\(", SOURCE)) == {"model/dynamics/fixed_order.py"}
+    """The mirror of an upper triangle (once ``np.triu(M) + np.triu(M, 1).T``, eight times) is
+    ``fixed_order.symmetrize`` alone: no ``np.triu`` left in src, and the mirror's loop
+    (``out[j, i] = value``) in model/dynamics/fixed_order.py only."""
+    assert _modules(_hits(r"np\.triu\(", SOURCE)) == set()
+    assert _modules(_hits(r"out\[j, i\] = value", SOURCE)) == {"model/dynamics/fixed_order.py"}
 
 
 def test_one_residual():
@@ -151,6 +154,21 @@ def test_symmetrize_mirrors_the_upper_triangle():
     full = fixed_order.symmetrize(upper)
     assert np.array_equal(full, full.T)
     assert np.array_equal(np.triu(full), np.triu(upper))
+
+
+def test_symmetrize_equals_the_triu_expression_it_replaced_bit_for_bit():
+    """The compiled mirror gives what ``np.triu(M) + np.triu(M, 1).T`` gave, signed zeros
+    included (-0.0 + 0.0 = +0.0), for C- and Fortran-ordered input (Pinocchio's M)."""
+    rng = np.random.default_rng(3)
+    for n in (1, 6, 7):
+        upper = rng.standard_normal((n, n))
+        upper[0, n - 1] = -0.0
+        upper[n // 2, n // 2] = -0.0
+        for matrix in (upper, np.asfortranarray(upper)):
+            expected = np.triu(matrix) + np.triu(matrix, 1).T
+            full = fixed_order.symmetrize(matrix)
+            assert np.array_equal(full, expected)
+            assert np.array_equal(np.signbit(full), np.signbit(expected))
 
 
 def test_both_dare_solvers_solve_the_dare_and_say_which_ran():

@@ -33,11 +33,21 @@ __all__ = [
 ]
 
 
-def symmetrize(upper: np.ndarray) -> np.ndarray:
+@numba.njit(cache=True)
+def symmetrize(upper):  # pragma: no cover - compiled
     """The symmetric matrix (n, n) whose upper triangle is ``upper``'s (its strict lower triangle
     is not read): what Pinocchio's CRBA and ABA derivatives leave in the workspace (M, M^-1).
-    Exact (each entry plus an exact zero), so it belongs here with the fixed-order algebra."""
-    return np.triu(upper) + np.triu(upper, 1).T
+    Exact: each entry plus an exact zero, as ``np.triu(upper) + np.triu(upper, 1).T`` gives it
+    (a -0.0 becomes +0.0), bit for bit (a test), at about a fifteenth of that expression's cost
+    (two ``np.triu`` calls: about 10 us for 6 x 6 on a quiet machine)."""
+    n = upper.shape[0]
+    out = np.empty((n, n))
+    for i in range(n):
+        for j in range(i, n):
+            value = upper[i, j] + 0.0
+            out[i, j] = value
+            out[j, i] = value
+    return out
 
 
 @numba.njit(cache=True)
