@@ -78,7 +78,9 @@ def test_module_entry_point_exists():
 
 
 def test_reproduce_interrupted_by_ctrl_c_resumes(tmp_path):
-    args = ["reproduce", "--quick", "--out", "out", "--workers", "2"]
+    # one noisy seed and no replicas: 28 runs instead of the quick study's 54, as many as the
+    # interrupt needs (2 finished, more left to resume)
+    args = ["reproduce", "--quick", "--seeds", "1", "--replicas", "1", "--out", "out", "--workers", "2"]
     process = start(args, tmp_path)
     runs = tmp_path / "out" / "runs"
     wait_for_files("*.npz", runs, 2, process)

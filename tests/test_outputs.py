@@ -122,7 +122,8 @@ def test_a_folder_with_results_but_no_manifest_is_refused(tmp_path):
 @pytest.mark.filterwarnings("error::RuntimeWarning")  # a 0.3 s run has no samples after 1 s: no 'Mean of empty slice'
 def test_reproduce_refuses_other_settings_overwrite_clears_the_ablation_and_the_same_command_resumes(tmp_path):
     out = tmp_path / "results"
-    short = ["--set", "duration=0.3", "--seeds", "1", "--workers", "2"]
+    # 2 replicas (the replicated rows' aggregation still runs): 142 + 32 runs instead of 250 + 56
+    short = ["--set", "duration=0.3", "--seeds", "1", "--replicas", "2", "--workers", "2"]
     full = RUNNER.invoke(app, ["reproduce", "--out", str(out), *short, "--ablation"])
     assert full.exit_code == 0, full.output
     assert (out / "ablation.md").is_file() and list((out / "runs").glob("ablation-*"))
