@@ -48,4 +48,5 @@ def test_the_iiwa14_flagship_under_the_rate_limit_stays_in_the_band():
     late = traj.t >= AFTER
     error = np.abs(traj.q_ref - traj.x[:, :n])[late]
     assert not traj.diverged
+    np.testing.assert_allclose(traj.u, traj.extra["u_command"], rtol=0, atol=1e-9)  # the drives give the command
     assert np.max(error) < BAND  # frozen estimate: 1.73 rad between 2 and 3 s (already 50 rad by 10 s)
