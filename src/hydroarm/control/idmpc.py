@@ -292,9 +292,6 @@ class InverseDynamicsMPC:
                 cfg.sqp_iterations,
             )
         self.n_gp_inputs = gp_input_size(cfg.gp_features, n)
-        if gp_config is not None:  # the most added mass the bandwidth design tolerates (delay_design)
-            dry = np.diag(arm.mass_matrix(np.zeros(n)))
-            self.added_mass_cap = dry * (cfg.inertia_margin / wet_inertia_ratio(arm) - 1.0)
         self.gp = SlidingWindowGP(self.n_gp_inputs, n, gp_config) if gp_config is not None else None
         self.estimator = self.gp  # interface.DisturbanceEstimator (None: no GP)
         # load the compiled code now, not in the first control steps (a throwaway GP: same config)
@@ -513,7 +510,7 @@ class InverseDynamicsMPC:
         shifted[n + joints, 2 * n + joints] -= step
         mean, _ = self.gp.predict(shifted, include_noise=False)
         slope = (mean[joints, joints] - mean[n + joints, joints]) / (2.0 * ADDED_MASS_STEP)
-        return np.where(np.isfinite(slope), np.clip(-slope, 0.0, self.added_mass_cap), 0.0)
+        return np.where(np.isfinite(slope), np.maximum(-slope, 0.0), 0.0)
 
     def _set_rate_disturbance(self, w_free: np.ndarray, added_mass: np.ndarray) -> None:
         """Give the rate-limited horizon QP's linearised rows the estimate at each planned
