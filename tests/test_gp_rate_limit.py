@@ -50,3 +50,14 @@ def test_the_iiwa14_flagship_under_the_rate_limit_stays_in_the_band():
     assert not traj.diverged
     np.testing.assert_allclose(traj.u, traj.extra["u_command"], rtol=0, atol=1e-9)  # the drives give the command
     assert np.max(error) < BAND  # frozen estimate: 1.73 rad between 2 and 3 s (already 50 rad by 10 s)
+
+
+def test_a_reset_forgets_the_linearised_estimate_of_the_last_run():
+    arm = load_arm("paper")
+    n = arm.n_joints
+    mpc = InverseDynamicsMPC(arm, gp_config=GPConfig())
+    mpc.drive_limits(np.zeros(n), np.full(n, 10.0))
+    mpc._set_rate_disturbance(np.ones(n), np.ones(n))
+    assert mpc.rate_qp.disturbance_model is not None
+    mpc.reset()
+    assert mpc.rate_qp.disturbance_model is None  # the next run starts from the plain frozen estimate

@@ -312,6 +312,8 @@ class InverseDynamicsMPC:
         self.drive_rate: tuple[np.ndarray, np.ndarray] | None = None  # the drives' (output, r T) for the next command
         self._pending_events: list[str] = []
         self._gp_input: np.ndarray | None = None  # the GP input of the last compute
+        if self.rate_qp is not None and self.gp is not None:  # forget the last run's linearised estimate
+            self.rate_qp.disturbance_model = self.qp.disturbance_model
 
     def drive_limits(self, output: np.ndarray, step: np.ndarray) -> None:
         """Tell the drives' rate limit for the next command: ``output`` (n,) N m, the torque the
