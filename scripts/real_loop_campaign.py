@@ -309,6 +309,24 @@ def arms_world_table(by_arm: dict[str, list[dict]], controller: str) -> str:
     return "\n".join(lines)
 
 
+def arms_rate_table(by_arm: dict[str, list[dict]], controllers: list[str] | tuple[str, ...]) -> str:
+    """The worlds with the drives' rate limit (those :func:`arms_world_table` leaves out), one row
+    per arm and world, one column per controller: E_p (rad^2), E_p / the arm's ideal loop, the
+    worst joint error after 2 s (rad); ``*`` out of the band. A run that ends far off without
+    diverging (the runner's test: a non-finite state or a joint over 1000 rad/s) shows here."""
+    lines = ["| arm | world | " + " | ".join(controllers) + " |", "|---|---|" + "---|" * len(controllers)]
+    for arm, runs in by_arm.items():
+        ideal = ideal_ep(runs)
+        worlds: dict[str, dict[str, dict]] = {}
+        for r in runs:
+            if "actuator.rate_limit" in r["overrides"] and r["controller"] in controllers:
+                worlds.setdefault(r["world"], {})[r["controller"]] = r
+        for world, by in worlds.items():
+            cells = [_cell(by.get(name), ideal.get(name), worst_error=True) for name in controllers]
+            lines.append(f"| {arm} | {world} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
 def _grid_key(by: dict[str, dict]) -> tuple[int, float, float]:
     """(sensor delay, friction scale, dropout) of a grid world's runs."""
     o = next(iter(by.values()))["overrides"]

@@ -66,6 +66,8 @@ def test_the_campaign_on_every_arm_is_its_results_file():
     page = (ROOT / "docs" / "robustness.md").read_text()
     assert script.arms_table(by_arm, ARM_CONTROLLERS) in page
     assert script.arms_world_table(by_arm, "GP-IDMPC") in page
+    assert script.arms_rate_table(by_arm, ARM_CONTROLLERS) in page
+    assert script.arms_table(by_arm, ["SMC", "MPC", "GP-MPC"]) in page  # where they ran: paper, alpha5, iiwa14
 
 
 def test_every_arm_runs_the_sweep_files_grid_and_its_own_ideal_loop():
