@@ -44,9 +44,12 @@ more, below the torque rows, on the torque's change per step and joint::
 (the differences of the torque rows, frozen or linearised: row block k minus row block k - 1, the
 first against the torque the drives give before the plan's first command acts), so the plan
 starts from what the drives give and ramps as fast as they can. Like the torque rows they couple
-the joints through M; per torque component they are per joint. The structured solver takes the
-N n torque rows only (its working set is indexed by the step of a row): with the rate rows every
-solve goes to DAQP (``rate_solves`` counts them; ``fallbacks`` does not).
+the joints through M; per torque component they are per joint. The structured solver forms
+them itself from the torque rows (:func:`~hydroarm.control.plan_qp.solve_plan_qp`, no dense
+2 N n x N n copy); DAQP gets them stacked (:func:`difference_rows`). ``rate_solver`` picks the
+solver of these solves (:data:`RATE_SOLVER` by default), ``solver`` that of the torque rows alone;
+``rate_solves`` counts the solves with rate rows. ``rate_warm`` (:data:`RATE_WARM`): a rate solve
+starts from the last one's working set, a step on.
 """
 
 from __future__ import annotations
@@ -61,6 +64,20 @@ from hydroarm.model.dynamics.nominal import NominalModel
 
 QP_SOLVERS = ("daqp", "structured")
 """The solvers of :class:`HorizonQP`: DAQP (dense) or :mod:`hydroarm.control.plan_qp` (its structure)."""
+
+
+RATE_SOLVER = "daqp"
+"""The default solver of the QPs with the drives' rate rows (module docstring)."""
+RATE_WARM = False
+"""Whether a rate solve starts from the last one's working set (module docstring)."""
+
+
+def difference_rows(rows: np.ndarray, n: int) -> np.ndarray:
+    """The rate rows (N n, N n) of the torque rows ``rows`` (N n, N n): row block k less block
+    k - 1, block 0 itself (module docstring)."""
+    difference = rows.copy()
+    difference[n:] -= rows[:-n]
+    return difference
 
 
 def allocate(mass: np.ndarray, bias: np.ndarray, acceleration: np.ndarray, limit: np.ndarray):
@@ -176,10 +193,13 @@ class HorizonQP:
     """
 
     def __init__(
-        self, arm, period, horizon, q_pos, q_vel, r_acc, p_mats, torque_limit, sqp_iterations, solver="daqp"
+        self, arm, period, horizon, q_pos, q_vel, r_acc, p_mats, torque_limit, sqp_iterations, solver="daqp",
+        rate_solver=None,
     ):  # fmt: skip
-        if solver not in QP_SOLVERS:
-            raise ValueError(f"solver = {solver!r}: must be one of {', '.join(QP_SOLVERS)}")
+        rate_solver = RATE_SOLVER if rate_solver is None else rate_solver
+        for name, value in (("solver", solver), ("rate_solver", rate_solver)):
+            if value not in QP_SOLVERS:
+                raise ValueError(f"{name} = {value!r}: must be one of {', '.join(QP_SOLVERS)}")
         self.arm = arm
         self.n = n = arm.n_joints
         self.period = float(period)
@@ -188,7 +208,10 @@ class HorizonQP:
         hessian, grad_e0, grad_c = condensed_problem(period, horizon, q_pos, q_vel, r_acc, p_mats)
         self.hessian = hessian
         self.solver = solver
-        self._factors = joint_factors(hessian, n) if solver == "structured" else None
+        self.rate_solver = rate_solver
+        self.rate_warm = RATE_WARM  # rate solves start from the last one's working set, a step on
+        self._rate_lam = None  # the last rate solve's multipliers (2 N n,)
+        self._factors = joint_factors(hessian, n) if "structured" in (solver, rate_solver) else None
         self.grad_e0 = grad_e0.reshape(horizon * n, 2 * n)
         self.grad_c = grad_c.reshape(horizon * n, 2 * horizon * n)
         self.limit = np.tile(np.asarray(torque_limit, dtype=float), horizon)
@@ -210,34 +233,58 @@ class HorizonQP:
         fill_linearised_rows(self._d_q, self._d_v, self._mass, self.period, self._rows)
         if self._factors is not None:
             size = horizon * n
-            solve_plan_qp(
-                self._factors, np.zeros(size), np.eye(size), np.ones(size), -np.ones(size),
-                np.zeros(size, dtype=np.int64), PRIMAL_TOL, DUAL_TOL, 1,
-            )  # fmt: skip
+            for rows in (size, 2 * size):  # the torque rows, and with the rate rows
+                solve_plan_qp(
+                    self._factors, np.zeros(size), np.eye(size), np.ones(rows), -np.ones(rows),
+                    np.zeros(rows, dtype=np.int64), PRIMAL_TOL, DUAL_TOL, 1,
+                )  # fmt: skip
 
     def _solve_qp(self, gradient, rows, upper, lower, lam=None):
-        """``(moves (N n,), lam (N n,), ok)`` of one QP by the configured solver, warm-started
-        from the multipliers ``lam`` of the last solve (None: cold). The structured solver hands a
-        problem it does not settle within ``N n`` iterations (as many as rows) to DAQP: measured on
-        the iiwa14 (245 rows, up to 240 active), its cost per iteration grows with the working set and
-        the longest solves took 3x DAQP's; on the paper arm no solve takes more than 112."""
-        if self._factors is not None and rows.shape[0] == gradient.shape[0]:  # the torque rows alone
-            size = gradient.shape[0]
+        """``(moves (N n,), lam, ok)`` of one QP by the configured solver, warm-started from the
+        multipliers ``lam`` of the last solve (None: cold). ``rows``: the torque rows (N n, N n);
+        ``upper``, ``lower``: their bounds (N n,), or with the rate rows' below them (2 N n,:
+        :meth:`rate_bounds`; DAQP gets the rate rows formed, the structured solver forms them itself).
+        The structured solver hands a problem it does not settle within as many iterations as rows
+        to DAQP (counted in ``fallbacks``): measured on the iiwa14 (245 rows, up to 240 active), its
+        cost per iteration grows with the working set and the longest solves took 3x DAQP's; on the
+        paper arm no torque-row solve takes more than 112."""
+        size = gradient.shape[0]
+        rated = upper.shape[0] > size
+        if (self.rate_solver if rated else self.solver) == "structured":
             try:
                 moves, new_lam, flag, _ = solve_plan_qp(
-                    self._factors, gradient, rows, upper, lower, warm_set(lam, size), PRIMAL_TOL, DUAL_TOL, size
-                )
+                    self._factors, gradient, rows, upper, lower, warm_set(lam, upper.shape[0]),
+                    PRIMAL_TOL, DUAL_TOL, upper.shape[0],
+                )  # fmt: skip
             except ZeroDivisionError:  # a zero pivot: met on the paper arm with the UR5's limits, a plan 2 steps ahead
                 flag = 0
             if int(flag) == 1 and np.all(np.isfinite(moves)) and np.all(np.isfinite(new_lam)):
                 return moves, new_lam, True
             self.fallbacks += 1  # not settled, or a working set too close to dependent rows
+        if rated:
+            rows = np.vstack([rows, difference_rows(rows, self.n)])
         sense = self._sense if rows.shape[0] == self._sense.shape[0] else self._sense_rate
         if lam is None:
             moves, _, flag, info = daqp.solve(self.hessian, gradient, rows, upper, lower, sense)
         else:
             moves, _, flag, info = daqp.solve(self.hessian, gradient, rows, upper, lower, sense, dual_start=lam)
         return np.asarray(moves), np.asarray(info["lam"]), int(flag) == 1
+
+    def _rate_warm_start(self):
+        """The working set a rate solve starts from: the last rate solve's multipliers a step on
+        (each block of N n rows shifted by n, the last step free), or None (cold: ``rate_warm``
+        off, or no solve yet)."""
+        if not self.rate_warm or self._rate_lam is None:
+            return None
+        n, size = self.n, self.horizon * self.n
+        shifted = np.zeros(2 * size)
+        shifted[: size - n] = self._rate_lam[n:size]
+        shifted[size : 2 * size - n] = self._rate_lam[size + n :]
+        return shifted
+
+    def forget(self) -> None:
+        """Drop the last rate solve's working set (a new run starts cold)."""
+        self._rate_lam = None
 
     def gradient(self, e0: np.ndarray, c: np.ndarray) -> np.ndarray:
         """``F_e vec(e0) + F_c vec(c)`` (N n,) for the errors e0 (n, 2) and defects c (N, n, 2)."""
@@ -278,19 +325,19 @@ class HorizonQP:
         :meth:`linearised_rows` with the rate rows below them (module docstring): ``rate`` =
         ``(previous (n,), step (n,))``, the drives' output before the first command acts (N m) and
         ``r T`` (N m); ``(2 N n, N n)``, ``(2 N n,)`` twice."""
+        upper, lower = self.rate_bounds(upper, lower, rate)
+        return np.vstack([rows, difference_rows(rows, self.n)]), upper, lower
+
+    def rate_bounds(self, upper, lower, rate):
+        """The bounds ``(upper, lower)`` (2 N n,) of :meth:`rate_rows`: the torque rows' and below
+        them the rate rows' (the torque rows themselves are not copied)."""
         previous, step = rate
         n = self.n
-        difference = rows.copy()
-        difference[n:] -= rows[:-n]
         change = self._base.copy()
         change[n:] -= self._base[:-n]
         change[:n] -= previous
         bound = np.tile(np.asarray(step, dtype=float), self.horizon)
-        return (
-            np.vstack([rows, difference]),
-            np.concatenate([upper, bound - change]),
-            np.concatenate([lower, -bound - change]),
-        )
+        return np.concatenate([upper, bound - change]), np.concatenate([lower, -bound - change])
 
     def solve(
         self, e0, c, q_r, v_r, a_r, mass, bias, w_hat, initial_moves=None, initial_lam=None, rate=None
@@ -315,19 +362,19 @@ class HorizonQP:
                 np.asarray(initial_moves, dtype=float), e0, c, q_r, v_r, a_r, w_hat
             )
         if rate is not None:
-            rows, upper, lower = self.rate_rows(rows, upper, lower, rate)
-            initial_lam = None  # the structured solver's working set: not with the rate rows
+            upper, lower = self.rate_bounds(upper, lower, rate)
+            initial_lam = self._rate_warm_start() if self.rate_solver == "structured" else None
             self.rate_solves += 1
-        moves, lam, ok = self._solve_qp(
-            gradient, rows, upper, lower, initial_lam if self._factors is not None else None
-        )
+        elif self.solver != "structured":
+            initial_lam = None  # DAQP's path starts cold, as it always did
+        moves, lam, ok = self._solve_qp(gradient, rows, upper, lower, initial_lam)
         if not ok:
             return None
         for _ in range(self.sqp_iterations):
             plan = np.asarray(moves).reshape(self.horizon, self.n)
             rows, upper, lower = self.linearised_rows(plan, e0, c, q_r, v_r, a_r, w_hat)
             if rate is not None:
-                rows, upper, lower = self.rate_rows(rows, upper, lower, rate)
+                upper, lower = self.rate_bounds(upper, lower, rate)
                 self.rate_solves += 1
             new, new_lam, ok = self._solve_qp(gradient, rows, upper, lower, lam)
             if not ok:
@@ -337,4 +384,6 @@ class HorizonQP:
         self.last_moves = np.asarray(moves).reshape(self.horizon, self.n)
         self.last_lam = lam
         self.last_active = bool(np.any(lam != 0.0))
+        if rate is not None:
+            self._rate_lam = lam
         return a_r[0] + np.asarray(moves[: self.n])

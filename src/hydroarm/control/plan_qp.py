@@ -41,8 +41,12 @@ PRIMAL_TOL = 1e-6
 """A constraint violated by at most this (N m, the rows' unit) does not join (DAQP's default)."""
 DUAL_TOL = 1e-12
 """A multiplier within this of zero keeps its sign (DAQP's default)."""
-SOLVED, ITERATION_LIMIT = 1, -4
-"""Exit flags, as DAQP's: 1 optimal, -4 iteration limit."""
+SOLVED, INFEASIBLE, ITERATION_LIMIT = 1, -1, -4
+"""Exit flags, as DAQP's: 1 optimal, -1 primal infeasible, -4 iteration limit."""
+DEPENDENT_TOL = 1e-10
+"""A joining row whose squared pivot in the working set's Gram factor is at most this fraction of
+its squared norm is taken as dependent on the working set (the rate rows only: a rate row is the
+difference of two torque rows)."""
 
 
 @numba.njit(cache=True)
@@ -74,12 +78,22 @@ def _moves(factors, x, moves):  # pragma: no cover - compiled
 
 @numba.njit(cache=True)
 def _row(factors, rows, r, out, work_in, work_out):  # pragma: no cover - compiled
-    """Row r of ``M = R L^-T``, whitened, into out (n, N): per joint ``L_j^-1 R[r, joint j]'``."""
+    """Row r of ``M = R L^-T``, whitened, into out (n, N): per joint ``L_j^-1 R[r, joint j]'``.
+    A row ``r >= N n`` is a rate row: torque row ``r - N n`` less the one a step before it
+    (:func:`solve_plan_qp`), formed here from the torque rows."""
     n, horizon = factors.shape[0], factors.shape[1]
-    last = r // n  # row block k touches the moves of steps 0..k
+    size = n * horizon
+    torque = r - size if r >= size else r
+    last = torque // n  # row block k touches the moves of steps 0..k
+    before = torque - n if r >= size and torque >= n else -1
     for j in range(n):
         for k in range(horizon):
-            work_in[k] = rows[r, k * n + j] if k <= last else 0.0
+            if k > last:
+                work_in[k] = 0.0
+            elif before >= 0:
+                work_in[k] = rows[torque, k * n + j] - rows[before, k * n + j]
+            else:
+                work_in[k] = rows[torque, k * n + j]
         forward_substitute(factors[j], work_in, work_out)
         for k in range(horizon):
             out[j, k] = work_out[k]
@@ -187,16 +201,22 @@ def _primal_and_most_violated(
                 total -= m_rows[p, j, k] * lam[p]
             x[j, k] = total
     _moves(factors, x, moves)
-    worst = -1
-    violation = primal_tol
-    for r in range(moves.shape[0]):
+    size = moves.shape[0]
+    for r in range(size):
         last = (r // n + 1) * n
         total = 0.0
         for i in range(last):
             total += rows[r, i] * moves[i]
         slack[r] = total
+    for r in range(size, slack.shape[0]):  # the rate rows: differences of consecutive torque rows
+        torque = r - size
+        slack[r] = slack[torque] - slack[torque - n] if torque >= n else slack[torque]
+    worst = -1
+    violation = primal_tol
+    for r in range(slack.shape[0]):
         if sign[r] != 0:
             continue
+        total = slack[r]
         if total - upper[r] > violation:
             violation, worst = total - upper[r], r
         elif lower[r] - total > violation:
@@ -220,35 +240,112 @@ def _load_working_set(factors, rows, warm, active, sign, m_rows, gram, work_in, 
 
 
 @numba.njit(cache=True)
+def _load_independent(factors, rows, warm, active, sign, m_rows, gram, chol, work_in, work_out):  # pragma: no cover
+    """:func:`_load_working_set` with the rate rows: the Gram matrix's factor appended row by row,
+    and a warm row dependent on those before it (:func:`_dependent`) left out; their count."""
+    count = 0
+    for r in range(warm.shape[0]):
+        if warm[r] == 0 or count == m_rows.shape[0]:
+            continue
+        _row(factors, rows, r, m_rows[count], work_in, work_out)
+        _gram_row(m_rows, count, gram)
+        _append_cholesky(gram, chol, count)
+        if _dependent(gram, chol, count):
+            continue
+        active[count] = r
+        sign[r] = 1 if warm[r] > 0 else -1
+        count += 1
+    return count
+
+
+@numba.njit(cache=True)
+def _dependent(gram, chol, count):  # pragma: no cover - compiled
+    """Whether row ``count`` of the working set is (to rounding) a combination of the rows before
+    it: its pivot in the Gram matrix's factor below DEPENDENT_TOL of its norm (relative, squared)."""
+    return chol[count, count] * chol[count, count] <= DEPENDENT_TOL * gram[count, count]
+
+
+@numba.njit(cache=True)
+def _drop(active, sign, lam, m_rows, chol, count, p):  # pragma: no cover - compiled
+    """Working-set member p leaves (its sign 0, the order of the others kept); the new count."""
+    sign[active[p]] = 0
+    for i in range(p, count - 1):
+        active[i] = active[i + 1]
+        lam[i] = lam[i + 1]
+        m_rows[i] = m_rows[i + 1]
+    _drop_row(chol, count, p)
+    return count - 1
+
+
+@numba.njit(cache=True)
+def _make_room(active, sign, lam, m_rows, gram, chol, count, joining, mu, dual_tol):  # pragma: no cover
+    """A joining row (sign ``joining``, whitened in ``m_rows[count]``, its Gram row computed) that
+    is a combination ``M_A' mu`` of the working set's rows (the rate row k of torque rows k and
+    k - 1): Goldfarb and Idnani's step in the dual. Its multiplier grows by t (with its sign) and
+    the working set's by ``-t joining mu``, the primal point unchanged, until the first working-set
+    multiplier reaches zero; that one leaves and the joining row takes t. Returns ``(count, t)``,
+    count -1: no member blocks (the problem is infeasible)."""
+    for p in range(count):
+        mu[p] = gram[count, p]
+    cholesky_substitute(chol[:count, :count], mu[:count], mu[:count])
+    blocking = -1
+    step = 0.0
+    for p in range(count):
+        toward = joining * mu[p]
+        if sign[active[p]] * toward > dual_tol:
+            t = lam[p] / toward
+            if blocking < 0 or t < step:
+                step, blocking = t, p
+    if blocking < 0:
+        return -1, 0.0
+    for p in range(count):
+        lam[p] -= step * joining * mu[p]
+    joined = m_rows[count].copy()
+    count = _drop(active, sign, lam, m_rows, chol, count, blocking)
+    m_rows[count] = joined
+    return count, step
+
+
+@numba.njit(cache=True)
 def solve_plan_qp(
     factors, gradient, rows, upper, lower, warm, primal_tol, dual_tol, max_iterations
 ):  # pragma: no cover - compiled
-    """``(moves (N n,), lam (N n,), flag, iterations)`` of the horizon QP (module docstring).
+    """``(moves (N n,), lam (m,), flag, iterations)`` of the horizon QP (module docstring).
 
     ``factors`` (n, N, N) from :func:`joint_factors`; ``gradient`` g (N n,); ``rows`` R (N n, N n),
-    block lower triangular in steps; ``upper``, ``lower`` (N n,); ``warm`` (N n,) int: the working
-    set to start from (+1 at the upper bound, -1 at the lower, 0 free: e.g. the signs of a last
-    solve's ``lam``). ``lam``: the multipliers of the rows (> 0 at an upper bound, < 0 at a lower),
-    as DAQP's ``info["lam"]``; ``flag``: :data:`SOLVED` or :data:`ITERATION_LIMIT`."""
+    the torque rows, block lower triangular in steps; ``upper``, ``lower`` (m,): m = N n, the
+    torque rows alone, or m = 2 N n, the torque rows and below them the rate rows ``R_k - R_{k-1}``
+    (row block k less block k - 1; block 0 itself), formed here from R (module docstring);
+    ``warm`` (m,) int: the working set to start from (+1 at the upper bound, -1 at the lower,
+    0 free: e.g. the signs of a last solve's ``lam``). ``lam``: the multipliers of the rows (> 0 at
+    an upper bound, < 0 at a lower), as DAQP's ``info["lam"]``; ``flag``: :data:`SOLVED`,
+    :data:`ITERATION_LIMIT` or :data:`INFEASIBLE`. The working set holds at most N n rows (the
+    rank of the rows); with the rate rows a joining row dependent on it first takes a member's
+    place (:func:`_make_room`)."""
     n, horizon = factors.shape[0], factors.shape[1]
     size = n * horizon
+    count_rows = upper.shape[0]
+    rated = count_rows > size
     d = np.empty((n, horizon))
     work_in = np.empty(horizon)
     work_out = np.empty(horizon)
     _whiten(factors, gradient, d, work_in, work_out)
     active = np.empty(size, dtype=np.int64)  # the working set, in order of joining
-    sign = np.zeros(size, dtype=np.int64)  # +1 / -1 / 0 per row
-    m_rows = np.empty((size, n, horizon))  # whitened rows of the working set
-    gram = np.empty((size, size))
-    chol = np.empty((size, size))
-    lam = np.zeros(size)  # multipliers of the working set, by position
-    target = np.empty(size)
-    star = np.empty(size)
+    sign = np.zeros(count_rows, dtype=np.int64)  # +1 / -1 / 0 per row
+    m_rows = np.empty((size + 1, n, horizon))  # whitened rows of the working set (and one joining)
+    gram = np.empty((size + 1, size + 1))
+    chol = np.empty((size + 1, size + 1))
+    lam = np.zeros(size + 1)  # multipliers of the working set, by position
+    target = np.empty(size + 1)
+    star = np.empty(size + 1)
     x = np.empty((n, horizon))
     moves = np.empty(size)
-    slack = np.empty(size)
-    count = _load_working_set(factors, rows, warm, active, sign, m_rows, gram, work_in, work_out)
-    _refactor(gram, count, chol)
+    slack = np.empty(count_rows)
+    if rated:
+        count = _load_independent(factors, rows, warm, active, sign, m_rows[:size], gram, chol, work_in, work_out)
+    else:
+        count = _load_working_set(factors, rows, warm, active, sign, m_rows, gram, work_in, work_out)
+        _refactor(gram, count, chol)
     iterations = 0
     flag = ITERATION_LIMIT
     while iterations < max_iterations:
@@ -265,13 +362,7 @@ def solve_plan_qp(
         if blocking >= 0:
             for p in range(count):
                 lam[p] += alpha * (star[p] - lam[p])
-            sign[active[blocking]] = 0
-            for p in range(blocking, count - 1):  # drop it from the working set, keep the order
-                active[p] = active[p + 1]
-                lam[p] = lam[p + 1]
-                m_rows[p] = m_rows[p + 1]
-            _drop_row(chol, count, blocking)
-            count -= 1
+            count = _drop(active, sign, lam, m_rows, chol, count, blocking)
             continue
         for p in range(count):
             lam[p] = star[p]
@@ -282,14 +373,24 @@ def solve_plan_qp(
             flag = SOLVED
             break
         # the most violated row joins: append its row of the Cholesky factor of M_A M_A'
-        active[count] = worst
-        sign[worst] = 1 if slack[worst] > upper[worst] else -1
+        joining = 1 if slack[worst] > upper[worst] else -1
         _row(factors, rows, worst, m_rows[count], work_in, work_out)
         _gram_row(m_rows, count, gram)
         _append_cholesky(gram, chol, count)
-        lam[count] = 0.0
+        start = 0.0
+        if rated and (count == size or _dependent(gram, chol, count)):
+            count, start = _make_room(active, sign, lam, m_rows, gram, chol, count, joining, star, dual_tol)
+            if count < 0:
+                flag = INFEASIBLE
+                count = 0
+                break
+            _gram_row(m_rows, count, gram)
+            _append_cholesky(gram, chol, count)
+        active[count] = worst
+        sign[worst] = joining
+        lam[count] = joining * start
         count += 1
-    multipliers = np.zeros(size)
+    multipliers = np.zeros(count_rows)
     for p in range(count):
         multipliers[active[p]] = lam[p]
     return moves, multipliers, flag, iterations
