@@ -210,7 +210,7 @@ class HorizonQP:
         self.solver = solver
         self.rate_solver = rate_solver
         self.rate_warm = RATE_WARM  # rate solves start from the last one's working set, a step on
-        self._rate_lam = None  # the last rate solve's multipliers (2 N n,)
+        self._rate_lams: dict[int, np.ndarray] = {}  # the last step's rate multipliers (2 N n,) by solve (0: frozen)
         self._factors = joint_factors(hessian, n) if "structured" in (solver, rate_solver) else None
         self.grad_e0 = grad_e0.reshape(horizon * n, 2 * n)
         self.grad_c = grad_c.reshape(horizon * n, 2 * horizon * n)
@@ -270,21 +270,23 @@ class HorizonQP:
             moves, _, flag, info = daqp.solve(self.hessian, gradient, rows, upper, lower, sense, dual_start=lam)
         return np.asarray(moves), np.asarray(info["lam"]), int(flag) == 1
 
-    def _rate_warm_start(self):
-        """The working set a rate solve starts from: the last rate solve's multipliers a step on
-        (each block of N n rows shifted by n, the last step free), or None (cold: ``rate_warm``
-        off, or no solve yet)."""
-        if not self.rate_warm or self._rate_lam is None:
-            return None
+    def _rate_warm_start(self, solve, fallback):
+        """The working set rate solve ``solve`` (0 the first, 1.. the SQP steps) starts from: the
+        last step's same solve's multipliers a step on (each block of N n rows shifted by n, the
+        last step free); ``fallback`` (this step's last multipliers, or None: cold) when
+        ``rate_warm`` is off, the rate solver is DAQP or there was none."""
+        last = self._rate_lams.get(solve)
+        if not self.rate_warm or self.rate_solver != "structured" or last is None:
+            return fallback
         n, size = self.n, self.horizon * self.n
         shifted = np.zeros(2 * size)
-        shifted[: size - n] = self._rate_lam[n:size]
-        shifted[size : 2 * size - n] = self._rate_lam[size + n :]
+        shifted[: size - n] = last[n:size]
+        shifted[size : 2 * size - n] = last[size + n :]
         return shifted
 
     def forget(self) -> None:
         """Drop the last rate solve's working set (a new run starts cold)."""
-        self._rate_lam = None
+        self._rate_lams.clear()
 
     def gradient(self, e0: np.ndarray, c: np.ndarray) -> np.ndarray:
         """``F_e vec(e0) + F_c vec(c)`` (N n,) for the errors e0 (n, 2) and defects c (N, n, 2)."""
@@ -363,20 +365,25 @@ class HorizonQP:
             )
         if rate is not None:
             upper, lower = self.rate_bounds(upper, lower, rate)
-            initial_lam = self._rate_warm_start() if self.rate_solver == "structured" else None
+            initial_lam = self._rate_warm_start(0, None)
             self.rate_solves += 1
         elif self.solver != "structured":
             initial_lam = None  # DAQP's path starts cold, as it always did
         moves, lam, ok = self._solve_qp(gradient, rows, upper, lower, initial_lam)
         if not ok:
             return None
+        if rate is not None:
+            self._rate_lams[0] = lam  # the next step's first solve starts from this one's working set
         for _ in range(self.sqp_iterations):
             plan = np.asarray(moves).reshape(self.horizon, self.n)
             rows, upper, lower = self.linearised_rows(plan, e0, c, q_r, v_r, a_r, w_hat)
             if rate is not None:
                 upper, lower = self.rate_bounds(upper, lower, rate)
                 self.rate_solves += 1
-            new, new_lam, ok = self._solve_qp(gradient, rows, upper, lower, lam)
+            start = lam if rate is None else self._rate_warm_start(self.last_iterations + 1, lam)
+            new, new_lam, ok = self._solve_qp(gradient, rows, upper, lower, start)
+            if ok and rate is not None:
+                self._rate_lams[self.last_iterations + 1] = new_lam
             if not ok:
                 break
             moves, lam = new, new_lam
@@ -384,6 +391,4 @@ class HorizonQP:
         self.last_moves = np.asarray(moves).reshape(self.horizon, self.n)
         self.last_lam = lam
         self.last_active = bool(np.any(lam != 0.0))
-        if rate is not None:
-            self._rate_lam = lam
         return a_r[0] + np.asarray(moves[: self.n])

@@ -172,17 +172,22 @@ def _append_cholesky(gram, chol, count):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True)
-def _unconstrained_multipliers(active, sign, upper, lower, m_rows, d, chol, count, target, star):  # pragma: no cover
-    """``star`` = lambda* = -(M_A M_A')^-1 (b_A + M_A d) of the working set (in place), on the Gram
-    matrix's factor ``chol`` (:func:`~hydroarm.model.dynamics.fixed_order.cholesky_substitute`)."""
+def _member_target(m_row, bound, d):  # pragma: no cover - compiled
+    """A working-set row's entry of ``-(b_A + M_A d)`` (:func:`_unconstrained_multipliers`): fixed
+    while it is a member (d does not change within a solve), so computed once as it joins."""
     n, horizon = d.shape
-    for p in range(count):
-        r = active[p]
-        total = upper[r] if sign[r] > 0 else lower[r]
-        for j in range(n):
-            for k in range(horizon):
-                total += m_rows[p, j, k] * d[j, k]
-        target[p] = -total
+    total = bound
+    for j in range(n):
+        for k in range(horizon):
+            total += m_row[j, k] * d[j, k]
+    return -total
+
+
+@numba.njit(cache=True)
+def _unconstrained_multipliers(chol, count, target, star):  # pragma: no cover
+    """``star`` = lambda* = -(M_A M_A')^-1 (b_A + M_A d) of the working set (in place), on the Gram
+    matrix's factor ``chol`` (:func:`~hydroarm.model.dynamics.fixed_order.cholesky_substitute`);
+    ``target`` holds each member's ``-(b_r + m_r d)`` (:func:`_member_target`)."""
     cholesky_substitute(chol[:count, :count], target[:count], star[:count])
 
 
@@ -225,35 +230,40 @@ def _primal_and_most_violated(
 
 
 @numba.njit(cache=True)
-def _load_working_set(factors, rows, warm, active, sign, m_rows, gram, work_in, work_out):  # pragma: no cover
+def _load_working_set(factors, rows, warm, bounds, active, sign, m_rows, gram, target, work):  # pragma: no cover
     """The warm working set's rows (``warm``: +1 upper, -1 lower, 0 free) into ``active``,
-    ``sign``, ``m_rows`` and the Gram matrix; their count."""
+    ``sign``, ``m_rows``, the Gram matrix and ``target`` (:func:`_member_target`; ``bounds`` =
+    (upper, lower, d), ``work`` = (work_in, work_out)); their count."""
+    upper, lower, d = bounds
     count = 0
     for r in range(warm.shape[0]):
         if warm[r] != 0:
             active[count] = r
             sign[r] = 1 if warm[r] > 0 else -1
-            _row(factors, rows, r, m_rows[count], work_in, work_out)
+            _row(factors, rows, r, m_rows[count], work[0], work[1])
             _gram_row(m_rows, count, gram)
+            target[count] = _member_target(m_rows[count], upper[r] if sign[r] > 0 else lower[r], d)
             count += 1
     return count
 
 
 @numba.njit(cache=True)
-def _load_independent(factors, rows, warm, active, sign, m_rows, gram, chol, work_in, work_out):  # pragma: no cover
+def _load_independent(factors, rows, warm, bounds, active, sign, m_rows, gram, chol, target, work):  # pragma: no cover
     """:func:`_load_working_set` with the rate rows: the Gram matrix's factor appended row by row,
     and a warm row dependent on those before it (:func:`_dependent`) left out; their count."""
+    upper, lower, d = bounds
     count = 0
     for r in range(warm.shape[0]):
         if warm[r] == 0 or count == m_rows.shape[0]:
             continue
-        _row(factors, rows, r, m_rows[count], work_in, work_out)
+        _row(factors, rows, r, m_rows[count], work[0], work[1])
         _gram_row(m_rows, count, gram)
         _append_cholesky(gram, chol, count)
         if _dependent(gram, chol, count):
             continue
         active[count] = r
         sign[r] = 1 if warm[r] > 0 else -1
+        target[count] = _member_target(m_rows[count], upper[r] if sign[r] > 0 else lower[r], d)
         count += 1
     return count
 
@@ -266,19 +276,20 @@ def _dependent(gram, chol, count):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True)
-def _drop(active, sign, lam, m_rows, chol, count, p):  # pragma: no cover - compiled
+def _drop(active, sign, lam, target, m_rows, chol, count, p):  # pragma: no cover - compiled
     """Working-set member p leaves (its sign 0, the order of the others kept); the new count."""
     sign[active[p]] = 0
     for i in range(p, count - 1):
         active[i] = active[i + 1]
         lam[i] = lam[i + 1]
+        target[i] = target[i + 1]
         m_rows[i] = m_rows[i + 1]
     _drop_row(chol, count, p)
     return count - 1
 
 
 @numba.njit(cache=True)
-def _make_room(active, sign, lam, m_rows, gram, chol, count, joining, mu, dual_tol):  # pragma: no cover
+def _make_room(active, sign, lam, target, m_rows, gram, chol, count, joining, mu, dual_tol):  # pragma: no cover
     """A joining row (sign ``joining``, whitened in ``m_rows[count]``, its Gram row computed) that
     is a combination ``M_A' mu`` of the working set's rows (the rate row k of torque rows k and
     k - 1): Goldfarb and Idnani's step in the dual. Its multiplier grows by t (with its sign) and
@@ -301,7 +312,7 @@ def _make_room(active, sign, lam, m_rows, gram, chol, count, joining, mu, dual_t
     for p in range(count):
         lam[p] -= step * joining * mu[p]
     joined = m_rows[count].copy()
-    count = _drop(active, sign, lam, m_rows, chol, count, blocking)
+    count = _drop(active, sign, lam, target, m_rows, chol, count, blocking)
     m_rows[count] = joined
     return count, step
 
@@ -341,16 +352,17 @@ def solve_plan_qp(
     x = np.empty((n, horizon))
     moves = np.empty(size)
     slack = np.empty(count_rows)
+    bounds, work = (upper, lower, d), (work_in, work_out)
     if rated:
-        count = _load_independent(factors, rows, warm, active, sign, m_rows[:size], gram, chol, work_in, work_out)
+        count = _load_independent(factors, rows, warm, bounds, active, sign, m_rows[:size], gram, chol, target, work)
     else:
-        count = _load_working_set(factors, rows, warm, active, sign, m_rows, gram, work_in, work_out)
+        count = _load_working_set(factors, rows, warm, bounds, active, sign, m_rows, gram, target, work)
         _refactor(gram, count, chol)
     iterations = 0
     flag = ITERATION_LIMIT
     while iterations < max_iterations:
         iterations += 1
-        _unconstrained_multipliers(active, sign, upper, lower, m_rows, d, chol, count, target, star)
+        _unconstrained_multipliers(chol, count, target, star)
         blocking = -1
         alpha = 1.0
         for p in range(count):  # the first multiplier to change sign on the way to lambda*
@@ -362,7 +374,7 @@ def solve_plan_qp(
         if blocking >= 0:
             for p in range(count):
                 lam[p] += alpha * (star[p] - lam[p])
-            count = _drop(active, sign, lam, m_rows, chol, count, blocking)
+            count = _drop(active, sign, lam, target, m_rows, chol, count, blocking)
             continue
         for p in range(count):
             lam[p] = star[p]
@@ -379,7 +391,7 @@ def solve_plan_qp(
         _append_cholesky(gram, chol, count)
         start = 0.0
         if rated and (count == size or _dependent(gram, chol, count)):
-            count, start = _make_room(active, sign, lam, m_rows, gram, chol, count, joining, star, dual_tol)
+            count, start = _make_room(active, sign, lam, target, m_rows, gram, chol, count, joining, star, dual_tol)
             if count < 0:
                 flag = INFEASIBLE
                 count = 0
@@ -388,6 +400,7 @@ def solve_plan_qp(
             _append_cholesky(gram, chol, count)
         active[count] = worst
         sign[worst] = joining
+        target[count] = _member_target(m_rows[count], upper[worst] if joining > 0 else lower[worst], d)
         lam[count] = joining * start
         count += 1
     multipliers = np.zeros(count_rows)
