@@ -68,7 +68,7 @@ QP_SOLVERS = ("daqp", "structured")
 
 RATE_SOLVER = "daqp"
 """The default solver of the QPs with the drives' rate rows (module docstring)."""
-RATE_WARM = False
+RATE_WARM = True
 """Whether a rate solve starts from the last one's working set (module docstring)."""
 
 

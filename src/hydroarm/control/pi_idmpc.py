@@ -204,6 +204,8 @@ class PhysicsInformedIDMPC:
     def reset(self) -> None:
         """Forget the run: the model goes back to the loaded one (or its prior), the observer to zero."""
         self.mpc.reset()
+        if self.planner is not None:
+            self.planner.forget()  # the rate solves' last working set
         self.model.reset()
         if self._loaded is not None:
             theta, covariance, samples = self._loaded
