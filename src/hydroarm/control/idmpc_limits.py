@@ -69,6 +69,10 @@ QP_SOLVERS = ("daqp", "structured")
 RATE_SOLVER = "daqp"
 """The default solver of the QPs with the drives' rate rows (module docstring)."""
 RATE_WARM = True
+RATE_ITERATIONS = 4
+"""The structured solver's iteration limit with the rate rows, per row (2 N n rows): their
+problems churn (rows join and leave again); a cold 8-step paper-arm plan from a 2 rad start-up
+took 283 iterations for 48 active rows (DAQP 185), more than the torque rows' limit of one per row."""
 """Whether a rate solve starts from the last one's working set (module docstring)."""
 
 
@@ -245,16 +249,17 @@ class HorizonQP:
         ``upper``, ``lower``: their bounds (N n,), or with the rate rows' below them (2 N n,:
         :meth:`rate_bounds`; DAQP gets the rate rows formed, the structured solver forms them itself).
         The structured solver hands a problem it does not settle within as many iterations as rows
-        to DAQP (counted in ``fallbacks``): measured on the iiwa14 (245 rows, up to 240 active), its
-        cost per iteration grows with the working set and the longest solves took 3x DAQP's; on the
-        paper arm no torque-row solve takes more than 112."""
+        (:data:`RATE_ITERATIONS` per row with the rate rows) to DAQP (counted in ``fallbacks``):
+        measured on the iiwa14 (245 rows, up to 240 active), its cost per iteration grows with the
+        working set and the longest solves took 3x DAQP's; on the paper arm no torque-row solve
+        takes more than 112."""
         size = gradient.shape[0]
         rated = upper.shape[0] > size
         if (self.rate_solver if rated else self.solver) == "structured":
             try:
                 moves, new_lam, flag, _ = solve_plan_qp(
                     self._factors, gradient, rows, upper, lower, warm_set(lam, upper.shape[0]),
-                    PRIMAL_TOL, DUAL_TOL, upper.shape[0],
+                    PRIMAL_TOL, DUAL_TOL, RATE_ITERATIONS * upper.shape[0] if rated else size,
                 )  # fmt: skip
             except ZeroDivisionError:  # a zero pivot: met on the paper arm with the UR5's limits, a plan 2 steps ahead
                 flag = 0
