@@ -66,8 +66,10 @@ QP_SOLVERS = ("daqp", "structured")
 """The solvers of :class:`HorizonQP`: DAQP (dense) or :mod:`hydroarm.control.plan_qp` (its structure)."""
 
 
-RATE_SOLVER = "daqp"
-"""The default solver of the QPs with the drives' rate rows (module docstring)."""
+RATE_SOLVER = "structured"
+"""The default solver of the QPs with the drives' rate rows (module docstring): the structured one,
+measured faster at the median, p99 and max step in IDMPC's, GP-IDMPC's and PI-IDMPC's rate-limited
+runs (bench part ``rate``, docs/controllers.md); DAQP stays the torque rows' default (``solver``)."""
 RATE_WARM = True
 RATE_ITERATIONS = 4
 """The structured solver's iteration limit with the rate rows, per row (2 N n rows): their

@@ -25,6 +25,15 @@ does not join; a multiplier within ``dual_tol`` of zero keeps its sign), so both
 the same working set and agree to rounding (tests/test_plan_qp.py: 1e-9 against DAQP on the
 planner's problems and random ones, and SciPy as an independent oracle).
 
+With the drives' rate rows (issue 32) the rows are 2 N n: below the torque rows their
+differences ``R_k - R_{k-1}`` (row block k less block k - 1), block lower triangular too, formed
+here from R when a row joins (its whitened row) or is checked (its value from the torque rows'),
+never as a dense copy. The working set stays at most N n rows: a joining row dependent on it
+(a rate row with both its torque rows active) first takes a member's place by Goldfarb and
+Idnani's step in the dual, and the final multipliers get :data:`REFINEMENTS` steps of iterative
+refinement (the Gram matrix of such working sets reaches condition numbers of 1e13). The torque
+rows alone run the same arithmetic as before the rate rows (the same bits).
+
 Every kernel is a fixed-order loop (numba, no BLAS): the same bits on every machine.
 """
 
