@@ -212,10 +212,12 @@ def _primal_and_most_violated(
     n, horizon = d.shape
     for j in range(n):
         for k in range(horizon):
-            total = -d[j, k]
-            for p in range(count):
-                total -= m_rows[p, j, k] * lam[p]
-            x[j, k] = total
+            x[j, k] = -d[j, k]
+    for p in range(count):  # each x[j, k] sums its terms in the same order, the rows read contiguously
+        weight = lam[p]
+        for j in range(n):
+            for k in range(horizon):
+                x[j, k] -= m_rows[p, j, k] * weight
     _moves(factors, x, moves)
     size = moves.shape[0]
     for r in range(size):
