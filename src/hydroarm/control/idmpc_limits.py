@@ -356,14 +356,16 @@ class HorizonQP:
         ``e0`` (n, 2), ``c`` (N, n, 2), ``q_r, v_r`` (>= N, n), ``a_r`` (N, n): the outer
         problem; ``mass`` (n, n), ``bias`` = h - w_hat (n,) at the current state; ``w_hat`` (n,).
         ``initial_moves`` (N, n): a plan to linearise about first (a warm start: the frozen
-        solve is skipped), or None. ``initial_lam`` (N n,): the working set to start the first
-        solve from (the signs of a last plan's multipliers, shifted; the structured solver only:
-        DAQP's path starts cold as it always did). The whole plan's moves (N n) are left in
-        ``last_moves``, its multipliers in ``last_lam``, whether a torque row is active in
-        ``last_active``. ``rate``: ``(previous (n,), step (n,))`` N m, the drives' rate rows
+        solve is skipped), or None. ``initial_lam`` (N n,; 2 N n with the rate rows, each block
+        shifted): the working set to start the first solve from (the signs of a last plan's
+        multipliers, shifted; the structured solver only: DAQP's path starts cold as it always
+        did); with the rate rows and none given, the last step's own (``rate_warm``). The whole
+        plan's moves (N n) are left in ``last_moves``, its multipliers in ``last_lam``, whether a
+        torque row is active in ``last_active``. ``rate``: ``(previous (n,), step (n,))`` N m, the drives' rate rows
         (:meth:`rate_rows`), or None (none: the torque rows alone, as without a rate limit)."""
         gradient = self.gradient(e0, c)
         self.last_iterations = 0
+        given = False
         if initial_moves is None:
             rows, upper, lower = self.frozen_rows(mass, bias, a_r)
         else:
@@ -372,7 +374,8 @@ class HorizonQP:
             )
         if rate is not None:
             upper, lower = self.rate_bounds(upper, lower, rate)
-            initial_lam = self._rate_warm_start(0, None)
+            given = initial_lam is not None and initial_lam.shape[0] == upper.shape[0]  # a caller's, shifted
+            initial_lam = initial_lam if given and self.rate_solver == "structured" else self._rate_warm_start(0, None)
             self.rate_solves += 1
         elif self.solver != "structured":
             initial_lam = None  # DAQP's path starts cold, as it always did
@@ -387,7 +390,7 @@ class HorizonQP:
             if rate is not None:
                 upper, lower = self.rate_bounds(upper, lower, rate)
                 self.rate_solves += 1
-            start = lam if rate is None else self._rate_warm_start(self.last_iterations + 1, lam)
+            start = lam if rate is None or given else self._rate_warm_start(self.last_iterations + 1, lam)
             new, new_lam, ok = self._solve_qp(gradient, rows, upper, lower, start)
             if ok and rate is not None:
                 self._rate_lams[self.last_iterations + 1] = new_lam
