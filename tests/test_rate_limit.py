@@ -61,13 +61,17 @@ def _quadprog_plan(qp: HorizonQP, gradient, mass, bias, a_r, previous, step):
     return moves, rows, base
 
 
-def test_the_rate_rows_plan_agrees_with_quadprog_and_ramps_from_the_drives_output():
+@pytest.mark.parametrize("rate_solver", ["daqp", "structured"])
+def test_the_rate_rows_plan_agrees_with_quadprog_and_ramps_from_the_drives_output(rate_solver):
     arm = load_arm("paper")
     controller = InverseDynamicsMPC(arm)
     n, horizon = arm.n_joints, 8
     p = controller.P
     weights = np.full(n, 300.0), np.full(n, 0.01)
-    qp = HorizonQP(arm, PERIOD, horizon, *weights, controller.r_acceleration, p, controller.torque_limit, 0)
+    qp = HorizonQP(
+        arm, PERIOD, horizon, *weights, controller.r_acceleration, p, controller.torque_limit, 0,
+        rate_solver=rate_solver,
+    )  # fmt: skip
     rng = np.random.default_rng(0)
     q = rng.uniform(-1, 1, n)
     mass = controller.nominal.mass_matrix(q)
@@ -79,7 +83,7 @@ def test_the_rate_rows_plan_agrees_with_quadprog_and_ramps_from_the_drives_outpu
     previous = rng.uniform(-50, 50, n)
     step = np.full(n, RATE * PERIOD)
     first = qp.solve(e0, c, q_r, v_r, a_r, mass, bias, np.zeros(n), rate=(previous, step))
-    assert first is not None and qp.rate_solves == 1
+    assert first is not None and qp.rate_solves == 1 and qp.fallbacks == 0
     moves = qp.last_moves.ravel()
     reference, rows, base = _quadprog_plan(qp, qp.gradient(e0, c), mass, bias, a_r, previous, step)
     np.testing.assert_allclose(moves, reference, atol=1e-5 * np.abs(reference).max())

@@ -15,6 +15,8 @@ solver against DAQP side by side.
   structured solver (:mod:`hydroarm.control.plan_qp`) from the same warm starts: per-solve
   median / p99 / max, their ratios (DAQP over structured: > 1 is faster), and the largest
   difference of the plans (relative to the largest move).
+- ``rate``: the rate-limited horizon QP of IDMPC, GP-IDMPC and PI-IDMPC, structured solver
+  against DAQP (:mod:`hydroarm_bench.rate_qp`).
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from hydroarm_bench.loop import TimedController, paper_experiment
+from hydroarm_bench.rate_qp import bench_rate_qp, render_rate_qp
 from hydroarm_bench.stats import stats_ms
 
 NAME = "PI-IDMPC"
@@ -290,9 +293,10 @@ def bench_plan_solver(quick: bool) -> dict:
 
 
 def bench_planner(quick: bool) -> dict:
-    """The section: ``{"step": ..., "beside": ..., "solver": ...}``."""
+    """The section: ``{"step": ..., "beside": ..., "solver": ..., "rate": ...}`` (``rate``:
+    :mod:`hydroarm_bench.rate_qp`)."""
     step, beside = bench_planner_step(quick), bench_planner_beside(quick)
-    return {"step": step, "beside": beside, "solver": bench_plan_solver(quick)}
+    return {"step": step, "beside": beside, "solver": bench_plan_solver(quick), "rate": bench_rate_qp(quick)}
 
 
 def _render_breakdown(breakdown: dict) -> list[str]:
@@ -416,4 +420,5 @@ def render_planner(section: dict) -> str:
         f"largest plan difference {solver['max_relative_plan_difference']:.1e} (relative), same active set in "
         f"{solver['same_active_set']} of {solver['problems']}.\n"
     )
+    lines += render_rate_qp(section.get("rate"))
     return "\n".join(lines)

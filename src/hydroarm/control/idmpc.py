@@ -305,9 +305,11 @@ class InverseDynamicsMPC:
         self.reset()
 
     def reset(self) -> None:
-        """Forget the GP window and the counters."""
+        """Forget the GP window, the counters and the rate QP's last working set."""
         if self.gp is not None:
             self.gp.reset()
+        if getattr(self, "rate_qp", None) is not None:
+            self.rate_qp.forget()
         self.saturated_steps = 0
         self.drive_rate: tuple[np.ndarray, np.ndarray] | None = None  # the drives' (output, r T) for the next command
         self._pending_events: list[str] = []

@@ -44,9 +44,12 @@ more, below the torque rows, on the torque's change per step and joint::
 (the differences of the torque rows, frozen or linearised: row block k minus row block k - 1, the
 first against the torque the drives give before the plan's first command acts), so the plan
 starts from what the drives give and ramps as fast as they can. Like the torque rows they couple
-the joints through M; per torque component they are per joint. The structured solver takes the
-N n torque rows only (its working set is indexed by the step of a row): with the rate rows every
-solve goes to DAQP (``rate_solves`` counts them; ``fallbacks`` does not).
+the joints through M; per torque component they are per joint. The structured solver forms
+them itself from the torque rows (:func:`~hydroarm.control.plan_qp.solve_plan_qp`, no dense
+2 N n x N n copy); DAQP gets them stacked (:func:`difference_rows`). ``rate_solver`` picks the
+solver of these solves (:data:`RATE_SOLVER` by default), ``solver`` that of the torque rows alone;
+``rate_solves`` counts the solves with rate rows. ``rate_warm`` (:data:`RATE_WARM`): a rate solve
+starts from the last one's working set, a step on.
 """
 
 from __future__ import annotations
@@ -61,6 +64,26 @@ from hydroarm.model.dynamics.nominal import NominalModel
 
 QP_SOLVERS = ("daqp", "structured")
 """The solvers of :class:`HorizonQP`: DAQP (dense) or :mod:`hydroarm.control.plan_qp` (its structure)."""
+
+
+RATE_SOLVER = "structured"
+"""The default solver of the QPs with the drives' rate rows (module docstring): the structured one,
+measured faster at the median, p99 and max step in IDMPC's, GP-IDMPC's and PI-IDMPC's rate-limited
+runs (bench part ``rate``, docs/controllers.md); DAQP stays the torque rows' default (``solver``)."""
+RATE_WARM = True
+RATE_ITERATIONS = 4
+"""The structured solver's iteration limit with the rate rows, per row (2 N n rows): their
+problems churn (rows join and leave again); a cold 8-step paper-arm plan from a 2 rad start-up
+took 283 iterations for 48 active rows (DAQP 185), more than the torque rows' limit of one per row."""
+"""Whether a rate solve starts from the last one's working set (module docstring)."""
+
+
+def difference_rows(rows: np.ndarray, n: int) -> np.ndarray:
+    """The rate rows (N n, N n) of the torque rows ``rows`` (N n, N n): row block k less block
+    k - 1, block 0 itself (module docstring)."""
+    difference = rows.copy()
+    difference[n:] -= rows[:-n]
+    return difference
 
 
 def allocate(mass: np.ndarray, bias: np.ndarray, acceleration: np.ndarray, limit: np.ndarray):
@@ -176,10 +199,13 @@ class HorizonQP:
     """
 
     def __init__(
-        self, arm, period, horizon, q_pos, q_vel, r_acc, p_mats, torque_limit, sqp_iterations, solver="daqp"
+        self, arm, period, horizon, q_pos, q_vel, r_acc, p_mats, torque_limit, sqp_iterations, solver="daqp",
+        rate_solver=None,
     ):  # fmt: skip
-        if solver not in QP_SOLVERS:
-            raise ValueError(f"solver = {solver!r}: must be one of {', '.join(QP_SOLVERS)}")
+        rate_solver = RATE_SOLVER if rate_solver is None else rate_solver
+        for name, value in (("solver", solver), ("rate_solver", rate_solver)):
+            if value not in QP_SOLVERS:
+                raise ValueError(f"{name} = {value!r}: must be one of {', '.join(QP_SOLVERS)}")
         self.arm = arm
         self.n = n = arm.n_joints
         self.period = float(period)
@@ -188,7 +214,10 @@ class HorizonQP:
         hessian, grad_e0, grad_c = condensed_problem(period, horizon, q_pos, q_vel, r_acc, p_mats)
         self.hessian = hessian
         self.solver = solver
-        self._factors = joint_factors(hessian, n) if solver == "structured" else None
+        self.rate_solver = rate_solver
+        self.rate_warm = RATE_WARM  # rate solves start from the last one's working set, a step on
+        self._rate_lams: dict[int, np.ndarray] = {}  # the last step's rate multipliers (2 N n,) by solve (0: frozen)
+        self._factors = joint_factors(hessian, n) if "structured" in (solver, rate_solver) else None
         self.grad_e0 = grad_e0.reshape(horizon * n, 2 * n)
         self.grad_c = grad_c.reshape(horizon * n, 2 * horizon * n)
         self.limit = np.tile(np.asarray(torque_limit, dtype=float), horizon)
@@ -210,34 +239,61 @@ class HorizonQP:
         fill_linearised_rows(self._d_q, self._d_v, self._mass, self.period, self._rows)
         if self._factors is not None:
             size = horizon * n
-            solve_plan_qp(
-                self._factors, np.zeros(size), np.eye(size), np.ones(size), -np.ones(size),
-                np.zeros(size, dtype=np.int64), PRIMAL_TOL, DUAL_TOL, 1,
-            )  # fmt: skip
+            for rows in (size, 2 * size):  # the torque rows, and with the rate rows
+                solve_plan_qp(
+                    self._factors, np.zeros(size), np.eye(size), np.ones(rows), -np.ones(rows),
+                    np.zeros(rows, dtype=np.int64), PRIMAL_TOL, DUAL_TOL, 1,
+                )  # fmt: skip
 
     def _solve_qp(self, gradient, rows, upper, lower, lam=None):
-        """``(moves (N n,), lam (N n,), ok)`` of one QP by the configured solver, warm-started
-        from the multipliers ``lam`` of the last solve (None: cold). The structured solver hands a
-        problem it does not settle within ``N n`` iterations (as many as rows) to DAQP: measured on
-        the iiwa14 (245 rows, up to 240 active), its cost per iteration grows with the working set and
-        the longest solves took 3x DAQP's; on the paper arm no solve takes more than 112."""
-        if self._factors is not None and rows.shape[0] == gradient.shape[0]:  # the torque rows alone
-            size = gradient.shape[0]
+        """``(moves (N n,), lam, ok)`` of one QP by the configured solver, warm-started from the
+        multipliers ``lam`` of the last solve (None: cold). ``rows``: the torque rows (N n, N n);
+        ``upper``, ``lower``: their bounds (N n,), or with the rate rows' below them (2 N n,:
+        :meth:`rate_bounds`; DAQP gets the rate rows formed, the structured solver forms them itself).
+        The structured solver hands a problem it does not settle within as many iterations as rows
+        (:data:`RATE_ITERATIONS` per row with the rate rows) to DAQP (counted in ``fallbacks``):
+        measured on the iiwa14 (245 rows, up to 240 active), its cost per iteration grows with the
+        working set and the longest solves took 3x DAQP's; on the paper arm no torque-row solve
+        takes more than 112."""
+        size = gradient.shape[0]
+        rated = upper.shape[0] > size
+        if (self.rate_solver if rated else self.solver) == "structured":
             try:
                 moves, new_lam, flag, _ = solve_plan_qp(
-                    self._factors, gradient, rows, upper, lower, warm_set(lam, size), PRIMAL_TOL, DUAL_TOL, size
-                )
+                    self._factors, gradient, rows, upper, lower, warm_set(lam, upper.shape[0]),
+                    PRIMAL_TOL, DUAL_TOL, RATE_ITERATIONS * upper.shape[0] if rated else size,
+                )  # fmt: skip
             except ZeroDivisionError:  # a zero pivot: met on the paper arm with the UR5's limits, a plan 2 steps ahead
                 flag = 0
             if int(flag) == 1 and np.all(np.isfinite(moves)) and np.all(np.isfinite(new_lam)):
                 return moves, new_lam, True
             self.fallbacks += 1  # not settled, or a working set too close to dependent rows
+        if rated:
+            rows = np.vstack([rows, difference_rows(rows, self.n)])
         sense = self._sense if rows.shape[0] == self._sense.shape[0] else self._sense_rate
         if lam is None:
             moves, _, flag, info = daqp.solve(self.hessian, gradient, rows, upper, lower, sense)
         else:
             moves, _, flag, info = daqp.solve(self.hessian, gradient, rows, upper, lower, sense, dual_start=lam)
         return np.asarray(moves), np.asarray(info["lam"]), int(flag) == 1
+
+    def _rate_warm_start(self, solve, fallback):
+        """The working set rate solve ``solve`` (0 the first, 1.. the SQP steps) starts from: the
+        last step's same solve's multipliers a step on (each block of N n rows shifted by n, the
+        last step free); ``fallback`` (this step's last multipliers, or None: cold) when
+        ``rate_warm`` is off, the rate solver is DAQP or there was none."""
+        last = self._rate_lams.get(solve)
+        if not self.rate_warm or self.rate_solver != "structured" or last is None:
+            return fallback
+        n, size = self.n, self.horizon * self.n
+        shifted = np.zeros(2 * size)
+        shifted[: size - n] = last[n:size]
+        shifted[size : 2 * size - n] = last[size + n :]
+        return shifted
+
+    def forget(self) -> None:
+        """Drop the last rate solve's working set (a new run starts cold)."""
+        self._rate_lams.clear()
 
     def gradient(self, e0: np.ndarray, c: np.ndarray) -> np.ndarray:
         """``F_e vec(e0) + F_c vec(c)`` (N n,) for the errors e0 (n, 2) and defects c (N, n, 2)."""
@@ -278,19 +334,19 @@ class HorizonQP:
         :meth:`linearised_rows` with the rate rows below them (module docstring): ``rate`` =
         ``(previous (n,), step (n,))``, the drives' output before the first command acts (N m) and
         ``r T`` (N m); ``(2 N n, N n)``, ``(2 N n,)`` twice."""
+        upper, lower = self.rate_bounds(upper, lower, rate)
+        return np.vstack([rows, difference_rows(rows, self.n)]), upper, lower
+
+    def rate_bounds(self, upper, lower, rate):
+        """The bounds ``(upper, lower)`` (2 N n,) of :meth:`rate_rows`: the torque rows' and below
+        them the rate rows' (the torque rows themselves are not copied)."""
         previous, step = rate
         n = self.n
-        difference = rows.copy()
-        difference[n:] -= rows[:-n]
         change = self._base.copy()
         change[n:] -= self._base[:-n]
         change[:n] -= previous
         bound = np.tile(np.asarray(step, dtype=float), self.horizon)
-        return (
-            np.vstack([rows, difference]),
-            np.concatenate([upper, bound - change]),
-            np.concatenate([lower, -bound - change]),
-        )
+        return np.concatenate([upper, bound - change]), np.concatenate([lower, -bound - change])
 
     def solve(
         self, e0, c, q_r, v_r, a_r, mass, bias, w_hat, initial_moves=None, initial_lam=None, rate=None
@@ -300,14 +356,16 @@ class HorizonQP:
         ``e0`` (n, 2), ``c`` (N, n, 2), ``q_r, v_r`` (>= N, n), ``a_r`` (N, n): the outer
         problem; ``mass`` (n, n), ``bias`` = h - w_hat (n,) at the current state; ``w_hat`` (n,).
         ``initial_moves`` (N, n): a plan to linearise about first (a warm start: the frozen
-        solve is skipped), or None. ``initial_lam`` (N n,): the working set to start the first
-        solve from (the signs of a last plan's multipliers, shifted; the structured solver only:
-        DAQP's path starts cold as it always did). The whole plan's moves (N n) are left in
-        ``last_moves``, its multipliers in ``last_lam``, whether a torque row is active in
-        ``last_active``. ``rate``: ``(previous (n,), step (n,))`` N m, the drives' rate rows
+        solve is skipped), or None. ``initial_lam`` (N n,; 2 N n with the rate rows, each block
+        shifted): the working set to start the first solve from (the signs of a last plan's
+        multipliers, shifted; the structured solver only: DAQP's path starts cold as it always
+        did); with the rate rows and none given, the last step's own (``rate_warm``). The whole
+        plan's moves (N n) are left in ``last_moves``, its multipliers in ``last_lam``, whether a
+        torque row is active in ``last_active``. ``rate``: ``(previous (n,), step (n,))`` N m, the drives' rate rows
         (:meth:`rate_rows`), or None (none: the torque rows alone, as without a rate limit)."""
         gradient = self.gradient(e0, c)
         self.last_iterations = 0
+        given = False
         if initial_moves is None:
             rows, upper, lower = self.frozen_rows(mass, bias, a_r)
         else:
@@ -315,21 +373,27 @@ class HorizonQP:
                 np.asarray(initial_moves, dtype=float), e0, c, q_r, v_r, a_r, w_hat
             )
         if rate is not None:
-            rows, upper, lower = self.rate_rows(rows, upper, lower, rate)
-            initial_lam = None  # the structured solver's working set: not with the rate rows
+            upper, lower = self.rate_bounds(upper, lower, rate)
+            given = initial_lam is not None and initial_lam.shape[0] == upper.shape[0]  # a caller's, shifted
+            initial_lam = initial_lam if given and self.rate_solver == "structured" else self._rate_warm_start(0, None)
             self.rate_solves += 1
-        moves, lam, ok = self._solve_qp(
-            gradient, rows, upper, lower, initial_lam if self._factors is not None else None
-        )
+        elif self.solver != "structured":
+            initial_lam = None  # DAQP's path starts cold, as it always did
+        moves, lam, ok = self._solve_qp(gradient, rows, upper, lower, initial_lam)
         if not ok:
             return None
+        if rate is not None:
+            self._rate_lams[0] = lam  # the next step's first solve starts from this one's working set
         for _ in range(self.sqp_iterations):
             plan = np.asarray(moves).reshape(self.horizon, self.n)
             rows, upper, lower = self.linearised_rows(plan, e0, c, q_r, v_r, a_r, w_hat)
             if rate is not None:
-                rows, upper, lower = self.rate_rows(rows, upper, lower, rate)
+                upper, lower = self.rate_bounds(upper, lower, rate)
                 self.rate_solves += 1
-            new, new_lam, ok = self._solve_qp(gradient, rows, upper, lower, lam)
+            start = lam if rate is None or given else self._rate_warm_start(self.last_iterations + 1, lam)
+            new, new_lam, ok = self._solve_qp(gradient, rows, upper, lower, start)
+            if ok and rate is not None:
+                self._rate_lams[self.last_iterations + 1] = new_lam
             if not ok:
                 break
             moves, lam = new, new_lam

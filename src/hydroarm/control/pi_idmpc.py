@@ -184,7 +184,8 @@ class PhysicsInformedIDMPC:
                 self.torque_limit,
                 pcfg.planner_iterations,
                 solver=pcfg.planner_solver,
-            )
+                rate_solver=pcfg.planner_solver,  # measured: the planner's 35-step rate QPs, ~200 of 210 rows
+            )  # active, hit the structured solver's iteration limit (docs/controllers.md)
             self.planner.disturbance_model = self._along_plan
             self._plan_offsets = np.arange(pcfg.planner_horizon + 1) * self.control_period
         self._saturated = False
@@ -204,6 +205,8 @@ class PhysicsInformedIDMPC:
     def reset(self) -> None:
         """Forget the run: the model goes back to the loaded one (or its prior), the observer to zero."""
         self.mpc.reset()
+        if self.planner is not None:
+            self.planner.forget()  # the rate solves' last working set
         self.model.reset()
         if self._loaded is not None:
             theta, covariance, samples = self._loaded
@@ -269,7 +272,9 @@ class PhysicsInformedIDMPC:
             initial = np.zeros_like(moves)
             initial[: moves.shape[0] - shift] = moves[shift:]
             initial_lam = np.zeros_like(lam)
-            initial_lam[: lam.shape[0] - shift * n] = lam[shift * n :]
+            size = moves.size
+            for start in range(0, lam.shape[0], size):  # the torque rows, and the rate rows below them
+                initial_lam[start : start + size - shift * n] = lam[start + shift * n : start + size]
         rate = self.mpc.drive_rate if self.config.plan_latency == 0 else None  # beside the loop: not known yet
         if self.planner.solve(e0, c, q_r, v_r, a_r[:-1], None, None, None, initial, initial_lam, rate=rate) is None:
             return None
