@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from hydroarm import load_arm
+from hydroarm.control.drive_limits import linearised_disturbance
 from hydroarm.control.gp import GPConfig
 from hydroarm.control.idmpc import InverseDynamicsMPC
 from hydroarm.sim.experiment import ExperimentConfig, build_experiment, with_overrides
@@ -57,7 +58,7 @@ def test_a_reset_forgets_the_linearised_estimate_of_the_last_run():
     n = arm.n_joints
     mpc = InverseDynamicsMPC(arm, gp_config=GPConfig())
     mpc.drive_limits(np.zeros(n), np.full(n, 10.0))
-    mpc._set_rate_disturbance(np.ones(n), np.ones(n))
+    mpc.rate_qp.disturbance_model = linearised_disturbance(np.ones(n), np.ones(n))
     assert mpc.rate_qp.disturbance_model is not None
     mpc.reset()
     assert mpc.rate_qp.disturbance_model is None  # the next run starts from the plain frozen estimate

@@ -77,14 +77,8 @@ rate rows (:class:`~hydroarm.control.idmpc_limits.HorizonQP`) plans a torque ram
 drives' output, or the allocation (``limits``) holds the box. The command is what the drives
 give. Never told (no rate limit): every path as before.
 
-The GP's estimate under the rate limit: with acceleration inputs the estimate answers the
-acceleration it is asked at (the water's added mass), and the drives rarely give the planned a_0.
-So the estimate is linearised in the acceleration, ``w_hat(a) ~ w_hat(a_0) - M_A (a - a_0)`` with
-``M_A`` the diagonal of its slope (floored at 0), and both the torque map and the rate QP's rows
-take it that way (M + M_A); the window's sample pairs the residual with the acceleration the
-torque realises, not the planned one. Frozen at a_0, the iiwa14's GP-IDMPC under 1000 N m/s ran
-50 rad off its reference in 10 s (docs/robustness.md, section 6); either half alone left it 0.63
-rad off after 2 s, both 0.23 rad.
+The GP's estimate under the rate limit is linearised in the acceleration the drives leave
+(:mod:`hydroarm.control.drive_limits`, "The GP's estimate under the rate limit").
 
 The GP (:class:`~hydroarm.control.gp.SlidingWindowGP`) learns the one-step residual of the
 dry model (:meth:`~hydroarm.model.dynamics.nominal.NominalModel.residual`), n outputs, from the state
@@ -106,16 +100,13 @@ import pydantic
 
 from hydroarm.config import FrozenModel, per_joint
 from hydroarm.control.delay_design import INERTIA_MARGIN, delay_margin_weight, told_delay_weight, wet_inertia_ratio
-from hydroarm.control.drive_limits import box_allocate, rate_horizon
+from hydroarm.control.drive_limits import learned_added_mass, linearised_disturbance, rate_horizon, rate_limited_torque
 from hydroarm.control.gp import GPConfig, SlidingWindowGP
 from hydroarm.control.idmpc_limits import HorizonQP, allocate  # noqa: F401 (allocate: public here too)
 from hydroarm.control.interface import DEFAULT_CONTROL_PERIOD, ControlOutput, Reference, require_period, sample_times
 from hydroarm.control.linear import joint_lqr, reference_defects
 from hydroarm.model.arm.description import Arm
 from hydroarm.model.dynamics.nominal import NominalModel
-
-ADDED_MASS_STEP = 1.0
-"""rad/s^2: the central-difference step of the GP's added mass (:meth:`InverseDynamicsMPC._learned_added_mass`)."""
 
 PositiveFloat = Annotated[float, pydantic.Field(gt=0.0, le=1e8)]
 NonNegativeFloat = Annotated[float, pydantic.Field(ge=0.0, le=1e8)]
@@ -308,14 +299,14 @@ class InverseDynamicsMPC:
         """Forget the GP window, the counters and the rate QP's last working set."""
         if self.gp is not None:
             self.gp.reset()
-        if getattr(self, "rate_qp", None) is not None:
+        if self.rate_qp is not None:  # the last run's working set and linearised estimate
             self.rate_qp.forget()
+            if self.gp is not None:
+                self.rate_qp.disturbance_model = self.qp.disturbance_model
         self.saturated_steps = 0
         self.drive_rate: tuple[np.ndarray, np.ndarray] | None = None  # the drives' (output, r T) for the next command
         self._pending_events: list[str] = []
         self._gp_input: np.ndarray | None = None  # the GP input of the last compute
-        if self.rate_qp is not None and self.gp is not None:  # forget the last run's linearised estimate
-            self.rate_qp.disturbance_model = self.qp.disturbance_model
 
     def drive_limits(self, output: np.ndarray, step: np.ndarray) -> None:
         """Tell the drives' rate limit for the next command: ``output`` (n,) N m, the torque the
@@ -424,25 +415,8 @@ class InverseDynamicsMPC:
         return allocate(mass, bias, acceleration, self.torque_limit)
 
     def _rate_limited_torque(self, mass, bias, acceleration, w_hat):
-        """:meth:`limited_torque` within :meth:`torque_box` (the drives' rate told): the QP with
-        the rate rows (``limits = "qp"``), else the box's allocation (:func:`box_allocate`), or
-        each torque clipped into it (``"clip"``)."""
-        lower, upper = self.torque_box()
-        tau = mass @ acceleration + bias
-        fits = bool(np.all((tau >= lower) & (tau <= upper)))
-        if fits and self.config.limits != "qp":
-            return tau, acceleration, np.zeros(self.n, dtype=bool)
-        if self.config.limits == "clip":
-            clipped = np.clip(tau, lower, upper)
-            return clipped, acceleration, clipped != tau
-        if self.config.limits == "qp":
-            constrained = self.constrained_acceleration(mass, bias, w_hat)
-            if constrained is not None:
-                tau = mass @ constrained + bias
-                clipped = np.clip(tau, lower, upper)  # the QP's rounding (DAQP's tolerance: 1e-6 N m)
-                tight = 1e-9 * np.maximum(np.abs(lower), np.abs(upper))
-                return clipped, constrained, (tau <= lower + tight) | (tau >= upper - tight)
-        return box_allocate(mass, bias, acceleration, lower, upper)
+        """:meth:`limited_torque` within :meth:`torque_box` (:func:`rate_limited_torque`)."""
+        return rate_limited_torque(self, mass, bias, acceleration, w_hat)
 
     def gp_input(self, y: np.ndarray, acceleration: np.ndarray) -> np.ndarray:
         """The GP's input (2n,) or (3n,) for the state y (2n,) and planned acceleration a_0 (n,)."""
@@ -482,7 +456,8 @@ class InverseDynamicsMPC:
             tau, realised, saturated = self.torque_map(y[:n], y[n:], acceleration, mean)
         else:  # the estimate linearised in the acceleration the drives leave (module docstring)
             w_free = mean + added_mass * acceleration
-            self._set_rate_disturbance(w_free, added_mass)
+            if self.rate_qp is not None:  # the rate QP's rows take it linearised too
+                self.rate_qp.disturbance_model = linearised_disturbance(w_free, added_mass)
             tau, realised, saturated = self.torque_map(y[:n], y[n:], acceleration, w_free, np.diag(added_mass))
             if self.n_gp_inputs == 3 * n:  # the sample pairs the residual with the acceleration given
                 self._gp_input = self.gp_input(y, realised)
@@ -500,33 +475,11 @@ class InverseDynamicsMPC:
         )
 
     def _learned_added_mass(self) -> np.ndarray | None:
-        """The GP's added mass (n,) kg m^2 at the last GP input: ``-d w_hat_j / d a_j``, the
-        diagonal of the estimate's slope in the planned acceleration (central differences of
-        :data:`ADDED_MASS_STEP` rad/s^2, one batched prediction), floored at 0 (the water's added
-        mass is positive semi-definite); None without acceleration inputs or before the GP feeds
-        forward."""
+        """The GP's added mass (n,) kg m^2 at the last GP input (:func:`learned_added_mass`); None
+        without acceleration inputs or before the GP feeds forward."""
         if self.n_gp_inputs != 3 * self.n or self.gp.n_samples < self.config.min_samples:
             return None
-        n, step = self.n, ADDED_MASS_STEP / self.config.acceleration_scale
-        shifted = np.tile(self._gp_input, (2 * n, 1))
-        joints = np.arange(n)
-        shifted[joints, 2 * n + joints] += step
-        shifted[n + joints, 2 * n + joints] -= step
-        mean, _ = self.gp.predict(shifted, include_noise=False)
-        slope = (mean[joints, joints] - mean[n + joints, joints]) / (2.0 * ADDED_MASS_STEP)
-        return np.where(np.isfinite(slope), np.maximum(-slope, 0.0), 0.0)
-
-    def _set_rate_disturbance(self, w_free: np.ndarray, added_mass: np.ndarray) -> None:
-        """Give the rate-limited horizon QP's linearised rows the estimate at each planned
-        acceleration: ``w_k = w_free - M_A a_k`` with the inertia ``M_A = diag(added_mass)``."""
-        if self.rate_qp is None:
-            return
-        mass = np.diag(added_mass)
-
-        def disturbance(q, v, a):
-            return w_free - a * added_mass, np.broadcast_to(mass, (a.shape[0], self.n, self.n))
-
-        self.rate_qp.disturbance_model = disturbance
+        return learned_added_mass(self.gp, self._gp_input, self.n, self.config.acceleration_scale)
 
     def observe(self, t: float, y: np.ndarray, u: np.ndarray, y_next: np.ndarray) -> None:
         """Add the disturbance seen over the last step to the GP window (no-op without a GP): the
