@@ -270,6 +270,7 @@ class InverseDynamicsMPC:
         self._offsets = np.arange(cfg.horizon + 1) * self.control_period
         self.qp = None
         self.rate_qp = None  # the horizon QP with the drives' rate rows (built when the rate is told)
+        self.rate_solver: str | None = None  # its solver (None: idmpc_limits.RATE_SOLVER; PI-IDMPC sets its own)
         if cfg.limits == "qp":
             self.qp = HorizonQP(
                 arm,
@@ -319,7 +320,7 @@ class InverseDynamicsMPC:
             self.rate_qp = HorizonQP(
                 self.arm, self.control_period, horizon,
                 per_joint(cfg.q_position, n, "q_position"), per_joint(cfg.q_velocity, n, "q_velocity"),
-                self.r_acceleration, self.P, self.torque_limit, cfg.sqp_iterations,
+                self.r_acceleration, self.P, self.torque_limit, cfg.sqp_iterations, rate_solver=self.rate_solver,
             )  # fmt: skip
             self.rate_qp.disturbance_model = self.qp.disturbance_model
             self._rate_offsets = np.arange(horizon + 1) * self.control_period

@@ -172,6 +172,9 @@ class PhysicsInformedIDMPC:
             self.mpc.qp.disturbance_model = self._along_plan
         cfg, pcfg = self.mpc.config, self.config
         self.planner = None
+        # its IDMPC's rate-limited solves too: with the structured solver the target world with the rate
+        # limit and the 20 Hz bandwidth diverged (DAQP: E_p 0.2980; real_loop_campaign.py, 2026-12-04)
+        self.mpc.rate_solver = pcfg.planner_solver
         if pcfg.planner != "off":
             self.planner = HorizonQP(
                 arm,
