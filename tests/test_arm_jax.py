@@ -108,7 +108,8 @@ def test_jax_period_equals_numba_with_every_term(tmp_path, axial_arm):
     JAX module loaded by file path), 8 copies of which the 3 reference ones are checked: state,
     disturbance and first-stage disturbance after one period and the state after five, each within
     1e-12 of the numba kernel's, per copy. One XLA compile (tens of seconds on a CPU; loaded from
-    JAX's persistent cache where ``JAX_COMPILATION_CACHE_DIR`` names one that holds it)."""
+    JAX's persistent cache where ``JAX_COMPILATION_CACHE_DIR`` names one that holds it: a user's
+    setting, passed through to the bare environment)."""
     data, out = tmp_path / "tiny.npz", tmp_path / "result.json"
     subprocess.run([sys.executable, str(SCRIPT), "--export", str(data), "--arm", axial_arm, "--drag-points", "2",
                     "--periods", "5", "--reference-copies", "3", "--set", "friction.scale=1",
@@ -118,8 +119,8 @@ def test_jax_period_equals_numba_with_every_term(tmp_path, axial_arm):
     assert bool(saved["c_friction_on"]) and float(saved["c_uniform"]) == 0.3
     assert np.any(saved["c_current_joint"][0] != 0.0) and np.all(saved["c_switches"][:4] == 1)
     env = {"PATH": "/usr/bin:/bin", "HOME": str(tmp_path)}  # no PYTHONPATH: only the venv's jax and numpy
-    # JAX's persistent compilation cache where one is set (CI's warm-up fills it, .ci/run): the same
-    # program loads its compiled period from there; a changed program misses it and compiles
+    # JAX's persistent compilation cache where one is set: the same program loads its compiled period
+    # from there; a changed program misses it and compiles
     env.update({k: v for k, v in os.environ.items() if k == "JAX_COMPILATION_CACHE_DIR"})
     subprocess.run([sys.executable, str(SCRIPT), "--run", str(data), "--copies", "8", "--steps", "1", "--out",
                     str(out)], check=True, capture_output=True, cwd=tmp_path, env=env)  # fmt: skip

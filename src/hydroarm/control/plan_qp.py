@@ -345,6 +345,39 @@ def _refine(active, sign, upper, lower, slack, chol, count, lam, residual, delta
         lam[p] += delta[p]
 
 
+@numba.njit(cache=True, inline="always")
+def _solver_arrays(n, horizon, count_rows):  # pragma: no cover - compiled
+    """The work arrays of :func:`solve_plan_qp` for n joints, N = ``horizon`` steps and
+    ``count_rows`` rows: ``d`` (the whitened gradient), the two (N,) work vectors, the working set
+    ``active`` (in order of joining), the rows' ``sign`` (+1 / -1 / 0), the working set's whitened
+    rows ``m_rows`` (and one joining), its Gram matrix and factor, the multipliers ``lam`` (by
+    position), ``target`` (the second half: :func:`_refine`'s residual), ``star``, ``x``, the moves
+    and the rows' slack."""
+    size = n * horizon
+    return (
+        np.empty((n, horizon)), np.empty(horizon), np.empty(horizon),
+        np.empty(size, dtype=np.int64), np.zeros(count_rows, dtype=np.int64),
+        np.empty((size + 1, n, horizon)), np.empty((size + 1, size + 1)), np.empty((size + 1, size + 1)),
+        np.zeros(size + 1), np.empty(2 * size + 2), np.empty(size + 1),
+        np.empty((n, horizon)), np.empty(size), np.empty(count_rows),
+    )  # fmt: skip
+
+
+@numba.njit(cache=True, inline="always")
+def _blocking_multiplier(active, sign, lam, star, count, dual_tol):  # pragma: no cover - compiled
+    """``(p, alpha)``: the working set's first multiplier to change sign on the way from ``lam``
+    to ``star`` (position p, -1: none) and the step fraction alpha to it (1.0 when none)."""
+    blocking = -1
+    alpha = 1.0
+    for p in range(count):
+        s = sign[active[p]]
+        if s * star[p] < -dual_tol:
+            step = lam[p] / (lam[p] - star[p])
+            if blocking < 0 or step < alpha:
+                alpha, blocking = step, p
+    return blocking, alpha
+
+
 @numba.njit(cache=True)
 def solve_plan_qp(
     factors, gradient, rows, upper, lower, warm, primal_tol, dual_tol, max_iterations
@@ -365,21 +398,10 @@ def solve_plan_qp(
     size = n * horizon
     count_rows = upper.shape[0]
     rated = count_rows > size
-    d = np.empty((n, horizon))
-    work_in = np.empty(horizon)
-    work_out = np.empty(horizon)
+    d, work_in, work_out, active, sign, m_rows, gram, chol, lam, target, star, x, moves, slack = _solver_arrays(
+        n, horizon, count_rows
+    )
     _whiten(factors, gradient, d, work_in, work_out)
-    active = np.empty(size, dtype=np.int64)  # the working set, in order of joining
-    sign = np.zeros(count_rows, dtype=np.int64)  # +1 / -1 / 0 per row
-    m_rows = np.empty((size + 1, n, horizon))  # whitened rows of the working set (and one joining)
-    gram = np.empty((size + 1, size + 1))
-    chol = np.empty((size + 1, size + 1))
-    lam = np.zeros(size + 1)  # multipliers of the working set, by position
-    target = np.empty(2 * size + 2)  # the second half: _refine's residual
-    star = np.empty(size + 1)
-    x = np.empty((n, horizon))
-    moves = np.empty(size)
-    slack = np.empty(count_rows)
     bounds, work = (upper, lower, d), (work_in, work_out)
     if rated:
         count = _load_independent(factors, rows, warm, bounds, active, sign, m_rows[:size], gram, chol, target, work)
@@ -392,14 +414,7 @@ def solve_plan_qp(
     while iterations < max_iterations:
         iterations += 1
         _unconstrained_multipliers(chol, count, target, star)
-        blocking = -1
-        alpha = 1.0
-        for p in range(count):  # the first multiplier to change sign on the way to lambda*
-            s = sign[active[p]]
-            if s * star[p] < -dual_tol:
-                step = lam[p] / (lam[p] - star[p])
-                if blocking < 0 or step < alpha:
-                    alpha, blocking = step, p
+        blocking, alpha = _blocking_multiplier(active, sign, lam, star, count, dual_tol)
         if blocking >= 0:
             for p in range(count):
                 lam[p] += alpha * (star[p] - lam[p])
