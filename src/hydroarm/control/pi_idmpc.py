@@ -98,7 +98,8 @@ class PIIDMPCConfig(FrozenModel):
         "daqp",
         description="the planner's QP solver: daqp (dense; the default: its runs hold across BLAS kernels) or "
         "structured (compiled, per-joint factors, hydroarm.control.plan_qp: 32x faster a solve, the same plan to "
-        "rounding, but its active-set decisions turn a kernel's last bit into another noisy run)",
+        "rounding, but its active-set decisions turn a kernel's last bit into another noisy run); under the drives' "
+        "rate limit also the solver of its IDMPC's rate-limited QPs",
     )
     planner_deviation: float = pydantic.Field(
         500.0,
