@@ -71,11 +71,11 @@ RATE_SOLVER = "structured"
 measured faster at the median, p99 and max step in IDMPC's, GP-IDMPC's and PI-IDMPC's rate-limited
 runs (bench part ``rate``, docs/controllers.md); DAQP stays the torque rows' default (``solver``)."""
 RATE_WARM = True
+"""Whether a rate solve starts from the last one's working set (module docstring)."""
 RATE_ITERATIONS = 4
 """The structured solver's iteration limit with the rate rows, per row (2 N n rows): their
 problems churn (rows join and leave again); a cold 8-step paper-arm plan from a 2 rad start-up
 took 283 iterations for 48 active rows (DAQP 185), more than the torque rows' limit of one per row."""
-"""Whether a rate solve starts from the last one's working set (module docstring)."""
 
 
 def difference_rows(rows: np.ndarray, n: int) -> np.ndarray:
