@@ -362,7 +362,7 @@ class PhysicsInformedIDMPC:
         t_torque = time.perf_counter()
         if latency > 0:  # the plan of step k + latency, from the state this step's move leads to
             fits = bool(np.all(np.abs(mass @ acceleration + bias) <= self.torque_limit))
-            self.latent.launch(t, y, reference, realised, fits)
+            self.latent.launch(t, y, reference, tau, fits)
         self._saturated = bool(saturated.any())
         self._commanded = realised
         w_hat = w_free

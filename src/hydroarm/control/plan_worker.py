@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from hydroarm.control.interface import Reference
+from hydroarm.model.dynamics import fixed_order
 
 
 class LatentPlanner:
@@ -68,13 +69,13 @@ class LatentPlanner:
                 plan = None  # no newer plan: the chain stopped (auto) or its last plan was refused
         return plan, plan_step
 
-    def launch(self, t: float, y: np.ndarray, reference: Reference, realised: np.ndarray, fits: bool) -> None:
+    def launch(self, t: float, y: np.ndarray, reference: Reference, torque: np.ndarray, fits: bool) -> None:
         """After step k's torque: launch the plan of step k + L (:meth:`plan_job`) if one is
         due (the newest launched covers k + L within ``planner_hold`` no more) and wanted
         (``"always"``; ``"auto"``: the chain runs, or the IDMPC's own move of this step does not fit
         the limits, ``fits`` False). It is solved here (``plan_worker = "inline"``) or handed to
         the worker process (``"process"``), and step k + L takes it. The job's inputs are the
-        step's (state, realised acceleration (n,), the water model's estimate and the remainder's
+        step's (state, torque (n,), the water model's estimate and the remainder's
         of now), so the run is the same either way."""
         k = self._step
         self._step += 1
@@ -87,7 +88,7 @@ class LatentPlanner:
         self._chain, self._launched_at = True, target
         if self.config.plan_worker == "inline":
             start = time.perf_counter()
-            self._pending.append(self.plan_job(k, t, y, reference, realised, shift))
+            self._pending.append(self.plan_job(k, t, y, reference, torque, shift))
             self.replan_time = time.perf_counter() - start
             return
         if self.worker is None:
@@ -95,7 +96,7 @@ class LatentPlanner:
         sent = None if reference is self._worker_reference else reference  # pickled once per reference
         self._worker_reference = reference
         controller = self.controller
-        job = (k, t, np.asarray(y, dtype=float), np.asarray(realised, dtype=float), shift, controller.model.theta,
+        job = (k, t, np.asarray(y, dtype=float), np.asarray(torque, dtype=float), shift, controller.model.theta,
                controller._rest)  # fmt: skip
         self.worker[1].send((*job, sent))
         self._in_flight.append(target)
@@ -153,22 +154,16 @@ class LatentPlanner:
             if process.is_alive():
                 process.terminate()
 
-    def plan_job(self, k, t, y, reference, realised, shift) -> tuple[int, tuple | None]:
+    def plan_job(self, k, t, y, reference, torque, shift) -> tuple[int, tuple | None]:
         """Step k's job: ``(k + L, plan or None)``, the plan of step k + L (L = ``plan_latency``)
-        from the state predicted for it (this step's realised acceleration ``realised`` (n,),
-        then the plans already launched for the steps between, on the model's double
-        integrator), warm-started from the newest plan launched, ``shift`` steps before this one
-        (None: cold). Its result depends on its inputs only, not on when it ends."""
+        from the state predicted for it (:meth:`predicted_state`: this step's torque ``torque``
+        (n,) N m, then those of the plans already launched for the steps between), warm-started
+        from the newest plan launched, ``shift`` steps before this one (None: cold). Its result
+        depends on its inputs only, not on when it ends."""
         controller = self.controller
-        n, period, latency = controller.n, controller.control_period, self.config.plan_latency
-        q, v = y[:n].copy(), y[n:].copy()
-        a = np.asarray(realised, dtype=float)
-        for j in range(1, latency + 1):
-            q, v = q + period * v + 0.5 * period * period * a, v + period * a
-            if j < latency:
-                a = self._predicted_move(k + j, t + j * period, q, v, reference)
-        y_hat = np.concatenate([q, v])
-        t_hat = t + latency * period
+        latency = self.config.plan_latency
+        y_hat = self.predicted_state(k, t, y, reference, torque)
+        t_hat = t + latency * controller.control_period
         idmpc = controller.mpc.planned_acceleration(t_hat, y_hat, reference, remember=False)
         warm = None
         if shift is not None and self._history and self._history[-1][1] is not None:
@@ -177,16 +172,78 @@ class LatentPlanner:
         self._history.append((k + latency, plan))
         return k + latency, plan
 
-    def _predicted_move(self, step, t, q, v, reference) -> np.ndarray:
-        """The acceleration (n,) a later step ``step`` will follow at the predicted state (q, v):
-        that of the newest plan launched for a step at or before it, within its hold, or the
-        IDMPC's own move."""
+    def predicted_state(self, k, t, y, reference, torque) -> np.ndarray:
+        """The state (2n,) step k + L will measure, from step k's state y (2n,) and torque (n,)
+        N m: the model (the dry arm, the water model's terms and the remainder's estimate of
+        now) under each period's torque held (:func:`model_period`); the torque of a step between
+        is its predicted move's, held within the limits (:meth:`_predicted_torque`)."""
+        controller = self.controller
+        n, period = controller.n, controller.control_period
+        q, v = y[:n].copy(), y[n:].copy()
+        tau = np.asarray(torque, dtype=float)
+        for j in range(1, self.config.plan_latency + 1):
+            q, v = model_period(controller, q, v, tau, period)
+            if j < self.config.plan_latency:
+                tau = self._predicted_torque(k + j, t + j * period, q, v, reference)
+        return np.concatenate([q, v])
+
+    def _predicted_torque(self, step, t, q, v, reference) -> np.ndarray:
+        """The torque (n,) N m a later step ``step`` will command at the predicted state (q, v): the
+        move of the newest plan launched for a step at or before it, within its hold, or the
+        IDMPC's own move, held within the limits on the model
+        (:meth:`PhysicsInformedIDMPC._held`)."""
+        controller = self.controller
+        move = None
         for start, plan in reversed(self._history):
             if start <= step:
                 if plan is not None and step - start < self.config.planner_hold:
-                    return self.controller._plan_acceleration(plan, step - start, q, v)
+                    move = controller._plan_acceleration(plan, step - start, q, v)
                 break
-        return self.controller.mpc.planned_acceleration(t, np.concatenate([q, v]), reference, remember=False)
+        if move is None:
+            move = controller.mpc.planned_acceleration(t, np.concatenate([q, v]), reference, remember=False)
+        mass, bias = model_terms(controller, q, v)
+        return controller._held(mass, bias, move)[0]
+
+
+PREDICTION_SUBSTEPS = 10
+"""RK4 steps per control period of the state prediction (:func:`model_period`): 1 ms at the paper's
+10 ms, the plant's own inner step. Measured on the paper task's start-up (2026-12-04): the double
+integrator at the step's realised acceleration (what the prediction was) missed the measured state
+one period ahead by up to 32 rad/s (the wrist at 220 rad/s, its drag changing within the period)."""
+
+
+def model_terms(controller: Any, q: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(M + M_A (n, n), h - w (n,))`` of ``controller``'s model (a PhysicsInformedIDMPC's) at
+    (q, v): the dry arm, the water model's terms (its added mass joins the inertia) and the
+    remainder's estimate of now, as its step forms them (a non-finite term left out)."""
+    added_mass, rest = controller.model.terms(q, v)
+    w_free = rest + controller._rest
+    if not (np.all(np.isfinite(w_free)) and np.all(np.isfinite(added_mass))):
+        w_free, added_mass = np.where(np.isfinite(w_free), w_free, 0.0), None
+    return controller.mpc.dynamics_terms(q, v, w_free, added_mass)
+
+
+def model_period(controller: Any, q, v, tau, period: float) -> tuple[np.ndarray, np.ndarray]:
+    """``(q, v)`` (n,) each one ``period`` (s) on from (q, v) under the torque ``tau`` (n,) N m held:
+    :data:`PREDICTION_SUBSTEPS` RK4 steps of the model's forward dynamics (:func:`model_terms`; a
+    fixed-order Cholesky, no LAPACK: its last bits do not follow the BLAS kernel)."""
+
+    def acceleration(q_i, v_i):
+        mass, bias = model_terms(controller, q_i, v_i)
+        return fixed_order.cholesky_solve(np.ascontiguousarray(mass), tau - bias)[0]
+
+    h = period / PREDICTION_SUBSTEPS
+    for _ in range(PREDICTION_SUBSTEPS):
+        a1 = acceleration(q, v)
+        a2 = acceleration(q + 0.5 * h * v, v + 0.5 * h * a1)
+        v2 = v + 0.5 * h * a1
+        a3 = acceleration(q + 0.5 * h * v2, v + 0.5 * h * a2)
+        v3 = v + 0.5 * h * a2
+        a4 = acceleration(q + h * v3, v + h * a3)
+        v4 = v + h * a3
+        q = q + h / 6.0 * (v + 2.0 * v2 + 2.0 * v3 + v4)
+        v = v + h / 6.0 * (a1 + 2.0 * a2 + 2.0 * a3 + a4)
+    return q, v
 
 
 def _serve_plans(planner: LatentPlanner, connection) -> None:  # pragma: no cover - a child
@@ -202,13 +259,13 @@ def _serve_plans(planner: LatentPlanner, connection) -> None:  # pragma: no cove
             return
         if job is None:
             return
-        k, t, y, realised, shift, theta, rest, sent = job
+        k, t, y, torque, shift, theta, rest, sent = job
         reference = sent if sent is not None else reference
         controller.model.theta, controller._rest = theta, rest
         plans, rejected = controller.plans, controller.rejected
         start, start_cpu = time.perf_counter(), time.process_time()
         try:
-            launched = planner.plan_job(k, t, y, reference, realised, shift)
+            launched = planner.plan_job(k, t, y, reference, torque, shift)
         except Exception as error:  # the control loop raises it, with its cause
             connection.send(("error", f"{type(error).__name__}: {error}"))
             return
