@@ -388,8 +388,7 @@ def _merge_arm(path: Path, arm: str, todo: list[tuple], results: list[dict], wal
     entry["runs"] = [r for r in entry["runs"] if (r["group"], r["world"], r["controller"]) not in done] + results
     entry["wall_time_s"][label] = wall
     entry["machine"] = {"cpus": os.cpu_count(), "python": platform.python_version()}
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(data, indent=1) + "\n")
+    _write_json(path, data)
     return entry["runs"]
 
 
@@ -427,6 +426,9 @@ def main() -> None:
         return
     todo = _select(args)
     start = time.perf_counter()
+    label = ",".join((args.groups or ["all"]) + (args.worlds or []) + (args.controllers or []))
+    merge = args.arm == "paper" and _merging(args) and args.out.exists()
+    previous = json.loads(args.out.read_text()) if merge else None
     results = []
     with ProcessPoolExecutor(args.workers) as pool:
         for k, result in enumerate(pool.map(run, todo), 1):
@@ -435,38 +437,59 @@ def main() -> None:
             results.append(result)
             print(f"[{k}/{len(todo)}] {result['group']} {result['world']} {result['controller']}: "
                   f"Ep={result['Ep']} within={result['within_band']}", flush=True)  # fmt: skip
+            _save(args, previous, todo[:k], results, time.perf_counter() - start, label)  # an interrupt keeps these
     wall = time.perf_counter() - start
-    label = ",".join((args.groups or ["all"]) + (args.worlds or []) + (args.controllers or []))
+    runs = _save(args, previous, todo, results, wall, label)
+    names = list(dict.fromkeys(r["controller"] for r in runs))
     if args.arm != "paper":
-        runs = _merge_arm(args.out, args.arm, todo, results, wall, label)
-        names = list(dict.fromkeys(r["controller"] for r in runs))
         print(arms_table({args.arm: runs}, names))
-        return
-    if args.groups is not None or args.controllers is not None:  # merge: keep the other runs and the first wall time
-        previous = json.loads(args.out.read_text())
-        done = {(t[0], t[1], t[2]) for t in todo}
-        kept = [r for r in previous["runs"] if (r["group"], r["world"], r["controller"]) not in done]
-        previous["runs"] = kept + results
-        previous.setdefault("extra_wall_time_s", {})[label] = wall
-        args.out.write_text(json.dumps(previous, indent=1) + "\n")
-        print(table(previous["runs"], list(dict.fromkeys(r["controller"] for r in previous["runs"]))))
-        return
-    payload = {
-        "sweep_file": "examples/real_loop.toml",
-        "band_rad": BAND,
-        "after_s": AFTER,
-        "rate_limit_Nm_per_s": RATE_LIMIT,
-        "bandwidth_Hz": BANDWIDTH,
-        "workers": args.workers,
-        "wall_time_s": wall,
-        "cpu_time_s": sum(r["wall_s"] for r in results),
-        "machine": {"cpus": os.cpu_count(), "python": platform.python_version()},
-        "runs": results,
-    }
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(payload, indent=1) + "\n")
-    print(table(results))
-    print(f"\n{len(results)} runs in {wall:.0f} s wall on {args.workers} workers -> {args.out}")
+    elif previous is not None:
+        print(table(runs, names))
+    else:
+        print(table(results))
+        print(f"\n{len(results)} runs in {wall:.0f} s wall on {args.workers} workers -> {args.out}")
+
+
+def _merging(args: argparse.Namespace) -> bool:
+    """Whether the paper arm's run merges into ``--out`` (a part of the campaign: groups or controllers)."""
+    return args.groups is not None or args.controllers is not None
+
+
+def _save(args, previous: dict | None, done: list[tuple], results: list[dict], wall: float, label: str) -> list[dict]:
+    """Write the runs finished so far into ``--out`` (after every run: an interrupted campaign keeps
+    them) and return the file's runs for this arm: another arm's merge (:func:`_merge_arm`), the
+    paper arm's merge into ``previous`` (its other runs kept, this part's wall time beside the
+    first), or the whole campaign's file."""
+    if args.arm != "paper":
+        return _merge_arm(args.out, args.arm, done, results, wall, label)
+    if previous is not None:
+        keys = {(t[0], t[1], t[2]) for t in done}
+        data = dict(previous)
+        data["runs"] = [r for r in previous["runs"] if (r["group"], r["world"], r["controller"]) not in keys] + results
+        data["extra_wall_time_s"] = {**previous.get("extra_wall_time_s", {}), label: wall}
+    else:
+        data = {
+            "sweep_file": "examples/real_loop.toml",
+            "band_rad": BAND,
+            "after_s": AFTER,
+            "rate_limit_Nm_per_s": RATE_LIMIT,
+            "bandwidth_Hz": BANDWIDTH,
+            "workers": args.workers,
+            "wall_time_s": wall,
+            "cpu_time_s": sum(r["wall_s"] for r in results),
+            "machine": {"cpus": os.cpu_count(), "python": platform.python_version()},
+            "runs": results,
+        }
+    _write_json(args.out, data)
+    return data["runs"]
+
+
+def _write_json(path: Path, data: dict) -> None:
+    """Write ``data`` to ``path`` whole or not at all (a temporary file renamed over it)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    partial = path.with_suffix(path.suffix + ".partial")
+    partial.write_text(json.dumps(data, indent=1) + "\n")
+    partial.replace(path)
 
 
 if __name__ == "__main__":

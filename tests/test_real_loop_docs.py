@@ -107,3 +107,51 @@ def test_the_observer_variants_in_the_paper_grid_are_its_results_file():
     page = (ROOT / "docs" / "robustness.md").read_text()
     assert script.table(runs, variants) in page
     assert script.grid_table(runs, variants) in page
+
+
+class _Serial:
+    """A stand-in for the campaign's process pool: the runs one after another, in this process."""
+
+    def __init__(self, workers):
+        pass
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        return False
+
+    def map(self, function, tasks):
+        return (function(task) for task in tasks)
+
+
+@pytest.mark.parametrize("arm", ["paper", "alpha5"])
+def test_an_interrupted_campaign_keeps_the_runs_it_finished(tmp_path, monkeypatch, arm):
+    """The results file is written after every run: interrupted at its third run, the campaign's
+    file holds the first two (and, merged into another arm's file, that file's other runs)."""
+    script = _script("real_loop_campaign")
+    out = tmp_path / "campaign.json"
+    if arm != "paper":
+        out.write_text(json.dumps({"arms": {"ur5": {"arm": "ur5", "runs": [{"kept": True}], "wall_time_s": {}}}}))
+
+    def fake_run(task):
+        if fake_run.calls == 2:
+            raise KeyboardInterrupt
+        fake_run.calls += 1
+        group, world, controller = task[:3]
+        return {"group": group, "world": world, "controller": controller, "Ep": 0.01, "within_band": True,
+                "wall_s": 1.0}  # fmt: skip
+
+    fake_run.calls = 0
+    monkeypatch.setattr(script, "run", fake_run)
+    monkeypatch.setattr(script, "ProcessPoolExecutor", _Serial)
+    argv = ["real_loop_campaign.py", "--arm", arm, "--out", str(out), "--controllers", "IDMPC", "--groups", "grid"]
+    monkeypatch.setattr("sys.argv", argv)
+    with pytest.raises(KeyboardInterrupt):
+        script.main()
+    data = json.loads(out.read_text())
+    runs = data["runs"] if arm == "paper" else data["arms"][arm]["runs"]
+    assert [r["controller"] for r in runs] == ["IDMPC", "IDMPC"] and len({r["world"] for r in runs}) == 2
+    if arm != "paper":
+        assert data["arms"]["ur5"]["runs"] == [{"kept": True}]
+    assert not out.with_suffix(".json.partial").exists()
