@@ -29,22 +29,40 @@ class TimedController:
     ``on_compute(controller, t, y, out)`` is called after every ``compute``. ``cpu_s``: each
     step's compute + observe in this thread's CPU time (``time.thread_time_ns``: the time the
     step ran, without the time other processes held the core; on a loaded machine the wall
-    time's tail is mostly the latter)."""
+    time's tail is mostly the latter). ``paced``: each compute starts no earlier than its tick
+    (the first compute's time + k control periods), as in a loop driven by a real arm's clock:
+    what runs beside the loop (a planner's worker process) gets the wall time it would have; the
+    simulation otherwise runs the loop many times faster than real time."""
 
-    def __init__(self, controller, on_compute=None) -> None:
+    def __init__(self, controller, on_compute=None, paced: bool = False) -> None:
         self.inner = controller
         self.name = controller.name
         self.control_period = controller.control_period
         self.observe_s: list[float] = []
         self.cpu_s: list[float] = []
         self.on_compute = on_compute
+        self.paced = paced
+        self._first_tick: float | None = None
 
     def reset(self) -> None:
         self.inner.reset()
         self.observe_s.clear()
         self.cpu_s.clear()
+        self._first_tick = None
+
+    def _wait_for_tick(self) -> None:
+        """Sleep until this step's tick (``paced``; a late step starts at once)."""
+        now = time.perf_counter()
+        if self._first_tick is None:
+            self._first_tick = now
+            return
+        delay = self._first_tick + len(self.cpu_s) * self.control_period - now
+        if delay > 0:
+            time.sleep(delay)
 
     def compute(self, t, y, reference):
+        if self.paced:
+            self._wait_for_tick()
         cpu = time.thread_time_ns()
         out = self.inner.compute(t, y, reference)
         self.cpu_s.append((time.thread_time_ns() - cpu) * 1e-9)

@@ -9,8 +9,9 @@ solver against DAQP side by side.
   max <= 5 ms.
 - ``beside``: the planner beside the loop (``pi_idmpc.plan_latency`` = :data:`LATENCY`,
   ``plan_worker = "process"``): the control step (compute + observe in the control process; it
-  waits only when the worker is late) over the same runs, in wall and CPU time, and the worker's
-  own time per plan against its budget of L periods.
+  waits only when the worker is late), in a loop paced at the control period (each step starts
+  at its tick, as on an arm: the worker gets the wall time it would have; quick mode unpaced),
+  in wall and CPU time, and the worker's own time per plan against its budget of L periods.
 - ``solver``: the planner's own QPs, recorded in one run, solved again by DAQP and by the
   structured solver (:mod:`hydroarm.control.plan_qp`) from the same warm starts: per-solve
   median / p99 / max, their ratios (DAQP over structured: > 1 is faster), and the largest
@@ -154,8 +155,10 @@ def bench_planner_step(quick: bool) -> dict:
     return out
 
 
-LATENCY = 2
-"""The plan latency (periods) of the ``beside`` rows (docs/controllers.md, "The planner beside the loop")."""
+LATENCY = 1
+"""The plan latency (periods) of the ``beside`` rows: the one that keeps the planner's accuracy since
+the plan's start state is predicted by the model under the torque held (docs/controllers.md, "The
+planner beside the loop"; it was 2 with the double integrator's prediction)."""
 
 
 def bench_planner_beside(quick: bool) -> dict:
@@ -164,7 +167,7 @@ def bench_planner_beside(quick: bool) -> dict:
     (wall, compute + observe in the control process), ``step_cpu``, ``waited`` (steps that waited
     > 0.1 ms for the worker), ``plan`` / ``plan_cpu`` (the worker's own time per plan) and
     ``plans_over_budget``. Quick mode (CI): one run, the paper scenario only."""
-    runs = 1 if quick else 11
+    runs = 1 if quick else PACED_RUNS
     cases = {"paper": {}, "paper, UR5 limits": {"torque_limit": [150.0, 150.0, 150.0, 28.0, 28.0, 28.0]}}
     if quick:
         cases.pop("paper, UR5 limits")
@@ -173,16 +176,21 @@ def bench_planner_beside(quick: bool) -> dict:
         out["cases"][case] = {}
         for solver in SOLVERS:
             settings = {"pi_idmpc.plan_latency": LATENCY, "pi_idmpc.plan_worker": "process", **overrides}
-            out["cases"][case][solver] = _beside_row({**settings, "pi_idmpc.planner_solver": solver}, runs)
+            out["cases"][case][solver] = _beside_row({**settings, "pi_idmpc.planner_solver": solver}, runs, not quick)
     return out
 
 
-def _beside_row(settings: dict, runs: int) -> dict:
-    """One row of :func:`bench_planner_beside`: ``runs`` 10 s runs after a 0.3 s warm-up run."""
+PACED_RUNS = 3
+"""10 s runs per ``beside`` row in full mode: paced, each takes 10 s of wall time."""
+
+
+def _beside_row(settings: dict, runs: int, paced: bool = True) -> dict:
+    """One row of :func:`bench_planner_beside`: ``runs`` 10 s runs after a 0.3 s warm-up run,
+    paced at the control period or not (:class:`~hydroarm_bench.loop.TimedController`)."""
     step, cpu, wait, plan, plan_cpu = [], [], [], [], []
     for seed in range(-1, runs):  # -1: the warm-up run
         experiment = paper_experiment(NAME, 0.3 if seed < 0 else DURATION_S, settings)
-        timed = TimedController(experiment.controller)
+        timed = TimedController(experiment.controller, paced=paced and seed >= 0)
         experiment.controller = timed
         traj = experiment.run(max(seed, 0))
         _planner_controller(timed.inner).close()
@@ -204,6 +212,7 @@ def _beside_row(settings: dict, runs: int) -> dict:
         "plan": stats_ms(plan_all),
         "plan_cpu": stats_ms(np.concatenate(plan_cpu)),
         "plans_over_budget": int((plan_all > budget).sum()),
+        "paced": paced,
     }
     row["meets"] = {key: row["step"][key] <= limit for key, limit in TARGETS_MS.items()}
     row["meets_cpu"] = {key: row["step_cpu"][key] <= limit for key, limit in TARGETS_MS.items()}
@@ -354,10 +363,12 @@ def _render_beside(beside: dict | None) -> list[str]:
     if not beside:
         return []
     latency = beside["latency_periods"]
+    rows = [row for case in beside["cases"].values() for row in case.values()]
+    paced = "paced at the control period" if all(row.get("paced") for row in rows) else "not paced (quick)"
     lines = [
         f'The planner beside the loop (`pi_idmpc.plan_latency = {latency}`, `plan_worker = "process"`), '
-        f"{beside['runs']} runs of {beside['duration_s']:.0f} s per case: the control step (compute + observe "
-        "in the control process, waiting only for a late worker) in wall and CPU time, and the worker's own "
+        f"{beside['runs']} runs of {beside['duration_s']:.0f} s per case, {paced}: the control step (compute + "
+        "observe in the control process, waiting only for a late worker) in wall and CPU time, and the worker's own "
         f"time per plan against its budget of {latency} periods, ms:\n",
         "| case | solver | steps | median | p99 | max | CPU median / p99 / max | steps that waited | plans | "
         "plan median / p99 / max | plan CPU median / p99 / max | plans over budget |",
