@@ -101,6 +101,14 @@ class PIIDMPCConfig(FrozenModel):
         "rounding, but its active-set decisions turn a kernel's last bit into another noisy run); under the drives' "
         "rate limit also the solver of its IDMPC's rate-limited QPs",
     )
+    planner_budget: int = pydantic.Field(
+        0,
+        ge=0,
+        le=100000,
+        description="active-set iterations a plan may spend over its SQP's QPs, counted (the structured solver: "
+        "a QP not settled within what is left fails, the SQP stops at the last settled plan); 0: no budget, "
+        "0 <= x <= 100000",
+    )
     planner_deviation: float = pydantic.Field(
         500.0,
         ge=0.0,
@@ -133,6 +141,11 @@ class PIIDMPCConfig(FrozenModel):
             raise ValueError(
                 f"plan_latency ({self.plan_latency}) + planner_hold ({self.planner_hold}) must be at most "
                 f"planner_horizon ({self.planner_horizon}) steps"
+            )
+        if self.planner_budget > 0 and self.planner_solver != "structured":
+            raise ValueError(
+                f"planner_budget ({self.planner_budget}) needs planner_solver 'structured' (DAQP's iterations are not "
+                "counted here)"
             )
         if self.plan_worker == "process" and self.plan_latency == 0:
             raise ValueError("plan_worker 'process' needs plan_latency >= 1 (a plan solved beside the loop)")
@@ -191,6 +204,7 @@ class PhysicsInformedIDMPC:
                 rate_solver=pcfg.planner_solver,  # measured: the planner's 35-step rate QPs, ~200 of 210 rows
             )  # active, hit the structured solver's iteration limit (docs/controllers.md)
             self.planner.disturbance_model = self._along_plan
+            self.planner.iteration_budget = pcfg.planner_budget or None
             self._plan_offsets = np.arange(pcfg.planner_horizon + 1) * self.control_period
         self._saturated = False
         self.latent = LatentPlanner(self)
