@@ -125,6 +125,13 @@ class PIIDMPCConfig(FrozenModel):
         "step k is solved at step k - x from the state predicted for k (beside the loop); 0: solved at step k, "
         "0 <= x <= 10",
     )
+    plan_prediction_steps: int = pydantic.Field(
+        10,
+        ge=1,
+        le=100,
+        description="RK4 steps per control period of the state a plan of plan_latency > 0 starts from (the model "
+        "carried plan_latency periods on; 10: 1 ms at 10 ms, 2: a fifth of the cost), 1 <= x <= 100",
+    )
     plan_worker: Literal["inline", "process"] = pydantic.Field(
         "inline",
         description="where a plan of plan_latency > 0 is solved: inline (in the control step) or process (a worker "
