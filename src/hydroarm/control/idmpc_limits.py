@@ -36,6 +36,12 @@ is saturated, the plan folds the other joints the way that lowers the base joint
 Each solve is warm-started with the previous one's multipliers (DAQP ``dual_start``). The first
 acceleration of the last successful solve is returned; None if the first solve fails.
 
+``iteration_budget`` (the structured solver; None: none): the active-set iterations one
+:meth:`HorizonQP.solve` may spend over all its QPs, counted (not timed: the same plan on any
+machine). Each QP gets what the ones before it left; a QP that does not settle within it fails
+(no DAQP fallback: its time has no bound) and the SQP stops there with the last settled
+solve's plan (None if it is the first), and no SQP step starts with nothing left.
+
 The drives' rate limit (``rate``: issue 32, the loop's ``actuator.rate_limit`` r, N m/s): N n rows
 more, below the torque rows, on the torque's change per step and joint::
 
@@ -233,6 +239,9 @@ class HorizonQP:
         self.last_iterations = 0  # SQP steps the last solve took (0: the frozen rows' solution)
         self.fallbacks = 0  # structured solves handed to DAQP (iteration limit)
         self.disturbance_model = None  # optional (q, v, a) (N, n) each -> (w (N, n), M_A (N, n, n))
+        self.iteration_budget: int | None = None  # active-set iterations per solve (structured; module docstring)
+        self.last_qp_iterations = 0  # the last structured QP's active-set iterations
+        self.last_spent = 0  # the last solve's active-set iterations over its QPs (structured)
         # load the compiled kernels now, not in the first saturated step
         zeros = np.zeros((horizon, n))
         predicted_plan(np.zeros((n, 2)), np.zeros((horizon, n, 2)), zeros, zeros, zeros, zeros, self.period)
@@ -245,7 +254,7 @@ class HorizonQP:
                     np.zeros(rows, dtype=np.int64), PRIMAL_TOL, DUAL_TOL, 1,
                 )  # fmt: skip
 
-    def _solve_qp(self, gradient, rows, upper, lower, lam=None):
+    def _solve_qp(self, gradient, rows, upper, lower, lam=None, limit=None):
         """``(moves (N n,), lam, ok)`` of one QP by the configured solver, warm-started from the
         multipliers ``lam`` of the last solve (None: cold). ``rows``: the torque rows (N n, N n);
         ``upper``, ``lower``: their bounds (N n,), or with the rate rows' below them (2 N n,:
@@ -254,19 +263,25 @@ class HorizonQP:
         (:data:`RATE_ITERATIONS` per row with the rate rows) to DAQP (counted in ``fallbacks``):
         measured on the iiwa14 (245 rows, up to 240 active), its cost per iteration grows with the
         working set and the longest solves took 3x DAQP's; on the paper arm no torque-row solve
-        takes more than 112."""
+        takes more than 112. ``limit``: at most this many iterations (``iteration_budget``'s share;
+        the structured solver only) and no fallback: a QP not settled within it fails."""
         size = gradient.shape[0]
         rated = upper.shape[0] > size
         if (self.rate_solver if rated else self.solver) == "structured":
+            cap = RATE_ITERATIONS * upper.shape[0] if rated else size
+            self.last_qp_iterations = iterations = 0
             try:
-                moves, new_lam, flag, _ = solve_plan_qp(
+                moves, new_lam, flag, iterations = solve_plan_qp(
                     self._factors, gradient, rows, upper, lower, warm_set(lam, upper.shape[0]),
-                    PRIMAL_TOL, DUAL_TOL, RATE_ITERATIONS * upper.shape[0] if rated else size,
+                    PRIMAL_TOL, DUAL_TOL, cap if limit is None else min(cap, limit),
                 )  # fmt: skip
             except ZeroDivisionError:  # a zero pivot: met on the paper arm with the UR5's limits, a plan 2 steps ahead
                 flag = 0
+            self.last_qp_iterations = int(iterations)
             if int(flag) == 1 and np.all(np.isfinite(moves)) and np.all(np.isfinite(new_lam)):
                 return moves, new_lam, True
+            if limit is not None:
+                return None, None, False  # within a budget: no fallback
             self.fallbacks += 1  # not settled, or a working set too close to dependent rows
         if rated:
             rows = np.vstack([rows, difference_rows(rows, self.n)])
@@ -276,6 +291,13 @@ class HorizonQP:
         else:
             moves, _, flag, info = daqp.solve(self.hessian, gradient, rows, upper, lower, sense, dual_start=lam)
         return np.asarray(moves), np.asarray(info["lam"]), int(flag) == 1
+
+    def _budgeted_qp(self, limit, *problem):
+        """:meth:`_solve_qp` of ``problem`` within ``limit`` iterations (None: without a budget, the
+        call as it always was, so that recorders wrapping ``_solve_qp`` see the same arguments)."""
+        if limit is None:
+            return self._solve_qp(*problem)
+        return self._solve_qp(*problem, limit=limit)
 
     def _rate_warm_start(self, solve, fallback):
         """The working set rate solve ``solve`` (0 the first, 1.. the SQP steps) starts from: the
@@ -379,19 +401,25 @@ class HorizonQP:
             self.rate_solves += 1
         elif self.solver != "structured":
             initial_lam = None  # DAQP's path starts cold, as it always did
-        moves, lam, ok = self._solve_qp(gradient, rows, upper, lower, initial_lam)
+        budget = self.iteration_budget if "structured" in (self.solver, self.rate_solver) else None
+        moves, lam, ok = self._budgeted_qp(budget, gradient, rows, upper, lower, initial_lam)
+        self.last_spent = self.last_qp_iterations
         if not ok:
             return None
         if rate is not None:
             self._rate_lams[0] = lam  # the next step's first solve starts from this one's working set
         for _ in range(self.sqp_iterations):
+            left = None if budget is None else budget - self.last_spent
+            if left is not None and left <= 0:
+                break  # the budget is spent: the last settled solve's plan
             plan = np.asarray(moves).reshape(self.horizon, self.n)
             rows, upper, lower = self.linearised_rows(plan, e0, c, q_r, v_r, a_r, w_hat)
             if rate is not None:
                 upper, lower = self.rate_bounds(upper, lower, rate)
                 self.rate_solves += 1
             start = lam if rate is None or given else self._rate_warm_start(self.last_iterations + 1, lam)
-            new, new_lam, ok = self._solve_qp(gradient, rows, upper, lower, start)
+            new, new_lam, ok = self._budgeted_qp(left, gradient, rows, upper, lower, start)
+            self.last_spent += self.last_qp_iterations
             if ok and rate is not None:
                 self._rate_lams[self.last_iterations + 1] = new_lam
             if not ok:

@@ -32,7 +32,12 @@ torque row. Measured: docs/controllers.md, "PI-IDMPC".
 Beside the loop (``plan_latency`` L > 0): the plan of step k is solved at step k - L from the state
 predicted for step k, in the step (``plan_worker = "inline"``) or by a forked worker process
 (``"process"``) whose answer step k takes: the same run either way
-(:class:`~hydroarm.control.plan_worker.LatentPlanner`).
+(:class:`~hydroarm.control.plan_worker.LatentPlanner`). Its cost: ``plan_prediction_steps`` RK4 steps a
+period for the predicted start state, and ``planner_budget`` (the structured solver) bounds the
+active-set iterations of a plan, counted, so that the plan's time is bounded the same way on every machine.
+Measured (2026-12-04, 2 loaded cores, CPU time per plan after the first; L = 1, structured, budget 120,
+2 SQP steps, 2 prediction steps): paper task median 4.5 ms, p99 7.4, max 7.5, mean E_p 0.025699; the
+UR5's limits 6.6 / 10.0 / 11.2 ms, 0.079868 (without the budget: 13.7 / 31 / 53 ms, 0.025636 / 0.081199).
 
 The drives' rate limit (issue 32, :meth:`PhysicsInformedIDMPC.drive_limits`): its IDMPC holds the
 box of the drives' rate (:meth:`~hydroarm.control.idmpc.InverseDynamicsMPC.torque_box`), the
@@ -101,6 +106,14 @@ class PIIDMPCConfig(FrozenModel):
         "rounding, but its active-set decisions turn a kernel's last bit into another noisy run); under the drives' "
         "rate limit also the solver of its IDMPC's rate-limited QPs",
     )
+    planner_budget: int = pydantic.Field(
+        0,
+        ge=0,
+        le=100000,
+        description="active-set iterations a plan may spend over its SQP's QPs, counted (the structured solver: "
+        "a QP not settled within what is left fails, the SQP stops at the last settled plan); 0: no budget, "
+        "0 <= x <= 100000",
+    )
     planner_deviation: float = pydantic.Field(
         500.0,
         ge=0.0,
@@ -116,6 +129,13 @@ class PIIDMPCConfig(FrozenModel):
         description="control periods between a plan's start state and the step that follows it: the plan of "
         "step k is solved at step k - x from the state predicted for k (beside the loop); 0: solved at step k, "
         "0 <= x <= 10",
+    )
+    plan_prediction_steps: int = pydantic.Field(
+        10,
+        ge=1,
+        le=100,
+        description="RK4 steps per control period of the state a plan of plan_latency > 0 starts from (the model "
+        "carried plan_latency periods on; 10: 1 ms at 10 ms, 2: a fifth of the cost), 1 <= x <= 100",
     )
     plan_worker: Literal["inline", "process"] = pydantic.Field(
         "inline",
@@ -133,6 +153,11 @@ class PIIDMPCConfig(FrozenModel):
             raise ValueError(
                 f"plan_latency ({self.plan_latency}) + planner_hold ({self.planner_hold}) must be at most "
                 f"planner_horizon ({self.planner_horizon}) steps"
+            )
+        if self.planner_budget > 0 and self.planner_solver != "structured":
+            raise ValueError(
+                f"planner_budget ({self.planner_budget}) needs planner_solver 'structured' (DAQP's iterations are not "
+                "counted here)"
             )
         if self.plan_worker == "process" and self.plan_latency == 0:
             raise ValueError("plan_worker 'process' needs plan_latency >= 1 (a plan solved beside the loop)")
@@ -191,6 +216,7 @@ class PhysicsInformedIDMPC:
                 rate_solver=pcfg.planner_solver,  # measured: the planner's 35-step rate QPs, ~200 of 210 rows
             )  # active, hit the structured solver's iteration limit (docs/controllers.md)
             self.planner.disturbance_model = self._along_plan
+            self.planner.iteration_budget = pcfg.planner_budget or None
             self._plan_offsets = np.arange(pcfg.planner_horizon + 1) * self.control_period
         self._saturated = False
         self.latent = LatentPlanner(self)

@@ -175,14 +175,15 @@ class LatentPlanner:
     def predicted_state(self, k, t, y, reference, torque) -> np.ndarray:
         """The state (2n,) step k + L will measure, from step k's state y (2n,) and torque (n,)
         N m: the model (the dry arm, the water model's terms and the remainder's estimate of
-        now) under each period's torque held (:func:`model_period`); the torque of a step between
+        now) under each period's torque held (:func:`model_period`, ``plan_prediction_steps`` RK4
+        steps a period); the torque of a step between
         is its predicted move's, held within the limits (:meth:`_predicted_torque`)."""
         controller = self.controller
         n, period = controller.n, controller.control_period
         q, v = y[:n].copy(), y[n:].copy()
         tau = np.asarray(torque, dtype=float)
         for j in range(1, self.config.plan_latency + 1):
-            q, v = model_period(controller, q, v, tau, period)
+            q, v = model_period(controller, q, v, tau, period, self.config.plan_prediction_steps)
             if j < self.config.plan_latency:
                 tau = self._predicted_torque(k + j, t + j * period, q, v, reference)
         return np.concatenate([q, v])
@@ -206,10 +207,13 @@ class LatentPlanner:
 
 
 PREDICTION_SUBSTEPS = 10
-"""RK4 steps per control period of the state prediction (:func:`model_period`): 1 ms at the paper's
-10 ms, the plant's own inner step. Measured on the paper task's start-up (2026-12-04): the double
-integrator at the step's realised acceleration (what the prediction was) missed the measured state
-one period ahead by up to 32 rad/s (the wrist at 220 rad/s, its drag changing within the period)."""
+"""RK4 steps per control period of the state prediction (:func:`model_period`) by default
+(``pi_idmpc.plan_prediction_steps``): 1 ms at the paper's 10 ms, the plant's own inner step.
+Measured on the paper task's start-up (2026-12-04): the double integrator at the step's realised
+acceleration (what the prediction was) missed the measured state one period ahead by up to
+32 rad/s (the wrist at 220 rad/s, its drag changing within the period). 2 steps (5 ms) cost a
+fifth (0.4 ms a period instead of 1.9 ms on the paper arm, 2026-12-04) and gave the same mean
+E_p on the paper task to 1e-6 (0.025636), 0.080829 against 0.081199 with the UR5's limits."""
 
 
 def model_terms(controller: Any, q: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -223,17 +227,19 @@ def model_terms(controller: Any, q: np.ndarray, v: np.ndarray) -> tuple[np.ndarr
     return controller.mpc.dynamics_terms(q, v, w_free, added_mass)
 
 
-def model_period(controller: Any, q, v, tau, period: float) -> tuple[np.ndarray, np.ndarray]:
+def model_period(
+    controller: Any, q, v, tau, period: float, steps: int = PREDICTION_SUBSTEPS
+) -> tuple[np.ndarray, np.ndarray]:
     """``(q, v)`` (n,) each one ``period`` (s) on from (q, v) under the torque ``tau`` (n,) N m held:
-    :data:`PREDICTION_SUBSTEPS` RK4 steps of the model's forward dynamics (:func:`model_terms`; a
-    fixed-order Cholesky, no LAPACK: its last bits do not follow the BLAS kernel)."""
+    ``steps`` RK4 steps of the model's forward dynamics (:func:`model_terms`, 4 evaluations a step;
+    a fixed-order Cholesky, no LAPACK: its last bits do not follow the BLAS kernel)."""
 
     def acceleration(q_i, v_i):
         mass, bias = model_terms(controller, q_i, v_i)
         return fixed_order.cholesky_solve(np.ascontiguousarray(mass), tau - bias)[0]
 
-    h = period / PREDICTION_SUBSTEPS
-    for _ in range(PREDICTION_SUBSTEPS):
+    h = period / steps
+    for _ in range(steps):
         a1 = acceleration(q, v)
         a2 = acceleration(q + 0.5 * h * v, v + 0.5 * h * a1)
         v2 = v + 0.5 * h * a1
