@@ -132,10 +132,12 @@ def test_a_newer_schema_gets_one_message(tmp_path):
 
 def test_migrations_apply_in_order_and_only_after_the_records_schema():
     data = {"water_model": {"planner_hold": 2}}
-    assert migrate(data, 7)["pi_idmpc"] == {"planner_hold": 2, "plan_latency": 0, "plan_worker": "inline"}  # 13 filled
+    later = {"plan_latency": 0, "plan_worker": "inline", "planner_budget": 0, "plan_prediction_steps": 10}
+    assert migrate(data, 7)["pi_idmpc"] == {"planner_hold": 2, **later}  # 13 and 15 filled
     at_8 = migrate(data, 8)  # written at schema 8: water_model.planner_hold is a mistake, not moved
     assert at_8["water_model"] == {"planner_hold": 2}
-    assert at_8["pi_idmpc"] == {"plan_latency": 0, "plan_worker": "inline"}  # only 13's keys
+    assert at_8["pi_idmpc"] == later  # only 13's and 15's keys
+    assert migrate(data, 14)["pi_idmpc"] == {"planner_budget": 0, "plan_prediction_steps": 10}
     assert at_8["idmpc"] == {
         "delay_margin": 0,
         "loop_delay": "plant",

@@ -110,6 +110,11 @@ MIGRATIONS: tuple[Migration, ...] = (
         "the arm's friction model fed forward under the ID-MPCs",
         keys={"idmpc.friction_feedforward": "arm"},
     ),
+    Migration(
+        15,
+        "PI-IDMPC's plan cost bounded: an active-set iteration budget per plan and the prediction's RK4 steps",
+        keys={"pi_idmpc.planner_budget": 0, "pi_idmpc.plan_prediction_steps": 10},
+    ),
 )
 """Every migration, in order: ``MIGRATIONS[k - 2]`` leads from schema k - 1 to k. The numbers
 before 11 were given after the fact (no record carried one), in the order the features came."""
