@@ -149,6 +149,27 @@ def test_the_observer_and_the_water_model_take_the_one_residual(paper_arm, nomin
         nominal.missed_force(np.zeros(nominal.n), np.zeros(nominal.n), period, "lapack")
 
 
+def test_one_torque_map_over_the_box():
+    """The ID-MPC's torque held within its box (the limits, or the drives' rate box within them)
+    is one function, ``idmpc_limits.held_torque``, over ``torque_box()``, with one allocation
+    (``box_allocate`` about the box's centre on ``allocate``): no second ``*limited_torque``, no
+    box map of its own, and only ``limited_torque`` calls the map (issue 32's review debt: the
+    rate path was a near-copy of the symmetric one)."""
+    assert _hits(r"def \w*limited_torque\w*\(") == {_single(r"def limited_torque\(", "control/idmpc.py")}
+    assert _modules(_hits(r"def (held_torque|box_allocate|allocate)\(mass|def held_torque\(")) == {
+        "control/idmpc_limits.py"
+    }
+    assert _modules(_hits(r"\bheld_torque\(")) == {"control/idmpc_limits.py", "control/idmpc.py"}
+    assert _modules(_hits(r"SATURATION_TOLERANCE =|1e-9 \* np\.maximum|\(1\.0 - 1e-9\)")) == {"control/idmpc_limits.py"}
+
+
+def _single(pattern: str, module: str) -> str:
+    """The one ``module:line`` in control/ matching ``pattern`` (asserted to be in ``module``)."""
+    (hit,) = _hits(pattern)
+    assert hit.startswith(module + ":")
+    return hit
+
+
 def test_symmetrize_mirrors_the_upper_triangle():
     upper = np.triu(np.arange(16.0).reshape(4, 4)) + np.tril(np.full((4, 4), np.nan), -1)
     full = fixed_order.symmetrize(upper)

@@ -6,8 +6,9 @@ The state estimator's copy of the drives tells it (:class:`~hydroarm.control.est
 without a filter :class:`DrivesTold` keeps a copy of its own.
 
 Here: telling it (:func:`tell_drive_limits`), the rate-limited horizon's length
-(:func:`rate_horizon`), the torque within the box (:func:`rate_limited_torque`, :func:`box_allocate`),
-the GP's estimate under the rate limit (below) and :class:`DrivesTold`.
+(:func:`rate_horizon`), the GP's estimate under the rate limit (below) and :class:`DrivesTold`. The
+torque within the box is the ID-MPC's one torque map over its ``torque_box()`` (the limits when no
+rate is told): :func:`~hydroarm.control.idmpc_limits.held_torque`, :func:`~hydroarm.control.idmpc_limits.box_allocate`.
 
 **The GP's estimate under the rate limit.** With acceleration inputs the estimate answers the
 acceleration it is asked at (the water's added mass), and the drives rarely give the planned a_0.
@@ -23,7 +24,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from hydroarm.control.idmpc_limits import allocate
 from hydroarm.control.interface import Controller, ControlOutput, Reference
 from hydroarm.model.real_loop.sensing import Actuator, ActuatorConfig
 
@@ -31,11 +31,9 @@ __all__ = [
     "ADDED_MASS_STEP",
     "RATE_HORIZON_CAP",
     "DrivesTold",
-    "box_allocate",
     "learned_added_mass",
     "linearised_disturbance",
     "rate_horizon",
-    "rate_limited_torque",
     "tell_drive_limits",
 ]
 
@@ -54,38 +52,6 @@ def rate_horizon(horizon: int, torque_limit: np.ndarray, step: np.ndarray) -> in
     the 5-step plan overshot by 6 rad within 1 s (docs/robustness.md, section 6)."""
     ramp = int(np.ceil(np.max(np.asarray(torque_limit, dtype=float) / np.asarray(step, dtype=float))))
     return int(min(max(horizon, ramp), max(horizon, RATE_HORIZON_CAP)))
-
-
-def box_allocate(mass: np.ndarray, bias: np.ndarray, acceleration: np.ndarray, lower: np.ndarray, upper: np.ndarray):
-    """:func:`~hydroarm.control.idmpc_limits.allocate` in the box ``lower <= tau <= upper`` (n,)
-    N m: about its centre c the box is the symmetric one of half-width ``(upper - lower) / 2`` on
-    ``tau - c = M a + (bias - c)``. Returns ``(tau (n,), a (n,), saturated (n,) bool)``."""
-    centre = 0.5 * (lower + upper)
-    tau, a, saturated = allocate(mass, bias - centre, acceleration, 0.5 * (upper - lower))
-    return np.clip(tau + centre, lower, upper), a, saturated
-
-
-def rate_limited_torque(mpc, mass, bias, acceleration, w_hat):
-    """``(tau, a, saturated)`` of the ID-MPC ``mpc`` (its ``limited_torque``) within its
-    ``torque_box()`` (the drives' rate told): the QP with the rate rows (``limits = "qp"``), else
-    the box's allocation (:func:`box_allocate`), or each torque clipped into it (``"clip"``).
-    ``mass`` (n, n), ``bias`` (n,) N m, ``acceleration`` (n,) rad/s^2, ``w_hat`` (n,) N m."""
-    lower, upper = mpc.torque_box()
-    tau = mass @ acceleration + bias
-    fits = bool(np.all((tau >= lower) & (tau <= upper)))
-    if fits and mpc.config.limits != "qp":
-        return tau, acceleration, np.zeros(mpc.n, dtype=bool)
-    if mpc.config.limits == "clip":
-        clipped = np.clip(tau, lower, upper)
-        return clipped, acceleration, clipped != tau
-    if mpc.config.limits == "qp":
-        constrained = mpc.constrained_acceleration(mass, bias, w_hat)
-        if constrained is not None:
-            tau = mass @ constrained + bias
-            clipped = np.clip(tau, lower, upper)  # the QP's rounding (DAQP's tolerance: 1e-6 N m)
-            tight = 1e-9 * np.maximum(np.abs(lower), np.abs(upper))
-            return clipped, constrained, (tau <= lower + tight) | (tau >= upper - tight)
-    return box_allocate(mass, bias, acceleration, lower, upper)
 
 
 def learned_added_mass(gp, gp_input: np.ndarray, n: int, acceleration_scale: float) -> np.ndarray:

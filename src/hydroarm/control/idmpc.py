@@ -100,9 +100,9 @@ import pydantic
 
 from hydroarm.config import FrozenModel, per_joint
 from hydroarm.control.delay_design import INERTIA_MARGIN, delay_margin_weight, told_delay_weight, wet_inertia_ratio
-from hydroarm.control.drive_limits import learned_added_mass, linearised_disturbance, rate_horizon, rate_limited_torque
+from hydroarm.control.drive_limits import learned_added_mass, linearised_disturbance, rate_horizon
 from hydroarm.control.gp import GPConfig, SlidingWindowGP
-from hydroarm.control.idmpc_limits import HorizonQP, allocate  # noqa: F401 (allocate: public here too)
+from hydroarm.control.idmpc_limits import HorizonQP, allocate, held_torque  # noqa: F401 (allocate: public here too)
 from hydroarm.control.interface import DEFAULT_CONTROL_PERIOD, ControlOutput, Reference, require_period, sample_times
 from hydroarm.control.linear import joint_lqr, reference_defects
 from hydroarm.model.arm.description import Arm
@@ -397,27 +397,13 @@ class InverseDynamicsMPC:
         return mass, self.nominal.nonlinear_effects(q, v) - w_hat
 
     def limited_torque(self, mass: np.ndarray, bias: np.ndarray, acceleration: np.ndarray, w_hat: np.ndarray):
-        """:meth:`torque_map` on given :meth:`dynamics_terms`."""
-        if self.drive_rate is not None:
-            return self._rate_limited_torque(mass, bias, acceleration, w_hat)
-        if self.config.limits == "clip":
-            tau = mass @ acceleration + bias
-            clipped = np.clip(tau, -self.torque_limit, self.torque_limit)
-            return clipped, acceleration, clipped != tau
-        if self.config.limits == "qp":
-            tau = mass @ acceleration + bias
-            if np.all(np.abs(tau) <= self.torque_limit):
-                return tau, acceleration, np.zeros(self.n, dtype=bool)
-            constrained = self.constrained_acceleration(mass, bias, w_hat)
-            if constrained is not None:
-                tau = mass @ constrained + bias
-                clipped = np.clip(tau, -self.torque_limit, self.torque_limit)
-                return clipped, constrained, np.abs(tau) >= self.torque_limit * (1.0 - 1e-9)
-        return allocate(mass, bias, acceleration, self.torque_limit)
-
-    def _rate_limited_torque(self, mass, bias, acceleration, w_hat):
-        """:meth:`limited_torque` within :meth:`torque_box` (:func:`rate_limited_torque`)."""
-        return rate_limited_torque(self, mass, bias, acceleration, w_hat)
+        """:meth:`torque_map` on given :meth:`dynamics_terms`: the torque held in :meth:`torque_box`
+        (:func:`~hydroarm.control.idmpc_limits.held_torque`; told the drives' rate, the QP runs every step)."""
+        lower, upper = self.torque_box()
+        return held_torque(
+            self.config.limits, mass, bias, acceleration, lower, upper,
+            lambda: self.constrained_acceleration(mass, bias, w_hat), plan_always=self.drive_rate is not None,
+        )  # fmt: skip
 
     def gp_input(self, y: np.ndarray, acceleration: np.ndarray) -> np.ndarray:
         """The GP's input (2n,) or (3n,) for the state y (2n,) and planned acceleration a_0 (n,)."""

@@ -8,7 +8,10 @@ give (S saturated, F free)::
 
     a_S = M_SS^-1 (tau_S - bias_S - M_SF a_F),    tau_F = M_FS a_S + M_FF a_F + bias_F
 
-with ``bias = h - w_hat``; a free joint pushed over its limit joins S (at most n rounds).
+with ``bias = h - w_hat``; a free joint pushed over its limit joins S (at most n rounds). In a box
+``lower <= tau <= upper`` (the drives' rate told), :func:`box_allocate`: the same about the box's
+centre. :func:`held_torque` is the ID-MPC's one torque map over its box (the limits, or the drives'
+rate box within them): the torque while it fits, else clipped, the QP's or the allocation's.
 
 :class:`HorizonQP` (``limits = "qp"``): the horizon's problem of all n joints as one QP in the
 stacked moves U (N n,), step-major (``U[k n + j]`` = joint j's move ``a - a_r`` at step k)::
@@ -117,6 +120,58 @@ def allocate(mass: np.ndarray, bias: np.ndarray, acceleration: np.ndarray, limit
             break
         saturated = saturated | over
     return np.clip(tau, -limit, limit), a, saturated
+
+
+def box_allocate(mass: np.ndarray, bias: np.ndarray, acceleration: np.ndarray, lower: np.ndarray, upper: np.ndarray):
+    """:func:`allocate` in the box ``lower <= tau <= upper`` (n,) N m: about its centre c the box
+    is the symmetric one of half-width ``(upper - lower) / 2`` on ``tau - c = M a + (bias - c)``.
+    In the box of the limits, ``(-limit, limit)``, it is :func:`allocate` bit for bit: c = +0,
+    ``bias - 0`` is ``bias``, the half-width ``limit``, the final clip holds what :func:`allocate`
+    already held, and ``tau + 0`` changes only a -0.0, which :func:`allocate` does not give (its
+    torques are ``M a + bias``, whose product sums from +0, or a clipped torque, ``+-limit``).
+    Returns ``(tau (n,), a (n,), saturated (n,) bool)``."""
+    centre = 0.5 * (lower + upper)
+    tau, a, saturated = allocate(mass, bias - centre, acceleration, 0.5 * (upper - lower))
+    return np.clip(tau + centre, lower, upper), a, saturated
+
+
+SATURATION_TOLERANCE = 1e-9
+"""Relative (-): a torque within this fraction of the box's larger bound of a bound counts as
+saturated after the QP (:func:`held_torque`; the QP's rounding leaves an active row a few last
+bits short of its bound)."""
+
+
+def held_torque(limits: str, mass, bias, acceleration, lower, upper, constrained, *, plan_always: bool = False):
+    """``(tau, a, saturated)``: the torque (n,) N m realising ``acceleration`` (n,) rad/s^2 on
+    ``tau = M a + bias`` (``mass`` (n, n), ``bias`` (n,) N m), held in the box ``lower <= tau <=
+    upper`` (n,) N m by the ID-MPC's ``limits`` (:class:`~hydroarm.control.idmpc.IDMPCConfig`):
+    the torque as it is while it fits; else ``"clip"`` clips each torque into the box, ``"qp"``
+    takes the horizon QP's first acceleration ``constrained()`` ((n,), or None: its solver
+    failed) and clips its torque into the box (the QP's rounding: DAQP's tolerance is 1e-6 N m),
+    ``"allocation"`` (and a failed QP) allocates (:func:`box_allocate`). The one torque map of
+    every ID-MPC, with or without the drives' rate box (the box is ``(-limit, limit)`` without).
+    ``plan_always``: the QP runs even while the torque fits (the drives' rate rows: a plan that
+    fits now can still ask for a ramp the drives cannot give later; docs/robustness.md, section 6).
+
+    A torque after the QP counts as saturated within ``tight`` of a bound, ``tight`` the fraction
+    :data:`SATURATION_TOLERANCE` of the box's larger bound ``b`` written ``b - b (1 - 1e-9)`` (both
+    steps exact: Sterbenz), so that in the box ``(-limit, limit)`` the bound less ``tight`` is
+    ``limit (1 - 1e-9)`` exactly, the flag ``|tau| >= limit (1 - 1e-9)``."""
+    tau = mass @ acceleration + bias
+    fits = np.all((tau >= lower) & (tau <= upper))  # |tau| <= limit in (-limit, limit); a NaN does not fit
+    if fits and not (plan_always and limits == "qp"):
+        return tau, acceleration, np.zeros(tau.shape[0], dtype=bool)
+    if limits == "clip":
+        clipped = np.clip(tau, lower, upper)
+        return clipped, acceleration, clipped != tau
+    if limits == "qp":
+        a = constrained()
+        if a is not None:
+            tau = mass @ a + bias
+            span = np.maximum(np.abs(lower), np.abs(upper))
+            tight = span - span * (1.0 - SATURATION_TOLERANCE)
+            return np.clip(tau, lower, upper), a, (tau <= lower + tight) | (tau >= upper - tight)
+    return box_allocate(mass, bias, acceleration, lower, upper)
 
 
 def condensed_problem(period, horizon, q_pos, q_vel, r_acc, p_mats):

@@ -45,6 +45,7 @@ import numpy as np
 import pydantic
 
 from hydroarm.config import FrozenModel
+from hydroarm.control.idmpc_limits import SATURATION_TOLERANCE  # a torque this near its limit is saturated
 from hydroarm.control.interface import (
     ControlOutput,
     DisturbanceEstimator,
@@ -143,10 +144,6 @@ class DisturbanceObserver:
         if self.config.gate and self._saturated:
             return np.zeros(self.n)
         return self.estimate.copy()
-
-
-SATURATION_TOLERANCE = 1e-9
-"""A torque within this relative margin of its limit counts as saturated."""
 
 
 class ObservedController:

@@ -42,7 +42,7 @@ UR5's limits 6.6 / 10.0 / 11.2 ms, 0.079868 (without the budget: 13.7 / 31 / 53 
 The drives' rate limit (issue 32, :meth:`PhysicsInformedIDMPC.drive_limits`): its IDMPC holds the
 box of the drives' rate (:meth:`~hydroarm.control.idmpc.InverseDynamicsMPC.torque_box`), the
 planner's QP takes the rate rows from the drives' output, a plan is followed within the box
-(:func:`~hydroarm.control.drive_limits.box_allocate`) and ``"auto"`` plans while the box binds. A plan
+(:func:`~hydroarm.control.idmpc_limits.box_allocate`) and ``"auto"`` plans while the box binds. A plan
 solved beside the loop (``plan_latency`` > 0) starts from a state L steps ahead, whose drives'
 output is not known yet: it has no rate rows, and is followed within the box.
 
@@ -62,9 +62,8 @@ import numpy as np
 import pydantic
 
 from hydroarm.config import FrozenModel, per_joint
-from hydroarm.control.drive_limits import box_allocate
 from hydroarm.control.idmpc import IDMPCConfig, InverseDynamicsMPC
-from hydroarm.control.idmpc_limits import HorizonQP, allocate, predicted_plan
+from hydroarm.control.idmpc_limits import HorizonQP, allocate, box_allocate, predicted_plan
 from hydroarm.control.interface import ControlOutput, Reference, sample_times
 from hydroarm.control.learned_water import PhysicsInformedModel, WaterModelConfig
 from hydroarm.control.linear import reference_defects
