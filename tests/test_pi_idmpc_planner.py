@@ -376,3 +376,31 @@ def test_a_planner_budget_bounds_every_plans_iterations_and_a_loose_one_changes_
     loose, _, _ = _budget_run(max(spent))
     np.testing.assert_array_equal(loose.q, free.q)
     np.testing.assert_array_equal(loose.u, free.u)
+
+
+def test_the_kernels_are_warmed_on_a_twin_before_a_worker_is_forked():
+    """``plan_worker = "process"``: before forking, the parent runs a plan on a twin of the
+    controller (so a worker does not load the planner's kernels in its first plan); the controller
+    itself keeps its state, and it happens once per process and kind of planner."""
+    from hydroarm.control import plan_worker
+
+    experiment = _experiment(**{"pi_idmpc.plan_latency": 1, "duration": 0.1})  # inline: nothing forked yet
+    controller = experiment.controller.controller
+    key = (type(controller), controller.n, 35, controller.config.planner_solver, 1)
+    plan_worker._WARMED.discard(key)
+    calls = []
+    original = plan_worker.LatentPlanner.plan_job
+
+    def counting(self, *args):
+        calls.append(self.controller is controller)
+        return original(self, *args)
+
+    plan_worker.LatentPlanner.plan_job = counting
+    try:
+        plan_worker.warm_kernels(controller)
+        plan_worker.warm_kernels(controller)
+    finally:
+        plan_worker.LatentPlanner.plan_job = original
+    assert calls == [False, False]  # two jobs (cold, then warm), both on the twin, and only once
+    assert key in plan_worker._WARMED
+    assert (controller.plans, controller.rejected, list(controller.latent._history)) == (0, 0, [])
