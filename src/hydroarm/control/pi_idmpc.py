@@ -63,7 +63,7 @@ import pydantic
 
 from hydroarm.config import FrozenModel, per_joint
 from hydroarm.control.idmpc import IDMPCConfig, InverseDynamicsMPC
-from hydroarm.control.idmpc_limits import HorizonQP, allocate, box_allocate, predicted_plan
+from hydroarm.control.idmpc_limits import HorizonQP, box_allocate, predicted_plan
 from hydroarm.control.interface import ControlOutput, Reference, sample_times
 from hydroarm.control.learned_water import PhysicsInformedModel, WaterModelConfig
 from hydroarm.control.linear import reference_defects
@@ -259,16 +259,15 @@ class PhysicsInformedIDMPC:
         self.mpc.drive_limits(output, step)
 
     def _fits(self, tau: np.ndarray) -> bool:
-        """Whether the torque ``tau`` (n,) is within the limits (and the drives' rate box, when told)."""
-        if self.mpc.drive_rate is None:
-            return bool(np.all(np.abs(tau) <= self.torque_limit))
+        """Whether the torque ``tau`` (n,) is within the limits, or the drives' rate box when told
+        (:meth:`~hydroarm.control.idmpc.InverseDynamicsMPC.torque_box`; a NaN does not fit)."""
         lower, upper = self.mpc.torque_box()
         return bool(np.all((tau >= lower) & (tau <= upper)))
 
     def _held(self, mass, bias, a):
-        """``(tau, a, saturated)`` realising ``a`` (n,) within the limits (and the drives' rate box)."""
-        if self.mpc.drive_rate is None:
-            return allocate(mass, bias, a, self.torque_limit)
+        """``(tau, a, saturated)`` realising ``a`` (n,) within the limits, or the drives' rate box
+        when told (:func:`~hydroarm.control.idmpc_limits.box_allocate`: about a zero centre, the
+        symmetric allocation bit for bit, tests/test_held_torque.py)."""
         return box_allocate(mass, bias, a, *self.mpc.torque_box())
 
     def _along_plan(self, q: np.ndarray, v: np.ndarray, a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
