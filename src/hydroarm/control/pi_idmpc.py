@@ -369,10 +369,7 @@ class PhysicsInformedIDMPC:
         acceleration = self.mpc.planned_acceleration(t, y, reference)
         t_plan = time.perf_counter()
         self._rest = self.remainder.feedforward() if self.remainder is not None else np.zeros(n)
-        added_mass, rest = self.model.terms(q, v)
-        w_free = rest + self._rest  # the estimate apart from the added mass: -M_A a joins the inertia
-        if not (np.all(np.isfinite(w_free)) and np.all(np.isfinite(added_mass))):
-            w_free, added_mass = np.where(np.isfinite(w_free), w_free, 0.0), None
+        w_free, added_mass = self.water_terms(q, v)
         t_model = time.perf_counter()
         tau = None
         mass, bias = self.mpc.dynamics_terms(q, v, w_free, added_mass)  # M (+ M_A) and h - w, once per step
@@ -410,6 +407,17 @@ class PhysicsInformedIDMPC:
             disturbance_mean=w_hat,
             acceleration=realised,
         )
+
+    def water_terms(self, q: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+        """``(w_free (n,) N m, M_A (n, n) or None)`` at (q, v): the water model's force apart from its
+        added mass plus the remainder's estimate of now (the estimate is ``w_free - M_A a``: the added
+        mass joins the inertia), and the added mass; a non-finite force term is left out, and a
+        non-finite term drops the added mass (None)."""
+        added_mass, rest = self.model.terms(q, v)
+        w_free = rest + self._rest
+        if not (np.all(np.isfinite(w_free)) and np.all(np.isfinite(added_mass))):
+            return np.where(np.isfinite(w_free), w_free, 0.0), None
+        return w_free, added_mass
 
     def _planned_torque(self, t, y, reference, acceleration, mass, bias, w_free):
         """``(tau, a, saturated)`` from the planner, or ``(None, None, None)`` when it has nothing to

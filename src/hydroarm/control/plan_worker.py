@@ -220,11 +220,8 @@ E_p on the paper task to 1e-6 (0.025636), 0.080829 against 0.081199 with the UR5
 def model_terms(controller: Any, q: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``(M + M_A (n, n), h - w (n,))`` of ``controller``'s model (a PhysicsInformedIDMPC's) at
     (q, v): the dry arm, the water model's terms (its added mass joins the inertia) and the
-    remainder's estimate of now, as its step forms them (a non-finite term left out)."""
-    added_mass, rest = controller.model.terms(q, v)
-    w_free = rest + controller._rest
-    if not (np.all(np.isfinite(w_free)) and np.all(np.isfinite(added_mass))):
-        w_free, added_mass = np.where(np.isfinite(w_free), w_free, 0.0), None
+    remainder's estimate of now, as its step forms them (:meth:`PhysicsInformedIDMPC.water_terms`)."""
+    w_free, added_mass = controller.water_terms(q, v)
     return controller.mpc.dynamics_terms(q, v, w_free, added_mass)
 
 
