@@ -155,3 +155,20 @@ def test_an_interrupted_campaign_keeps_the_runs_it_finished(tmp_path, monkeypatc
     if arm != "paper":
         assert data["arms"]["ur5"]["runs"] == [{"kept": True}]
     assert not out.with_suffix(".json.partial").exists()
+
+
+def test_the_observer_variants_and_pi_idmpc_on_every_arm_are_the_results_file():
+    """The variants' and PI-IDMPC's tables on every arm are the campaign's results (the paper arm's
+    from docs/data/real_loop.json), and every arm ran each of them in the 18 grid worlds."""
+    script = _script("real_loop_campaign")
+    by_arm = _by_arm(script)
+    variants = ["IDMPC+TDE", "IDMPC+TDE-gated", "IDMPC+NDOB", "IDMPC+NDOB-gated"]
+    page = (ROOT / "docs" / "robustness.md").read_text()
+    assert script.arms_table(by_arm, variants) in page
+    assert script.arms_table(by_arm, ["PI-IDMPC"]) in page
+    assert script.arms_rate_table(by_arm, ["PI-IDMPC"]) in page
+    assert script.arms_world_table(by_arm, "PI-IDMPC") in page
+    for arm, runs in by_arm.items():
+        for controller in [*variants, "PI-IDMPC"]:
+            grid = {r["world"] for r in runs if r["controller"] == controller and r["group"] == "grid"}
+            assert len(grid) == 18, (arm, controller)
