@@ -268,27 +268,25 @@ _WARMED: set[tuple] = set()
 """The planners whose kernels this process has run (:func:`warm_kernels`)."""
 
 
-def warm_kernels(controller: Any) -> None:
+def warm_kernels(pi_idmpc: Any) -> None:
     """Run a plan's every kernel once in this process, before a worker is forked from it, on a twin
-    of ``controller`` (a PhysicsInformedIDMPC: the same arm and settings, solved inline; the
+    of ``pi_idmpc`` (a PhysicsInformedIDMPC: the same arm and settings, solved inline; the
     controller itself is not touched): a forked worker inherits what its parent ran, and without
     this each worker loaded the planner's compiled kernels in its first plan (measured on the paper
     task, 2026-12-04: 43-83 ms of CPU time in the first plan of every run, then 4-14 ms). Once per
     process and kind of planner."""
-    config = controller.config
-    key = (type(controller), controller.n, config.planner_horizon, config.planner_solver, config.plan_latency)
+    config = pi_idmpc.config
+    key = (type(pi_idmpc), pi_idmpc.n, config.planner_horizon, config.planner_solver, config.plan_latency)
     if key in _WARMED:
         return
     _WARMED.add(key)
     inline = config.model_copy(update={"plan_worker": "inline"})
-    twin = type(controller)(
-        controller.arm, controller.mpc.config, controller.model.config, controller.control_period, inline
-    )
-    n = controller.n
+    twin = type(pi_idmpc)(pi_idmpc.arm, pi_idmpc.mpc.config, pi_idmpc.model.config, pi_idmpc.control_period, inline)
+    n = pi_idmpc.n
     y = np.concatenate([np.full(n, 1.0), np.full(n, 5.0)])  # far off the still reference: the limits bind
     torque = np.zeros(n)
     twin.latent.plan_job(0, 0.0, y, _Still(n), torque, None)  # cold
-    twin.latent.plan_job(1, controller.control_period, y, _Still(n), torque, 1)  # warm from it
+    twin.latent.plan_job(1, pi_idmpc.control_period, y, _Still(n), torque, 1)  # warm from it
 
 
 def _serve_plans(planner: LatentPlanner, connection) -> None:  # pragma: no cover - a child
