@@ -105,6 +105,8 @@ def test_a_constant_reference_at_rest_needs_no_plan_in_auto_mode():
         ({"planner_budget": 100}, "planner_budget"),  # DAQP, the default solver: its iterations are not counted
         ({"plan_prediction_steps": 0}, "plan_prediction_steps"),
         ({"plan_prediction_steps": 101}, "plan_prediction_steps"),
+        ({"plan_prediction_steps": 2}, "plan_prediction_steps"),  # plan_latency 0: no prediction to step
+        ({"planner": "off", "planner_solver": "structured", "planner_budget": 100}, "planner_budget"),
     ],
 )
 def test_planner_settings_are_validated(settings, field):

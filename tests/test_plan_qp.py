@@ -317,14 +317,14 @@ def test_the_rate_limited_problems_of_a_paper_run_equal_daqp():
     while not hasattr(controller, "rate_qp"):
         controller = controller.controller
 
-    def recording(gradient, rows, upper, lower, lam=None):
+    def recording(gradient, rows, upper, lower, lam=None, limit=None):
         qp = controller.rate_qp
         problems.append((qp.hessian, qp.n, gradient.copy(), rows.copy(), upper.copy(), lower.copy()))
-        return inner(qp, gradient, rows, upper, lower, lam)
+        return inner(qp, gradient, rows, upper, lower, lam, limit=limit)
 
     inner = HorizonQP._solve_qp
     original = HorizonQP._solve_qp
-    HorizonQP._solve_qp = lambda self, *args: recording(*args)
+    HorizonQP._solve_qp = lambda self, *args, **kwargs: recording(*args, **kwargs)
     try:
         experiment.run(0)
     finally:

@@ -266,11 +266,11 @@ def record_plan_problems(duration: float = DURATION_S) -> tuple[object, list]:
     problems = []
     inner = planner._solve_qp
 
-    def recording(gradient, rows, upper, lower, lam=None):
+    def recording(gradient, rows, upper, lower, lam=None, limit=None):
         problems.append(
             (gradient.copy(), rows.copy(), upper.copy(), lower.copy(), None if lam is None else np.array(lam))
         )
-        return inner(gradient, rows, upper, lower, lam)
+        return inner(gradient, rows, upper, lower, lam, limit=limit)
 
     planner._solve_qp = recording
     experiment.run(0)

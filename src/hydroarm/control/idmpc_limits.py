@@ -347,13 +347,6 @@ class HorizonQP:
             moves, _, flag, info = daqp.solve(self.hessian, gradient, rows, upper, lower, sense, dual_start=lam)
         return np.asarray(moves), np.asarray(info["lam"]), int(flag) == 1
 
-    def _budgeted_qp(self, limit, *problem):
-        """:meth:`_solve_qp` of ``problem`` within ``limit`` iterations (None: without a budget, the
-        call as it always was, so that recorders wrapping ``_solve_qp`` see the same arguments)."""
-        if limit is None:
-            return self._solve_qp(*problem)
-        return self._solve_qp(*problem, limit=limit)
-
     def _rate_warm_start(self, solve, fallback):
         """The working set rate solve ``solve`` (0 the first, 1.. the SQP steps) starts from: the
         last step's same solve's multipliers a step on (each block of N n rows shifted by n, the
@@ -457,7 +450,7 @@ class HorizonQP:
         elif self.solver != "structured":
             initial_lam = None  # DAQP's path starts cold, as it always did
         budget = self.iteration_budget if "structured" in (self.solver, self.rate_solver) else None
-        moves, lam, ok = self._budgeted_qp(budget, gradient, rows, upper, lower, initial_lam)
+        moves, lam, ok = self._solve_qp(gradient, rows, upper, lower, initial_lam, limit=budget)
         self.last_spent = self.last_qp_iterations
         if not ok:
             return None
@@ -473,7 +466,7 @@ class HorizonQP:
                 upper, lower = self.rate_bounds(upper, lower, rate)
                 self.rate_solves += 1
             start = lam if rate is None or given else self._rate_warm_start(self.last_iterations + 1, lam)
-            new, new_lam, ok = self._budgeted_qp(left, gradient, rows, upper, lower, start)
+            new, new_lam, ok = self._solve_qp(gradient, rows, upper, lower, start, limit=left)
             self.last_spent += self.last_qp_iterations
             if ok and rate is not None:
                 self._rate_lams[self.last_iterations + 1] = new_lam

@@ -158,8 +158,16 @@ class PIIDMPCConfig(FrozenModel):
                 f"planner_budget ({self.planner_budget}) needs planner_solver 'structured' (DAQP's iterations are not "
                 "counted here)"
             )
+        if self.planner_budget > 0 and self.planner == "off":
+            raise ValueError(f"planner_budget ({self.planner_budget}) needs a planner (planner 'auto' or 'always')")
         if self.plan_worker == "process" and self.plan_latency == 0:
             raise ValueError("plan_worker 'process' needs plan_latency >= 1 (a plan solved beside the loop)")
+        default_steps = type(self).model_fields["plan_prediction_steps"].default
+        if self.plan_prediction_steps != default_steps and self.plan_latency == 0:
+            raise ValueError(
+                f"plan_prediction_steps ({self.plan_prediction_steps}) needs plan_latency >= 1 (only a plan solved "
+                "beside the loop predicts the state it starts from)"
+            )
         return self
 
 

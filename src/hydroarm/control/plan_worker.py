@@ -207,16 +207,6 @@ class LatentPlanner:
         return controller._held(mass, bias, move)[0]
 
 
-PREDICTION_SUBSTEPS = 10
-"""RK4 steps per control period of the state prediction (:func:`model_period`) by default
-(``pi_idmpc.plan_prediction_steps``): 1 ms at the paper's 10 ms, the plant's own inner step.
-Measured on the paper task's start-up (2026-12-04): the double integrator at the step's realised
-acceleration (what the prediction was) missed the measured state one period ahead by up to
-32 rad/s (the wrist at 220 rad/s, its drag changing within the period). 2 steps (5 ms) cost a
-fifth (0.4 ms a period instead of 1.9 ms on the paper arm, 2026-12-04) and gave the same mean
-E_p on the paper task to 1e-6 (0.025636), 0.080829 against 0.081199 with the UR5's limits."""
-
-
 def model_terms(controller: Any, q: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``(M + M_A (n, n), h - w (n,))`` of ``controller``'s model (a PhysicsInformedIDMPC's) at
     (q, v): the dry arm, the water model's terms (its added mass joins the inertia) and the
@@ -225,12 +215,18 @@ def model_terms(controller: Any, q: np.ndarray, v: np.ndarray) -> tuple[np.ndarr
     return controller.mpc.dynamics_terms(q, v, w_free, added_mass)
 
 
-def model_period(
-    controller: Any, q, v, tau, period: float, steps: int = PREDICTION_SUBSTEPS
-) -> tuple[np.ndarray, np.ndarray]:
+def model_period(controller: Any, q, v, tau, period: float, steps: int) -> tuple[np.ndarray, np.ndarray]:
     """``(q, v)`` (n,) each one ``period`` (s) on from (q, v) under the torque ``tau`` (n,) N m held:
-    ``steps`` RK4 steps of the model's forward dynamics (:func:`model_terms`, 4 evaluations a step;
-    a fixed-order Cholesky, no LAPACK: its last bits do not follow the BLAS kernel)."""
+    ``steps`` RK4 steps (``pi_idmpc.plan_prediction_steps``) of the model's forward dynamics
+    (:func:`model_terms`, 4 evaluations a step; a fixed-order Cholesky, no LAPACK: its last bits do
+    not follow the BLAS kernel).
+
+    Measured on the paper task's start-up (2026-12-04): the double integrator at the step's realised
+    acceleration (the prediction before) missed the measured state one period ahead by up to
+    32 rad/s (the wrist at 220 rad/s, its drag changing within the period). 10 steps (1 ms at the
+    paper's 10 ms, the plant's own inner step; the default) cost 1.9 ms a period on the paper arm, 2
+    steps 0.4 ms, with the same mean E_p on the paper task to 1e-6 (0.025636) and 0.080829 against
+    0.081199 with the UR5's limits."""
 
     def acceleration(q_i, v_i):
         mass, bias = model_terms(controller, q_i, v_i)
