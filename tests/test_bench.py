@@ -132,6 +132,30 @@ def test_a_section_alone_says_its_machine_and_load():
     assert "a loaded machine" not in section_markdown(report, "s", lambda section: "")
 
 
+def test_the_flagship_section_times_the_whole_chain_of_the_controller_flagship_resolves_to():
+    """Quick mode: the flagship (what ``--controller flagship`` runs) and IDMPC on the paper task,
+    every observed step timed; a step's wall time holds its compute and its observe."""
+    from hydroarm.control.registry import ALIASES
+    from hydroarm_bench.flagship import bench_flagship, render_flagship
+    from hydroarm_bench.loop import TimedController, paper_experiment
+
+    section = bench_flagship(quick=True)
+    assert section["flagship"] == ALIASES["flagship"] and section["peer"] == "IDMPC"
+    rows = section["cases"]["paper"]
+    for name in (section["flagship"], "IDMPC"):
+        assert rows[name]["step"]["n"] == 100 and rows[name]["step_cpu"]["n"] == 100  # 1 s: 100 steps
+        assert 0.0 < rows[name]["step"]["median"] <= rows[name]["step"]["max"]
+    assert rows["median_ratio"] == rows[section["flagship"]]["step"]["median"] / rows["IDMPC"]["step"]["median"]
+    assert f"| paper | {section['flagship']} |" in render_flagship(section)
+    experiment = paper_experiment("IDMPC", 0.2)
+    timed = TimedController(experiment.controller)
+    experiment.controller = timed
+    experiment.run(0)
+    steps = len(timed.observe_s)
+    assert len(timed.wall_s) >= steps > 0
+    assert all(wall >= observe for wall, observe in zip(timed.wall_s, timed.observe_s, strict=False))
+
+
 # --------------------------------------------------------------------------------------
 # Compiled kernels equal their plain-NumPy twins (*_numpy)
 # --------------------------------------------------------------------------------------

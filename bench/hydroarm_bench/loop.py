@@ -29,10 +29,11 @@ class TimedController:
     ``on_compute(controller, t, y, out)`` is called after every ``compute``. ``cpu_s``: each
     step's compute + observe in this thread's CPU time (``time.thread_time_ns``: the time the
     step ran, without the time other processes held the core; on a loaded machine the wall
-    time's tail is mostly the latter). ``paced``: each compute starts no earlier than its tick
-    (the first compute's time + k control periods), as in a loop driven by a real arm's clock:
-    what runs beside the loop (a planner's worker process) gets the wall time it would have; the
-    simulation otherwise runs the loop many times faster than real time."""
+    time's tail is mostly the latter); ``wall_s``: the same in wall time. ``paced``: each compute
+    starts no earlier than its tick (the first compute's time + k control periods), as in a loop
+    driven by a real arm's clock: what runs beside the loop (a planner's worker process) gets the
+    wall time it would have; the simulation otherwise runs the loop many times faster than real
+    time."""
 
     def __init__(self, controller, on_compute=None, paced: bool = False) -> None:
         self.inner = controller
@@ -40,6 +41,7 @@ class TimedController:
         self.control_period = controller.control_period
         self.observe_s: list[float] = []
         self.cpu_s: list[float] = []
+        self.wall_s: list[float] = []
         self.on_compute = on_compute
         self.paced = paced
         self._first_tick: float | None = None
@@ -48,6 +50,7 @@ class TimedController:
         self.inner.reset()
         self.observe_s.clear()
         self.cpu_s.clear()
+        self.wall_s.clear()
         self._first_tick = None
 
     def _wait_for_tick(self) -> None:
@@ -63,9 +66,10 @@ class TimedController:
     def compute(self, t, y, reference):
         if self.paced:
             self._wait_for_tick()
-        cpu = time.thread_time_ns()
+        cpu, wall = time.thread_time_ns(), time.perf_counter_ns()
         out = self.inner.compute(t, y, reference)
         self.cpu_s.append((time.thread_time_ns() - cpu) * 1e-9)
+        self.wall_s.append((time.perf_counter_ns() - wall) * 1e-9)
         if self.on_compute is not None:
             self.on_compute(self.inner, t, y, out)
         return out
@@ -77,6 +81,7 @@ class TimedController:
         self.observe_s.append((time.perf_counter_ns() - start) * 1e-9)
         if self.cpu_s:
             self.cpu_s[-1] += (time.thread_time_ns() - cpu) * 1e-9
+            self.wall_s[-1] += self.observe_s[-1]
 
 
 def closed_loop(name: str, duration: float, seed: int = 0, on_compute=None):

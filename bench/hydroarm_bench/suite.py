@@ -12,6 +12,7 @@ from hydroarm_bench.arm_fast import bench_arm_fast, render_arm_fast
 from hydroarm_bench.batched_env import bench_batched_env, render_batched_env
 from hydroarm_bench.control_steps import bench_control_steps
 from hydroarm_bench.envs import bench_envs, render_envs
+from hydroarm_bench.flagship import bench_flagship, render_flagship
 from hydroarm_bench.gp_peers import bench_gp_peers, record_gp_stream
 from hydroarm_bench.markdown import render_markdown
 from hydroarm_bench.mpc_peers import bench_mpc_peers
@@ -90,6 +91,7 @@ def run_benchmarks(out_dir: Path, quick: bool = False) -> dict:
 SECTIONS = {
     "arm_fast": (bench_arm_fast, render_arm_fast),
     "batched_env": (bench_batched_env, render_batched_env),
+    "flagship": (bench_flagship, render_flagship),
     "planner": (bench_planner, render_planner),
     "uvms": (bench_uvms, render_uvms),
 }

@@ -248,7 +248,8 @@ def bench(
     only: Annotated[
         str | None,
         typer.Option(
-            "--only", help="One section alone (arm_fast, batched_env, planner, uvms): bench-<section>.json and .md."
+            "--only",
+            help="One section alone (arm_fast, batched_env, flagship, planner, uvms): bench-<section>.json and .md.",
         ),
     ] = None,
 ) -> None:
