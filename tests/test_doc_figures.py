@@ -149,6 +149,26 @@ MB = 1e-6  # bytes -> MB
             ["gp_idmpc_step_ms.median"],
         ),
         (
+            "docs/controllers.md",
+            "median {0:.3f} ms, p99 {1:.3f} ms, max {2:.2f} ms on the paper task, {3:.3f} / {4:.3f} / {5:.2f} ms "
+            "with the UR5's limits, {6:.3f} / {7:.3f} / {8:.2f} ms in the issue's real loop",
+            "bench/results/bench-flagship.json",
+            [
+                f"flagship.cases.{case}.GP-IDMPC.step.{key}"
+                for case in ("paper", "paper, UR5 limits", "paper, the issue's real loop")
+                for key in ("median", "p99", "max")
+            ],
+        ),
+        (
+            "docs/controllers.md",
+            "{0:.1f}x, {1:.1f}x and {2:.1f}x IDMPC's in the same runs",
+            "bench/results/bench-flagship.json",
+            [
+                f"flagship.cases.{case}.median_ratio"
+                for case in ("paper", "paper, UR5 limits", "paper, the issue's real loop")
+            ],
+        ),
+        (
             "docs/validation-real.md",
             "load average {0:.1f}, 2026-12-02): all {1} trials ({2:.0f} s of logs) replayed in {3:.1f} s",
             "bench/results/bench.json",
