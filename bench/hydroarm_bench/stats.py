@@ -41,7 +41,14 @@ PEER_PACKAGES = (
     "linear-operator",
 )
 STEP_KEYS = ("median", "p90", "p99", "max")
+STEP_BARS_MS = {"median": 0.3, "p99": 1.0, "max": 5.0}
+"""Issue 32's bars on the flagship's whole control step (ms): the ``planner`` and ``flagship`` sections' ``meets``."""
 FULL_SAMPLES = 1000  # samples per measurement in full mode (peers and scaling included)
+
+
+def meets_bars(stats: dict) -> dict[str, bool]:
+    """Per bar of :data:`STEP_BARS_MS`, whether the step statistics ``stats`` (ms, :func:`stats_ms`) meet it."""
+    return {key: stats[key] <= limit for key, limit in STEP_BARS_MS.items()}
 
 
 def stats_ms(samples_s) -> dict:

@@ -311,9 +311,9 @@ class PhysicsInformedIDMPC:
     # --- the planner ------------------------------------------------------------------
     def _replan(self, t, y, reference, idmpc_acceleration, warm, boxed=None) -> tuple | None:
         """The plan ``(q, v, a (N, n) each, moves (N, n), multipliers (N n,), active)`` from state y
-        (2n,) at time t, or None (DAQP failed, or the plan is refused against the IDMPC's own first
-        move ``idmpc_acceleration`` (n,) or :data:`PLAN_TRUST`). ``warm``: ``(moves, multipliers,
-        shift)`` of a last plan, started ``shift`` steps before this one, or None (cold)."""
+        (2n,) at time t, or None (DAQP failed; refused by :func:`plan_refused` against the IDMPC's move
+        ``idmpc_acceleration`` (n,) and ``boxed`` (its move in the rate box, or None), or by :data:`PLAN_TRUST`).
+        ``warm``: ``(moves, multipliers, shift)`` of a last plan, started ``shift`` steps before, or None."""
         n, period = self.n, self.control_period
         q_r, v_r, a_r = sample_times(reference, t + self._plan_offsets)
         e0 = np.stack([y[:n] - q_r[0], y[n:] - v_r[0]], axis=1)
