@@ -28,5 +28,12 @@ class GPStats:
     n_full_factorizations: int = 0  # stacked (all outputs) full factorisations of a window
     n_incremental_updates: int = 0  # O(N^2) window updates of the factor
 
+    def count_steps(self, full_factorizations: int, accepted: int, halvings: int, rejected: int) -> None:
+        """Add one hyperparameter update's factorisations and step outcomes."""
+        self.n_full_factorizations += full_factorizations
+        self.n_accepted_steps += accepted
+        self.n_step_halvings += halvings
+        self.n_rejected_steps += rejected
+
     def as_dict(self) -> dict[str, int]:
         return asdict(self)

@@ -32,6 +32,7 @@ from hydroarm.control.gp._batched import (
 from hydroarm.control.gp._checks import _check_matrix, _check_thetas, _check_vector, _is_int
 from hydroarm.control.gp._cholesky import _append_sample, _cholesky_inverse, _drop_oldest
 from hydroarm.control.gp._compiled import _NO_FACTOR, _evaluate_kernel, _kernel_column, _kernel_matrices
+from hydroarm.control.gp._hyper import candidates, hyper_update
 from hydroarm.control.gp.config import GPConfig
 from hydroarm.control.gp.events import FAULTS, GPStats
 from hydroarm.control.gp.kernels import SF2, SN2, SEARDKernel
@@ -336,13 +337,15 @@ class SlidingWindowGP:
             return np.empty((0, n_out))
         self.stats.n_updates += 1
         window = self._current_window()
-        log_theta = self._log_theta
+        if (compiled := self._compiled_update(window)) is not None:
+            return compiled
+        log_theta, bounds = self._log_theta, (self._log_lower, self._log_upper)
         n_attempts = cfg.max_step_halvings + 1
         merged_candidates = None
         if self._linv is not None and self._factor_ok.all():  # factor kept by the incremental path
             current = self._evaluate(window, log_theta, cached=(self._linv, self._extra_diag))
         elif self._previous_gradient is not None:
-            merged_candidates = self._candidates(log_theta, self._previous_gradient, n_attempts)
+            merged_candidates = candidates(log_theta, self._previous_gradient, n_attempts, cfg, bounds)
             stacked = self._evaluate(window, np.concatenate([log_theta, merged_candidates]))
             current = _rows(stacked, 0, n_out)
             merged_trials = _rows(stacked, n_out, stacked.lml.shape[0])
@@ -362,15 +365,15 @@ class SlidingWindowGP:
             if not active.any():
                 break
             if step == 0 and merged_candidates is not None:
-                candidates, trials = merged_candidates, merged_trials
+                thetas, trials = merged_candidates, merged_trials
             else:
-                candidates = self._candidates(log_theta, grad, n_attempts)
-                trials = self._evaluate(window, candidates)
+                thetas = candidates(log_theta, grad, n_attempts, cfg, bounds)
+                trials = self._evaluate(window, thetas)
             pending = active
             for attempt in range(n_attempts):
                 rows = slice(attempt * n_out, (attempt + 1) * n_out)
                 trial = _rows(trials, rows.start, rows.stop)
-                candidate = candidates[rows]
+                candidate = thetas[rows]
                 self._count_factorization_events(trial, pending)
                 accept = pending & trial.ok & (trial.lml >= lml)
                 n_accepted = int(np.count_nonzero(accept))
@@ -403,21 +406,19 @@ class SlidingWindowGP:
         self._alpha = alpha
         return np.array(trace)
 
-    def _candidates(self, log_theta: np.ndarray, grad: np.ndarray, n_attempts: int) -> np.ndarray:
-        """(n_attempts * n_outputs, d+2) stacked candidates, attempt a = full step * 0.5**a.
-
-        Full step: clip(log theta + clip(learning_rate * grad, +-max_log_step), log bounds);
-        the halved ones lie on the segment to log theta, hence inside the bounds too.
-        """
-        cfg = self.config
-        step = np.minimum(np.maximum(cfg.learning_rate * grad, -cfg.max_log_step), cfg.max_log_step)
-        full_step = np.minimum(np.maximum(log_theta + step, self._log_lower), self._log_upper)
-        if n_attempts == 1:
-            return full_step
-        delta = full_step - log_theta
-        shrink = 0.5 ** np.arange(1, n_attempts)
-        halved = log_theta[None] + shrink[:, None, None] * delta[None]
-        return np.concatenate([full_step, halved.reshape(-1, log_theta.shape[1])])
+    def _compiled_update(self, window: _Window) -> np.ndarray | None:
+        """The update by `_hyper.hyper_update` where it is clean (the same bits as the NumPy path):
+        state and counters set, the LML trace returned; None (nothing changed) otherwise."""
+        cached = (self._linv, self._extra_diag) if self._linv is not None and self._factor_ok.all() else None
+        bounds = (self._log_lower, self._log_upper)
+        result = hyper_update(window, self._log_theta, self._previous_gradient, cached, bounds, self.config)
+        if result is None:
+            return None
+        self.stats.count_steps(*(int(count) for count in result.counts))
+        self._log_theta, self._previous_gradient, self._alpha = result.log_theta, result.grad, result.alpha
+        self._linv, self._extra_diag, self._factor_ok = result.linv, result.extra_diag, np.ones(self.n_outputs, bool)
+        self._n_incremental_since_full = 0
+        return result.trace
 
     # ----- prediction ---------------------------------------------------------
 
