@@ -161,7 +161,7 @@ MB = 1e-6  # bytes -> MB
         ),
         (
             "docs/controllers.md",
-            "{0:.1f}x, {1:.1f}x and {2:.1f}x IDMPC's in the same runs",
+            "{0:.1f}x, {1:.1f}x and {2:.1f}x IDMPC's in the same runs: **within",
             "bench/results/bench-flagship.json",
             [
                 f"flagship.cases.{case}.median_ratio"

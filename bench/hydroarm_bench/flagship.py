@@ -11,7 +11,8 @@ about a fifth of the steps); and the issue's real loop (a 16-bit encoder measuri
 one period of sensor delay, the published friction). Issue 32's bars
 (:data:`~hydroarm_bench.stats.STEP_BARS_MS`):
 median <= 0.3 ms, p99 <= 1 ms, max <= 5 ms. Each row runs :data:`RUNS` x 10 s (seeds 0, 1, ...)
-after a 0.3 s warm-up run of its own (numba caches, first allocations), unpaced: the step does
+after a 0.3 s warm-up run of its own (numba caches, first allocations), the flagship's and IDMPC's
+runs alternating, unpaced: the step does
 not wait on anything beside the loop, so pacing would change only the caches' warmth.
 """
 
@@ -41,22 +42,32 @@ CASES: dict[str, dict] = {
 }
 
 
-def _row(name: str, overrides: dict, runs: int, duration: float) -> dict:
-    """One controller in one case: its step's wall and CPU statistics (ms) over ``runs`` runs."""
-    wall, cpu = [], []
-    for seed in range(-1, runs):  # -1: the warm-up run
-        experiment = paper_experiment(name, 0.3 if seed < 0 else duration, overrides)
-        timed = TimedController(experiment.controller)
-        experiment.controller = timed
-        experiment.run(max(seed, 0))
-        if seed >= 0:
-            steps = len(timed.observe_s)
-            wall.append(np.asarray(timed.wall_s[:steps]))
-            cpu.append(np.asarray(timed.cpu_s[:steps]))
-    row = {"step": stats_ms(np.concatenate(wall)), "step_cpu": stats_ms(np.concatenate(cpu))}
-    row["meets"] = meets_bars(row["step"])
-    row["meets_cpu"] = meets_bars(row["step_cpu"])
-    return row
+def _rows(names: tuple[str, ...], overrides: dict, runs: int, duration: float) -> dict:
+    """Each controller of ``names`` in one case: its step's wall and CPU statistics (ms) over
+    ``runs`` runs. The controllers' runs alternate (seed by seed), so that a change of the shared
+    machine's speed during the case falls on all of them alike and their ratio holds (on
+    2026-12-05, with one controller's runs after the other's, IDMPC's median step on the paper
+    task was 0.18 ms in one row and 0.08-0.09 ms in rows minutes before and after it, with the
+    same code, in CPU time as in wall time: the shared machine's speed changes)."""
+    wall: dict[str, list] = {name: [] for name in names}
+    cpu: dict[str, list] = {name: [] for name in names}
+    for seed in range(-1, runs):  # -1: the warm-up runs
+        for name in names:
+            experiment = paper_experiment(name, 0.3 if seed < 0 else duration, overrides)
+            timed = TimedController(experiment.controller)
+            experiment.controller = timed
+            experiment.run(max(seed, 0))
+            if seed >= 0:
+                steps = len(timed.observe_s)
+                wall[name].append(np.asarray(timed.wall_s[:steps]))
+                cpu[name].append(np.asarray(timed.cpu_s[:steps]))
+    rows = {}
+    for name in names:
+        row = {"step": stats_ms(np.concatenate(wall[name])), "step_cpu": stats_ms(np.concatenate(cpu[name]))}
+        row["meets"] = meets_bars(row["step"])
+        row["meets_cpu"] = meets_bars(row["step_cpu"])
+        rows[name] = row
+    return rows
 
 
 def bench_flagship(quick: bool) -> dict:
@@ -66,7 +77,7 @@ def bench_flagship(quick: bool) -> dict:
     cases = {"paper": CASES["paper"]} if quick else CASES
     out: dict = {"flagship": FLAGSHIP, "peer": PEER, "runs": runs, "duration_s": duration, "cases": {}}
     for case, overrides in cases.items():
-        rows = {name: _row(name, overrides, runs, duration) for name in (FLAGSHIP, PEER)}
+        rows = _rows((FLAGSHIP, PEER), overrides, runs, duration)
         rows["median_ratio"] = rows[FLAGSHIP]["step"]["median"] / rows[PEER]["step"]["median"]
         out["cases"][case] = rows
     return out
