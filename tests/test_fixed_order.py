@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 import scipy.linalg
 
+from hydroarm.control.linear import double_integrator, joint_lqr
 from hydroarm.model.dynamics import fixed_order
 
 
@@ -118,3 +119,22 @@ def test_cholesky_factor_shift_and_floor():
     near = np.array([[1.0, 1.0 - 1e-8], [1.0 - 1e-8, 1.0]])  # second pivot ~2e-8 of its diagonal 1
     assert not fixed_order.cholesky_factor(near, np.zeros((2, 2)), 0.0, 1e-6)
     assert fixed_order.cholesky_factor(near, np.zeros((2, 2)))
+
+
+@pytest.mark.parametrize(
+    ("period", "q_position", "q_velocity", "r_acceleration"),
+    [(0.01, 300.0, 0.01, 1e-5), (0.01, 300.0, 0.01, 1e-9), (0.01, 1.0, 1.0, 10.0), (0.001, 100.0, 1.0, 1e-3)],
+)
+def test_the_joints_riccati_recursion_is_scipys_dare(period, q_position, q_velocity, r_acceleration):
+    """The fixed-order DARE of one joint (no LAPACK) against scipy's Schur-method solution, and its
+    gain against K = (R + B'PB)^-1 B'PA computed from scipy's P."""
+    a_mat, b_vec = double_integrator(period)
+    b_mat = b_vec[:, None]
+    reference = scipy.linalg.solve_discrete_are(
+        a_mat, b_mat, np.diag([q_position, q_velocity]), np.array([[r_acceleration]])
+    )
+    p_mat, gain, g_vec = joint_lqr(period, q_position, q_velocity, r_acceleration)
+    assert np.max(np.abs(p_mat - reference)) <= 1e-12 * np.max(np.abs(reference))
+    scale = 1.0 / (r_acceleration + b_vec @ reference @ b_vec)
+    assert np.allclose(gain, scale * (b_vec @ reference @ a_mat), rtol=1e-11, atol=0)
+    assert np.allclose(g_vec, scale * b_vec, rtol=1e-11, atol=0)

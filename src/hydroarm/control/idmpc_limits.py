@@ -69,10 +69,24 @@ import numpy as np
 
 from hydroarm.control.linear import double_integrator
 from hydroarm.control.plan_qp import DUAL_TOL, PRIMAL_TOL, joint_factors, solve_plan_qp, warm_set
+from hydroarm.model.dynamics import fixed_order
 from hydroarm.model.dynamics.nominal import NominalModel
 
 QP_SOLVERS = ("daqp", "structured")
 """The solvers of :class:`HorizonQP`: DAQP (dense) or :mod:`hydroarm.control.plan_qp` (its structure)."""
+
+
+def _matvec(a: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """``a @ x`` (m,) for a (m, ...) flattened to (m, k) and x (k,), in fixed order
+    (:mod:`hydroarm.model.dynamics.fixed_order`: no BLAS, whose per-CPU kernels round differently
+    and a learner in the loop amplifies that)."""
+    a = np.ascontiguousarray(a, dtype=float)
+    return fixed_order.matvec(a.reshape(a.shape[0], -1), np.ascontiguousarray(x, dtype=float))
+
+
+def _matmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``a @ b`` for 2-D a, b, in fixed order (as :func:`_matvec`)."""
+    return fixed_order.matmul(np.ascontiguousarray(a, dtype=float), np.ascontiguousarray(b, dtype=float))
 
 
 RATE_SOLVER = "structured"
@@ -157,7 +171,7 @@ def held_torque(limits: str, mass, bias, acceleration, lower, upper, constrained
     :data:`SATURATION_TOLERANCE` of the box's larger bound ``b`` written ``b - b (1 - 1e-9)`` (both
     steps exact: Sterbenz), so that in the box ``(-limit, limit)`` the bound less ``tight`` is
     ``limit (1 - 1e-9)`` exactly, the flag ``|tau| >= limit (1 - 1e-9)``."""
-    tau = mass @ acceleration + bias
+    tau = _matvec(mass, acceleration) + bias
     fits = np.all((tau >= lower) & (tau <= upper))  # |tau| <= limit in (-limit, limit); a NaN does not fit
     if fits and not (plan_always and limits == "qp"):
         return tau, acceleration, np.zeros(tau.shape[0], dtype=bool)
@@ -167,7 +181,7 @@ def held_torque(limits: str, mass, bias, acceleration, lower, upper, constrained
     if limits == "qp":
         a = constrained()
         if a is not None:
-            tau = mass @ a + bias
+            tau = _matvec(mass, a) + bias
             span = np.maximum(np.abs(lower), np.abs(upper))
             tight = span - span * (1.0 - SATURATION_TOLERANCE)
             return np.clip(tau, lower, upper), a, (tau <= lower + tight) | (tau >= upper - tight)
@@ -193,19 +207,19 @@ def condensed_problem(period, horizon, q_pos, q_vel, r_acc, p_mats):
         s_c = np.zeros((horizon + 1, 2, 2 * horizon))
         s_e[0] = np.eye(2)
         for k in range(horizon):
-            s_e[k + 1] = a_mat @ s_e[k]
-            s_u[k + 1] = a_mat @ s_u[k]
+            s_e[k + 1] = _matmul(a_mat, s_e[k])
+            s_u[k + 1] = _matmul(a_mat, s_u[k])
             s_u[k + 1][:, k] += b_vec
-            s_c[k + 1] = a_mat @ s_c[k]
+            s_c[k + 1] = _matmul(a_mat, s_c[k])
             s_c[k + 1][:, 2 * k : 2 * k + 2] += np.eye(2)
         weights = [np.diag([q_pos[j], q_vel[j]])] * horizon + [p_mats[j]]
         h_j = r_acc[j] * np.eye(horizon)
         fe_j = np.zeros((horizon, 2))
         fc_j = np.zeros((horizon, 2 * horizon))
         for k in range(horizon + 1):
-            h_j += s_u[k].T @ weights[k] @ s_u[k]
-            fe_j += s_u[k].T @ weights[k] @ s_e[k]
-            fc_j += s_u[k].T @ weights[k] @ s_c[k]
+            h_j += _matmul(_matmul(s_u[k].T, weights[k]), s_u[k])
+            fe_j += _matmul(_matmul(s_u[k].T, weights[k]), s_e[k])
+            fc_j += _matmul(_matmul(s_u[k].T, weights[k]), s_c[k])
         rows = np.arange(horizon) * n + j
         hessian[np.ix_(rows, rows)] = h_j
         grad_e0[rows, j, :] = fe_j
@@ -367,13 +381,13 @@ class HorizonQP:
 
     def gradient(self, e0: np.ndarray, c: np.ndarray) -> np.ndarray:
         """``F_e vec(e0) + F_c vec(c)`` (N n,) for the errors e0 (n, 2) and defects c (N, n, 2)."""
-        return self.grad_e0 @ e0.ravel() + self.grad_c @ c.ravel()
+        return _matvec(self.grad_e0, e0.ravel()) + _matvec(self.grad_c, c.ravel())
 
     def frozen_rows(self, mass: np.ndarray, bias: np.ndarray, a_r: np.ndarray):
         """``(rows, upper, lower)`` with M, bias = h - w_hat of the current state at every step."""
         horizon = self.horizon
         rows = np.kron(np.eye(horizon), mass)
-        base = (a_r @ mass.T).ravel() + np.tile(bias, horizon)  # M a_r,k + bias, step-major
+        base = _matmul(a_r, mass.T).ravel() + np.tile(bias, horizon)  # M a_r,k + bias, step-major
         self._base = base
         return rows, self.limit - base, -self.limit - base
 
@@ -395,7 +409,7 @@ class HorizonQP:
         else:
             base -= np.tile(w_hat, self.horizon)
         fill_linearised_rows(self._d_q, self._d_v, self._mass, period, self._rows)
-        shift = self._rows @ moves.ravel() - base
+        shift = _matvec(self._rows, moves.ravel()) - base
         self._base = -shift  # tau(U) = base + rows (U - moves)
         return self._rows, self.limit + shift, -self.limit + shift
 

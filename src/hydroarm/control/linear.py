@@ -20,9 +20,12 @@ solvers here, and each user keeps the one its numbers were made with (:func:`sol
   environment), with ``scipy.linalg.solve_discrete_are`` as the fallback when it has not
   converged. Used by the linear MPC's terminal weight (:mod:`hydroarm.control.mpc`: a 2n x 2n
   DARE at every new horizon end, where the compiled doubling is the fast one).
-* ``"scipy"``: ``scipy.linalg.solve_discrete_are`` alone (the Schur method). Used by the ID-MPCs'
-  per-joint 2 x 2 DARE (:func:`joint_lqr`: solved at the ID-MPCs' construction and in
-  the bandwidth searches of :mod:`hydroarm.control.delay_design`).
+* ``"scipy"``: ``scipy.linalg.solve_discrete_are`` alone (the Schur method).
+
+The ID-MPCs' per-joint 2 x 2 DARE (:func:`joint_lqr`: solved at the ID-MPCs' construction and in
+the bandwidth searches of :mod:`hydroarm.control.delay_design`) is the Riccati recursion in scalar
+fixed-order arithmetic (:func:`joint_dare`; scipy's Schur method before 2026-12-05, whose last bits
+followed the CPU's BLAS kernel).
 
 The filter's DARE (its dual, for the steady-state prior covariance) is solved by fixed-point
 iteration (:func:`filter_covariance`): the per-joint Kalman filter's design
@@ -233,16 +236,43 @@ def double_integrator_step(q, v, acceleration, period: float):
 
 def joint_lqr(period: float, q_position: float, q_velocity: float, r_acceleration: float):
     """``(P (2, 2), K (2,), G (2,))`` of one joint's double integrator: the DARE solution
-    (scipy's, :func:`solve_dare` with ``method="scipy"``), the LQR gain
-    ``K = (R + B'PB)^-1 B'PA`` and ``G = (R + B'PB)^-1 B'``."""
-    a_mat, b_vec = double_integrator(period)
-    b_mat = b_vec[:, None]
-    q_mat = np.diag([q_position, q_velocity])
-    r_mat = np.array([[r_acceleration]])
-    p_mat, _, _ = solve_dare(a_mat, b_mat, q_mat, r_mat, method="scipy")
-    scale = 1.0 / (r_acceleration + float(b_mat[:, 0] @ p_mat @ b_mat[:, 0]))
-    gain = scale * (b_mat[:, 0] @ p_mat @ a_mat)
-    return p_mat, gain, scale * b_mat[:, 0]
+    (:func:`joint_dare`), the LQR gain ``K = (R + B'PB)^-1 B'PA`` and ``G = (R + B'PB)^-1 B'``."""
+    weights = (float(q_position), float(q_velocity), float(r_acceleration))
+    p00, p01, p11, scale, k0, k1 = joint_dare(float(period), *weights)
+    b0, b1 = 0.5 * period * period, period
+    return np.array([[p00, p01], [p01, p11]]), np.array([k0, k1]), np.array([scale * b0, scale * b1])
+
+
+@numba.njit(cache=True)
+def joint_dare(period, q_position, q_velocity, r_acceleration):  # pragma: no cover - compiled
+    """``(p00, p01, p11, s, k0, k1)``: one joint's DARE solution P (symmetric 2 x 2), ``s = (R +
+    B'PB)^-1`` and ``K = s B'PA`` for ``A = [[1, T], [0, 1]]``, ``B = [T^2/2, T]``, ``Q =
+    diag(q_position, q_velocity)``, ``R = r_acceleration``, by the Riccati recursion from P = Q in
+    scalar fixed-order arithmetic until no entry changes by more than 4e-16 of the largest (at most
+    10^7 steps; it converges at the closed loop's squared spectral radius per step; scipy's
+    solution agrees to 1e-13 relative, a test). Not LAPACK's Schur method
+    (scipy's, used before 2026-12-05): its last bits follow the CPU's BLAS kernel, and the GP in
+    GP-IDMPC's loop amplifies them into another run."""
+    t = period
+    b0, b1 = 0.5 * t * t, t
+    p00, p01, p11 = q_position, 0.0, q_velocity
+    for _ in range(10_000_000):
+        pb0 = p00 * b0 + p01 * b1  # P B
+        pb1 = p01 * b0 + p11 * b1
+        bpa1 = pb0 * t + pb1  # B'P A = [pb0, pb0 T + pb1]
+        s = 1.0 / (r_acceleration + (b0 * pb0 + b1 * pb1))
+        n00 = q_position + p00 - pb0 * s * pb0  # Q + A'PA - A'PB s B'PA
+        n01 = p00 * t + p01 - pb0 * s * bpa1
+        n11 = q_velocity + (p00 * t + p01) * t + p01 * t + p11 - bpa1 * s * bpa1
+        tol = 4e-16 * max(abs(n00), abs(n01), abs(n11))
+        converged = abs(n00 - p00) <= tol and abs(n01 - p01) <= tol and abs(n11 - p11) <= tol
+        p00, p01, p11 = n00, n01, n11
+        if converged:
+            break
+    pb0 = p00 * b0 + p01 * b1
+    pb1 = p01 * b0 + p11 * b1
+    s = 1.0 / (r_acceleration + (b0 * pb0 + b1 * pb1))
+    return p00, p01, p11, s, s * pb0, s * (pb0 * t + pb1)
 
 
 def reference_defects(q_r: np.ndarray, v_r: np.ndarray, a_r: np.ndarray, period: float) -> np.ndarray:
