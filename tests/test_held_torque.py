@@ -13,24 +13,33 @@ import pytest
 
 from hydroarm.control.idmpc import IDMPCConfig, InverseDynamicsMPC
 from hydroarm.control.idmpc_limits import allocate, box_allocate, held_torque
+from hydroarm.model.dynamics import fixed_order
 
 MODES = ("qp", "allocation", "clip")
+
+
+def _product(mass, acceleration):
+    """``M a`` as the maps form it since 2026-12-05: in fixed order (no BLAS: the flagship's run
+    the same under any BLAS kernel), where the oracles had ``@``."""
+    return fixed_order.matvec(np.ascontiguousarray(mass), np.ascontiguousarray(acceleration))
+
+
 LIMIT = np.array([60.0, 60.0, 40.0, 5.0, 5.0, 5.0])  # N m: the paper arm, held tight so that it saturates
 
 
 def _symmetric_map(limits, mass, bias, acceleration, limit, constrained):
     """``InverseDynamicsMPC.limited_torque`` without a rate told, as at d7305c4."""
     if limits == "clip":
-        tau = mass @ acceleration + bias
+        tau = _product(mass, acceleration) + bias
         clipped = np.clip(tau, -limit, limit)
         return clipped, acceleration, clipped != tau
     if limits == "qp":
-        tau = mass @ acceleration + bias
+        tau = _product(mass, acceleration) + bias
         if np.all(np.abs(tau) <= limit):
             return tau, acceleration, np.zeros(tau.shape[0], dtype=bool)
         a = constrained()
         if a is not None:
-            tau = mass @ a + bias
+            tau = _product(mass, a) + bias
             clipped = np.clip(tau, -limit, limit)
             return clipped, a, np.abs(tau) >= limit * (1.0 - 1e-9)
     return allocate(mass, bias, acceleration, limit)
@@ -38,7 +47,7 @@ def _symmetric_map(limits, mass, bias, acceleration, limit, constrained):
 
 def _box_map(limits, mass, bias, acceleration, lower, upper, constrained):
     """``drive_limits.rate_limited_torque`` (the rate told) with its ``box_allocate``, as at d7305c4."""
-    tau = mass @ acceleration + bias
+    tau = _product(mass, acceleration) + bias
     fits = bool(np.all((tau >= lower) & (tau <= upper)))
     if fits and limits != "qp":
         return tau, acceleration, np.zeros(tau.shape[0], dtype=bool)
@@ -48,7 +57,7 @@ def _box_map(limits, mass, bias, acceleration, lower, upper, constrained):
     if limits == "qp":
         a = constrained()
         if a is not None:
-            tau = mass @ a + bias
+            tau = _product(mass, a) + bias
             clipped = np.clip(tau, lower, upper)
             tight = 1e-9 * np.maximum(np.abs(lower), np.abs(upper))
             return clipped, a, (tau <= lower + tight) | (tau >= upper - tight)

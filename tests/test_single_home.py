@@ -209,12 +209,16 @@ def test_both_dare_solvers_solve_the_dare_and_say_which_ran():
         linear.solve_dare(A, B, Q, R, "newton")
 
 
-def test_the_idmpc_joint_lqr_is_scipys_dare_on_the_double_integrator():
-    """``joint_lqr`` keeps scipy's solver: its P is ``solve_discrete_are``'s, bit for bit."""
+def test_the_idmpc_joint_lqr_is_the_fixed_order_dare_on_the_double_integrator():
+    """``joint_lqr``'s P is ``linear.joint_dare``'s (its one Riccati solver since 2026-12-05, no
+    LAPACK), within 1e-12 of scipy's ``solve_discrete_are``."""
     T = 0.01
     A, b = linear.double_integrator(T)
     P = scipy.linalg.solve_discrete_are(A, b[:, None], np.diag([300.0, 0.01]), np.array([[1e-5]]))
-    assert np.array_equal(joint_lqr(T, 300.0, 0.01, 1e-5)[0], 0.5 * (P + P.T))
+    p00, p01, p11 = linear.joint_dare(T, 300.0, 0.01, 1e-5)[:3]
+    got = joint_lqr(T, 300.0, 0.01, 1e-5)[0]
+    assert np.array_equal(got, np.array([[p00, p01], [p01, p11]]))
+    assert np.max(np.abs(got - P)) <= 1e-12 * np.max(np.abs(P))
 
 
 def test_the_reference_defects_vanish_for_a_constant_acceleration():

@@ -115,7 +115,7 @@ def allocate(mass: np.ndarray, bias: np.ndarray, acceleration: np.ndarray, limit
     ``bias`` = h - w_hat (n,): the torque is ``M a + bias``. Returns ``(tau (n,), a (n,),
     saturated (n,) bool)``: the saturated joints hold their clipped torque, the others their
     planned acceleration (module docstring)."""
-    tau = mass @ acceleration + bias
+    tau = _matvec(mass, acceleration) + bias
     saturated = np.abs(tau) > limit
     if not saturated.any():
         return tau, acceleration, saturated
@@ -127,7 +127,7 @@ def allocate(mass: np.ndarray, bias: np.ndarray, acceleration: np.ndarray, limit
         rhs = target[s] - bias[s] - mass[np.ix_(s, f)] @ acceleration[f]
         a[s] = np.linalg.solve(mass[np.ix_(s, s)], rhs)
         a[f] = acceleration[f]
-        tau = mass @ a + bias
+        tau = _matvec(mass, a) + bias
         tau[s] = target[s]
         over = f & (np.abs(tau) > limit * (1.0 + 1e-12))
         if not over.any():
