@@ -9,12 +9,21 @@ the same closed forms.
 from __future__ import annotations
 
 import math
+import os
+import subprocess
+import sys
 
 import numpy as np
 import pytest
 import scipy.linalg
 
-from hydroarm.control.linear import double_integrator, joint_lqr
+from hydroarm.control.linear import (
+    covariance_prediction,
+    double_integrator,
+    filter_covariance,
+    joint_lqr,
+    kalman_correction,
+)
 from hydroarm.model.dynamics import fixed_order
 
 
@@ -138,3 +147,99 @@ def test_the_joints_riccati_recursion_is_scipys_dare(period, q_position, q_veloc
     scale = 1.0 / (r_acceleration + b_vec @ reference @ b_vec)
     assert np.allclose(gain, scale * (b_vec @ reference @ a_mat), rtol=1e-11, atol=0)
     assert np.allclose(g_vec, scale * b_vec, rtol=1e-11, atol=0)
+
+
+def _random_covariance(rng) -> np.ndarray:
+    root = rng.normal(size=(2, 2)) * np.exp(rng.normal(scale=2.0, size=(2, 1)))
+    return root @ root.T + 1e-9 * np.eye(2)
+
+
+@pytest.mark.parametrize("seed", range(4))
+@pytest.mark.parametrize("position_only", [True, False])
+def test_the_filters_correction_and_prediction_are_the_matrix_formulas(seed, position_only):
+    """The Kalman filter's fixed-order algebra (no BLAS, no LAPACK inverse) against the matrix
+    formulas L = S C' (C S C' + R)^-1, (I - L C) S and A P A' + q B B' in NumPy."""
+    rng = np.random.default_rng(seed)
+    sigma = _random_covariance(rng)
+    c_mat = np.array([[1.0, 0.0]]) if position_only else np.eye(2)
+    noise = np.diag(np.exp(rng.normal(scale=3.0, size=c_mat.shape[0])))
+    gain, posterior = kalman_correction(sigma, c_mat, noise)
+    expected = sigma @ c_mat.T @ np.linalg.inv(c_mat @ sigma @ c_mat.T + noise)
+    np.testing.assert_allclose(gain, expected, rtol=1e-10, atol=1e-14 * np.abs(expected).max())
+    expected_posterior = (np.eye(2) - expected @ c_mat) @ sigma
+    scale = np.abs(sigma).max()
+    np.testing.assert_allclose(
+        posterior, 0.5 * (expected_posterior + expected_posterior.T), rtol=1e-9, atol=1e-12 * scale
+    )
+    assert posterior[0, 1] == posterior[1, 0]
+    a_mat, b_vec = double_integrator(0.01)
+    predicted = covariance_prediction(posterior, 0.01, 70.0)
+    np.testing.assert_allclose(
+        predicted, a_mat @ posterior @ a_mat.T + 70.0 * np.outer(b_vec, b_vec), rtol=1e-12, atol=1e-15 * scale
+    )
+
+
+@pytest.mark.parametrize(("variance", "acceleration"), [(7.66e-10, 68.9), (1e-6, 1.0), (1e-12, 100.0)])
+def test_the_position_only_filters_covariance_is_scipys_dare(variance, acceleration):
+    """The encoder's filter (C = [1, 0]): its fixed-point covariance against scipy's DARE (the
+    filter's is the regulator's dual: A', C', Q_w, R)."""
+    a_mat, b_vec = double_integrator(0.01)
+    c_mat, noise = np.array([[1.0, 0.0]]), np.array([[variance]])
+    expected = scipy.linalg.solve_discrete_are(a_mat.T, c_mat.T, acceleration * np.outer(b_vec, b_vec), noise)
+    sigma = filter_covariance(0.01, c_mat, noise, acceleration)
+    np.testing.assert_allclose(sigma, expected, rtol=1e-7, atol=1e-15)
+
+
+def test_the_filters_algebra_refuses_a_measurement_it_was_not_written_for():
+    with pytest.raises(ValueError, match="R diagonal"):
+        kalman_correction(np.eye(2), np.eye(2), np.array([[1.0, 0.5], [0.5, 1.0]]))
+    with pytest.raises(ValueError, match="C must be"):
+        kalman_correction(np.eye(2), np.array([[0.0, 1.0]]), np.eye(1))
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_spd_solve_is_the_cholesky_solve(seed):
+    rng = np.random.default_rng(seed)
+    root = rng.normal(size=(5, 5))
+    mass = root @ root.T + 0.1 * np.eye(5)
+    b = rng.normal(size=5)
+    np.testing.assert_array_equal(fixed_order.spd_solve(mass, b), fixed_order.cholesky_solve(mass, b)[0])
+    np.testing.assert_allclose(fixed_order.spd_solve(mass, b), scipy.linalg.solve(mass, b, assume_a="pos"), rtol=1e-10)
+    singular = np.zeros((2, 2))
+    with pytest.raises(np.linalg.LinAlgError):  # no factor: LAPACK's answer (here: its error)
+        fixed_order.spd_solve(singular, np.ones(2))
+
+
+BLAS_PROBE = """
+import numpy as np
+from hydroarm.control.estimator import EstimatorConfig, JointKalmanFilter
+from hydroarm.control.filter_design import FilterDesign
+from hydroarm.control.idmpc_limits import allocate
+from hydroarm.model.arm.loading import load_arm
+out = []
+designs = FilterDesign(True, 7.66e-10, 0.0, 1, 1), FilterDesign(False, 1e-3, 1e-3), FilterDesign(False, 1e-6, 1e-4)
+for design in designs:
+    kalman = JointKalmanFilter(6, 0.01, EstimatorConfig(), design)
+    out += [kalman.gain, kalman.covariance, kalman.posterior_covariance]
+arm = load_arm("paper")
+rng = np.random.default_rng(0)
+for _ in range(20):
+    q = rng.normal(size=6)
+    mass, bias = arm.mass_matrix(q), arm.nonlinear_effects(q, rng.normal(size=6))
+    out += list(allocate(mass, bias, rng.normal(scale=50.0, size=6), np.full(6, 28.0))[:2])
+print(" ".join(np.asarray(a, dtype=float).tobytes().hex() for a in out))
+"""
+
+
+def test_the_filter_design_and_the_torque_allocation_do_not_follow_the_blas_kernel():
+    """The filter's gain and covariances and the torque allocation's saturated solve, computed under
+    two OpenBLAS kernels (FMA and not): the same bits. Before 2026-12-05 the filter's gain came from
+    NumPy's products and inverse and differed in its last bits, which the real loop's GP-IDMPC
+    amplified to 7 % in E_p (scripts/blas_independence.py)."""
+    outputs = []
+    for kernel in ("Haswell", "Sandybridge"):
+        env = {**os.environ, "OPENBLAS_CORETYPE": kernel, "OPENBLAS_NUM_THREADS": "1"}
+        done = subprocess.run([sys.executable, "-c", BLAS_PROBE], env=env, capture_output=True, text=True, check=False)
+        assert done.returncode == 0, done.stderr[-2000:]
+        outputs.append(done.stdout)
+    assert outputs[0] == outputs[1]

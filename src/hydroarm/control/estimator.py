@@ -14,7 +14,9 @@ algebraic Riccati equation
     Sigma = A Sigma A^T - A Sigma (Sigma + R)^-1 Sigma A^T + Q_w,
 
 found at construction by iterating it to a fixed point (:func:`steady_state_covariance`);
-the gain is ``L = Sigma (Sigma + R)^-1`` (2 x 2 per joint). The filter is designed for the
+the gain is ``L = Sigma (Sigma + R)^-1`` (2 x 2 per joint), both in scalar fixed-order arithmetic
+(:func:`~hydroarm.control.linear.kalman_correction`: the same bits under any BLAS kernel, as the
+closed loop needs). The filter is designed for the
 sensor it sits behind: by default (``measurement_variance = "plant"``) sigma_m^2 is the
 plant's measurement-noise variance, and a noise-free sensor (sigma_m^2 = 0) gives L = I, the
 measurement passed through unchanged. Each step::
@@ -71,7 +73,8 @@ from hydroarm.control.filter_design import (
     steady_state_covariance,
 )
 from hydroarm.control.interface import Controller, ControlOutput, Reference
-from hydroarm.control.linear import double_integrator, double_integrator_step, filter_covariance
+from hydroarm.control.linear import covariance_prediction, double_integrator_step, filter_covariance, kalman_correction
+from hydroarm.model.dynamics import fixed_order
 from hydroarm.model.dynamics.nominal import NominalModel
 from hydroarm.model.real_loop.sensing import Actuator, ActuatorConfig, SensorConfig
 
@@ -227,7 +230,6 @@ class JointKalmanFilter:
         self.position_only = design.position_only
         self.delay = int(design.delay)
         self._skip_repeated = config.repeated == "skip"
-        self._a, self._b = double_integrator(period)
         acceleration = config.acceleration_variance  # an explicit setting wins
         if acceleration is None:
             acceleration = design.acceleration_variance
@@ -238,12 +240,12 @@ class JointKalmanFilter:
         variance = float(design.position_variance)
         self._exact = not design.position_only and same and variance == 0.0  # L = I: the measurement, bit for bit
         if self._exact:  # the prior is the process noise alone
-            self.covariance = self.acceleration_variance * np.outer(self._b, self._b)
+            self.covariance = covariance_prediction(np.zeros((2, 2)), period, self.acceleration_variance)
             self.gain = np.eye(2)
         elif not design.position_only and same:  # the paper's sensor: one variance on q and v
             self.covariance = steady_state_covariance(period, variance, self.acceleration_variance)
-            self.gain = self.covariance @ np.linalg.inv(self.covariance + variance * np.eye(2))
             self._measurement, self._noise = np.eye(2), variance * np.eye(2)
+            self.gain = kalman_correction(self.covariance, self._measurement, self._noise)[0]
         else:
             if design.position_only:
                 measurement = np.array([[1.0, 0.0]])
@@ -253,20 +255,17 @@ class JointKalmanFilter:
                 noise = np.diag([max(design.position_variance, VARIANCE_FLOOR),
                                  max(design.velocity_variance, VARIANCE_FLOOR)])  # fmt: skip
             self.covariance = filter_covariance(period, measurement, noise, self.acceleration_variance)
-            self.gain = (
-                self.covariance @ measurement.T @ np.linalg.inv(measurement @ self.covariance @ measurement.T + noise)
-            )
+            self.gain = kalman_correction(self.covariance, measurement, noise)[0]
             self._measurement, self._noise = measurement, noise
-        self._process = self.acceleration_variance * np.outer(self._b, self._b)
         self.reset()
 
     @property
     def posterior_covariance(self) -> np.ndarray:
         """``(I - L C) Sigma`` (2, 2): the steady-state covariance of the estimate's error after a
         correction, per joint (rad^2, rad^2/s, (rad/s)^2); zero on an exact sensor."""
-        if self.position_only:
-            return (np.eye(2) - self.gain @ self._measurement) @ self.covariance
-        return (np.eye(2) - self.gain) @ self.covariance
+        if self._exact:
+            return np.zeros((2, 2))
+        return kalman_correction(self.covariance, self._measurement, self._noise)[1]
 
     def reset(self) -> None:
         """Forget the estimate: the next measurement is taken as it is."""
@@ -282,7 +281,7 @@ class JointKalmanFilter:
         if self._q is None:
             return
         if self._posterior is not None:  # bridging lost samples: the covariance grows
-            self._prior = self._a @ self._posterior @ self._a.T + self._process
+            self._prior = covariance_prediction(self._posterior, self.period, self.acceleration_variance)
             self._posterior = None
         period = self.period
         self._q, self._v = double_integrator_step(self._q, self._v, acceleration, period)
@@ -326,11 +325,10 @@ class JointKalmanFilter:
         prior, self._prior = self._prior, None
         if prior is None:
             return self.gain
-        c_mat = self._measurement
-        gain = prior @ c_mat.T @ np.linalg.inv(c_mat @ prior @ c_mat.T + self._noise)
+        gain, posterior = kalman_correction(prior, self._measurement, self._noise)
         if np.allclose(gain, self.gain, rtol=1e-9, atol=0.0):
             return self.gain
-        self._posterior = (np.eye(2) - gain @ c_mat) @ prior
+        self._posterior = posterior
         return gain
 
     @property
@@ -397,7 +395,7 @@ class FilteredController:
         difference = applied - nominal
         if not np.any(difference):
             return np.zeros(n)
-        return np.linalg.solve(self.nominal.mass_matrix(state[:n]), difference)
+        return fixed_order.spd_solve(self.nominal.mass_matrix(state[:n]), difference)
 
     def reset(self) -> None:
         self.controller.reset()

@@ -124,8 +124,10 @@ def allocate(mass: np.ndarray, bias: np.ndarray, acceleration: np.ndarray, limit
     for _ in range(n):
         s, f = saturated, ~saturated
         target = np.clip(tau, -limit, limit)
-        rhs = target[s] - bias[s] - mass[np.ix_(s, f)] @ acceleration[f]
-        a[s] = np.linalg.solve(mass[np.ix_(s, s)], rhs)
+        rhs = target[s] - bias[s]
+        if f.any():
+            rhs = rhs - _matvec(mass[np.ix_(s, f)], acceleration[f])
+        a[s] = fixed_order.spd_solve(mass[np.ix_(s, s)], rhs)
         a[f] = acceleration[f]
         tau = _matvec(mass, a) + bias
         tau[s] = target[s]

@@ -29,7 +29,10 @@ followed the CPU's BLAS kernel).
 
 The filter's DARE (its dual, for the steady-state prior covariance) is solved by fixed-point
 iteration (:func:`filter_covariance`): the per-joint Kalman filter's design
-(:mod:`hydroarm.control.filter_design`), whose defaults were measured with it.
+(:mod:`hydroarm.control.filter_design`), whose defaults were measured with it. Its correction
+(:func:`kalman_correction`: gain and posterior) and prediction (:func:`covariance_prediction`)
+are scalar fixed-order arithmetic, used by the filter at run time too (NumPy's ``@`` and
+``np.linalg.inv`` before 2026-12-05: their last bits followed the BLAS kernel).
 
 Sign convention: ``K = (R + B' P B)^-1 B' P A`` and the LQR move is ``du = -K e``.
 """
@@ -286,26 +289,66 @@ def reference_defects(q_r: np.ndarray, v_r: np.ndarray, a_r: np.ndarray, period:
     return c
 
 
+def kalman_correction(sigma: np.ndarray, measurement: np.ndarray, noise: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The Kalman gain ``L = Sigma C^T (C Sigma C^T + R)^-1`` (2, m) and the posterior covariance
+    ``(I - L C) Sigma`` (2, 2, symmetric) of one joint's filter for the prior ``sigma`` (2, 2,
+    symmetric), the measurement matrix C (``measurement``: ``[[1, 0]]``, position only, or I) and a
+    diagonal noise covariance R (``noise``, (m, m)). Scalar arithmetic in a fixed order (the 2 x 2
+    inverse in closed form): the same bits on any machine (``@`` and ``np.linalg.inv`` follow the
+    CPU's BLAS kernel, and a closed loop amplifies their last bits: issue 32)."""
+    s00, s01, s11 = float(sigma[0, 0]), float(sigma[0, 1]), float(sigma[1, 1])
+    c_mat = np.atleast_2d(measurement)
+    if np.any(noise - np.diag(np.diag(noise))) or not np.array_equal(c_mat, np.eye(c_mat.shape[0], 2)):
+        raise ValueError(f"kalman_correction: C must be [[1, 0]] or I and R diagonal, got C = {c_mat.tolist()}")
+    if c_mat.shape[0] == 1:  # position only
+        innovation = s00 + float(noise[0, 0])
+        l00, l10 = s00 / innovation, s01 / innovation
+        posterior = _symmetric(s00 - l00 * s00, s01 - l00 * s01, s11 - l10 * s01)
+        return np.array([[l00], [l10]]), posterior
+    a, d = s00 + float(noise[0, 0]), s11 + float(noise[1, 1])
+    det = a * d - s01 * s01
+    l00, l01 = (s00 * d - s01 * s01) / det, (s01 * a - s00 * s01) / det
+    l10, l11 = (s01 * d - s11 * s01) / det, (s11 * a - s01 * s01) / det
+    posterior = _symmetric(s00 - (l00 * s00 + l01 * s01), s01 - (l00 * s01 + l01 * s11), s11 - (l10 * s01 + l11 * s11))
+    return np.array([[l00, l01], [l10, l11]]), posterior
+
+
+def covariance_prediction(posterior: np.ndarray, period: float, acceleration_variance: float) -> np.ndarray:
+    """``A P A^T + sigma_a^2 B B^T`` (2, 2): the covariance ``posterior`` P (2, 2, symmetric)
+    carried one period T (``period``, s) on the double integrator driven by white acceleration noise
+    of variance ``acceleration_variance`` ((rad/s^2)^2); scalar fixed-order arithmetic (as
+    :func:`kalman_correction`)."""
+    p00, p01, p11 = float(posterior[0, 0]), float(posterior[0, 1]), float(posterior[1, 1])
+    t = float(period)
+    b0, b1 = 0.5 * t * t, t
+    q = float(acceleration_variance)
+    row = p01 + t * p11  # (A P)[0, 1]
+    return _symmetric((p00 + t * p01) + t * row + q * b0 * b0, row + q * b0 * b1, p11 + q * b1 * b1)
+
+
+def _symmetric(d00: float, d01: float, d11: float) -> np.ndarray:
+    return np.array([[d00, d01], [d01, d11]])
+
+
 def filter_covariance(
     period: float, measurement: np.ndarray, noise: np.ndarray, acceleration_variance: float,
     tolerance: float = 1e-13, max_iterations: int = 1_000_000,
 ) -> np.ndarray:  # fmt: skip
     """The steady-state prior covariance Sigma (2, 2) of a Kalman filter on the double integrator
     driven by white acceleration noise of variance ``acceleration_variance`` ((rad/s^2)^2), for
-    the measurement matrix C (``measurement``, (m, 2)) and noise covariance R (``noise``,
-    (m, m)): the filter's DARE by fixed-point iteration of
-    ``Sigma = A (Sigma - Sigma C^T (C Sigma C^T + R)^-1 C Sigma) A^T + Q_w``, ``Q_w = sigma_a^2 B B^T``.
-    Raises :class:`ConfigError` if it does not converge."""
-    a_mat, b_vec = double_integrator(period)
-    process = acceleration_variance * np.outer(b_vec, b_vec)
+    the measurement matrix C (``measurement``, ``[[1, 0]]`` or I) and diagonal noise covariance R
+    (``noise``, (m, m)): the filter's DARE by fixed-point iteration of
+    ``Sigma = A (Sigma - Sigma C^T (C Sigma C^T + R)^-1 C Sigma) A^T + Q_w``, ``Q_w = sigma_a^2 B B^T``
+    (:func:`kalman_correction`, :func:`covariance_prediction`: fixed order, the same bits on any
+    machine; NumPy's products and inverse before 2026-12-05). Raises :class:`ConfigError` if it
+    does not converge."""
     c_mat = np.atleast_2d(measurement)
-    sigma = process.copy()
+    noise = np.atleast_2d(np.asarray(noise, dtype=float))
+    sigma = covariance_prediction(np.zeros((2, 2)), period, acceleration_variance)
     for _ in range(max_iterations):
-        gain = sigma @ c_mat.T @ np.linalg.inv(c_mat @ sigma @ c_mat.T + noise)
-        posterior = (np.eye(2) - gain @ c_mat) @ sigma
-        updated = a_mat @ posterior @ a_mat.T + process
+        updated = covariance_prediction(kalman_correction(sigma, c_mat, noise)[1], period, acceleration_variance)
         if np.all(np.abs(updated - sigma) <= tolerance * np.abs(updated)):
-            return 0.5 * (updated + updated.T)
+            return updated
         sigma = updated
     raise ConfigError(
         f"estimator: the Kalman covariance did not converge in {max_iterations} iterations "

@@ -29,6 +29,7 @@ __all__ = [
     "cholesky_substitute",
     "cholesky_solve",
     "cholesky_solve_into",
+    "spd_solve",
     "symmetrize",
 ]
 
@@ -167,3 +168,12 @@ def cholesky_solve_into(a, b, out):  # pragma: no cover - compiled
         return False
     cholesky_substitute(a, b, out)
     return True
+
+
+def spd_solve(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``a^-1 b`` (n,) or (n, k) for a symmetric positive definite ``a`` (n, n) (a mass matrix, or a
+    principal block of one): :func:`cholesky_solve` on contiguous copies, the same bits on any
+    machine; LAPACK's ``np.linalg.solve`` only where the factor fails (a state no longer finite,
+    where the bits no longer matter)."""
+    x, ok = cholesky_solve(np.ascontiguousarray(a, dtype=float), np.ascontiguousarray(b, dtype=float))
+    return x if ok else np.linalg.solve(a, b)
