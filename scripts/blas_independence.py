@@ -1,9 +1,11 @@
 """Does a controller's run depend on the BLAS kernel or numba's CPU target? Run it (default: the
 flagship candidate PI-IDMPC, 10 s of the paper task, clean) in fresh processes under
-``OPENBLAS_CORETYPE=Haswell`` and under ``OPENBLAS_CORETYPE=Sandybridge NUMBA_CPU_NAME=generic``
-(no FMA, no AVX2 in either library), and compare every tracking number (E_p and E_p after 2 s per
-joint, rms and max error, torque rms) and the whole joint trajectory to 1e-9 relative
-(issue 32; issue 29's rule: no BLAS / CPU-dispatched NumPy on the paths a closed loop amplifies).
+``OPENBLAS_CORETYPE=Haswell``, under ``OPENBLAS_CORETYPE=Sandybridge NUMBA_CPU_NAME=generic``
+(no FMA, no AVX2 in either library) and, on a CPU with AVX-512, ``OPENBLAS_CORETYPE=SkylakeX``
+(LAPACK's eigenvalue routines differed there where Haswell and Sandybridge agreed), and compare
+every tracking number (E_p and E_p after 2 s per joint, rms and max error, torque rms) and the
+whole joint trajectory with the first run's to 1e-9 relative (issue 32; issue 29's rule: no
+BLAS / CPU-dispatched NumPy on the paths a closed loop amplifies).
 
     python scripts/blas_independence.py [--controller PI-IDMPC] [--duration 10] [--noise 0] [--seed 0]
         [--set KEY=VALUE ...] [--loop NAME ...] [--out FILE.json] [--check]
@@ -161,23 +163,41 @@ def cpu_name() -> str:
 
 
 def check(controller: str, duration: float, settings: dict, seed: int) -> dict:
-    """One controller's run under both :data:`VARIANTS`, compared (the report ``--out`` writes)."""
-    runs = {label: run_variant(controller, duration, env, settings, seed) for label, env in VARIANTS.items()}
-    (ref_label, reference), (label, other) = runs.items()
-    rows = compare(reference, other)
+    """One controller's run under every one of :func:`variants`, each compared with the first (the
+    report ``--out`` writes; ``numbers``: the largest difference over the variants)."""
+    kinds = variants()
+    runs = {label: run_variant(controller, duration, env, settings, seed) for label, env in kinds.items()}
+    (ref_label, reference), *others = runs.items()
+    compared = {label: compare(reference, other) for label, other in others}
+    rows = {
+        key: {
+            "max_relative": max(c[key]["max_relative"] for c in compared.values()),
+            "differ": max(c[key]["differ"] for c in compared.values()),
+        }
+        for key in next(iter(compared.values()))
+    }
     ep = reference["metrics"]["Ep"]
     return {
         "controller": controller,
         "duration_s": duration,
         "settings": settings,
         "seed": seed,
-        "reference": {"label": ref_label, "env": VARIANTS[ref_label], "openblas": reference["openblas"]},
-        "variant": {"label": label, "env": VARIANTS[label], "openblas": other["openblas"]},
+        "reference": {"label": ref_label, "env": kinds[ref_label], "openblas": reference["openblas"]},
+        "variants": [{"label": label, "env": kinds[label], "openblas": other["openblas"]} for label, other in others],
         "Ep_mean": sum(ep) / len(ep),
         "diverged": bool(reference["metrics"]["diverged"]),
         "numbers": rows,
         "holds": all(row["max_relative"] <= RELATIVE for row in rows.values()),
     }
+
+
+def variants() -> dict[str, dict[str, str]]:
+    """:data:`VARIANTS`, and OpenBLAS's SkylakeX kernel (AVX-512) where the CPU has AVX-512."""
+    try:
+        avx512 = "avx512f" in Path("/proc/cpuinfo").read_text()
+    except OSError:
+        avx512 = False
+    return {**VARIANTS, **({"OpenBLAS SkylakeX (AVX-512)": {"OPENBLAS_CORETYPE": "SkylakeX"}} if avx512 else {})}
 
 
 if __name__ == "__main__":

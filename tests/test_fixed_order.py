@@ -12,6 +12,7 @@ import math
 import os
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -210,10 +211,15 @@ def test_spd_solve_is_the_cholesky_solve(seed):
         fixed_order.spd_solve(singular, np.ones(2))
 
 
+CPUINFO = Path("/proc/cpuinfo")
+KERNELS = ("Haswell", "Sandybridge") + (("SkylakeX",) if CPUINFO.exists() and "avx512f" in CPUINFO.read_text() else ())
+"""The OpenBLAS kernels compared (SkylakeX's AVX-512 kernels run only where the CPU has them)."""
+
 BLAS_PROBE = """
 import numpy as np
 from hydroarm.control.estimator import EstimatorConfig, JointKalmanFilter
 from hydroarm.control.filter_design import FilterDesign
+from hydroarm.control.delay_design import delay_margin_weight, told_delay_weight
 from hydroarm.control.idmpc_limits import allocate
 from hydroarm.model.arm.loading import load_arm
 out = []
@@ -227,19 +233,22 @@ for _ in range(20):
     q = rng.normal(size=6)
     mass, bias = arm.mass_matrix(q), arm.nonlinear_effects(q, rng.normal(size=6))
     out += list(allocate(mass, bias, rng.normal(scale=50.0, size=6), np.full(6, 28.0))[:2])
+out += [told_delay_weight(0.01, 300.0, 0.01, w, d, g) for w in (1e-6, 1e-5) for d in (1, 2, 3) for g in (0.4, 0.61)]
+out += [delay_margin_weight(0.01, 300.0, 0.01, m) for m in (1, 2)]
 print(" ".join(np.asarray(a, dtype=float).tobytes().hex() for a in out))
 """
 
 
-def test_the_filter_design_and_the_torque_allocation_do_not_follow_the_blas_kernel():
-    """The filter's gain and covariances and the torque allocation's saturated solve, computed under
-    two OpenBLAS kernels (FMA and not): the same bits. Before 2026-12-05 the filter's gain came from
-    NumPy's products and inverse and differed in its last bits, which the real loop's GP-IDMPC
-    amplified to 7 % in E_p (scripts/blas_independence.py)."""
+def test_the_filter_design_the_torque_allocation_and_the_delay_design_do_not_follow_the_blas_kernel():
+    """The filter's gain and covariances, the torque allocation's saturated solve and the delay
+    designs' weights, computed under OpenBLAS's Haswell and Sandybridge kernels (FMA and not) and,
+    on a CPU with AVX-512, SkylakeX: the same bits. Before 2026-12-05 the filter's gain came from
+    NumPy's products and inverse (Haswell against Sandybridge: the real loop's GP-IDMPC 7 % apart in
+    E_p), and the weights from LAPACK's eigenvalues (SkylakeX against Haswell: 0.7 %)."""
     outputs = []
-    for kernel in ("Haswell", "Sandybridge"):
+    for kernel in KERNELS:
         env = {**os.environ, "OPENBLAS_CORETYPE": kernel, "OPENBLAS_NUM_THREADS": "1"}
         done = subprocess.run([sys.executable, "-c", BLAS_PROBE], env=env, capture_output=True, text=True, check=False)
         assert done.returncode == 0, done.stderr[-2000:]
         outputs.append(done.stdout)
-    assert outputs[0] == outputs[1]
+    assert all(output == outputs[0] for output in outputs)

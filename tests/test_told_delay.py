@@ -10,6 +10,8 @@ import pytest
 from hydroarm.control.delay_design import (
     ROBUST_RADIUS,
     delayed_observer_gain,
+    loop_polynomial,
+    roots_within,
     told_delay_radius,
     told_delay_weight,
     worst_told_delay_radius,
@@ -47,6 +49,49 @@ def test_the_radius_is_the_simulated_loop_s_growth(weight, delay, plant_gain):
     assert told_delay_radius(T, gain, delay, plant_gain) == pytest.approx(
         simulated_growth(gain, delay, plant_gain), rel=2e-3
     )
+
+
+def _state_space_loop(gain: np.ndarray, delay: int, plant_gain: float, predicted: bool) -> np.ndarray:
+    """The loop's matrix on the state [x_k, u_{k-1}, ..., u_{k-d}] (the oracle of the polynomial the
+    design uses): the move of d steps ago acts now, u_k = -K times the state predicted d steps on the
+    model under the moves in flight (``predicted``) or the state itself."""
+    a_mat, b_vec = np.array([[1.0, T], [0.0, 1.0]]), np.array([0.5 * T * T, T])
+    size = 2 + delay
+    loop = np.zeros((size, size))
+    loop[:2, :2] = a_mat
+    if delay == 0:
+        loop[:2, :2] -= plant_gain * np.outer(b_vec, gain)
+        return loop
+    loop[:2, 1 + delay] = plant_gain * b_vec
+    loop[2, :2] = -gain @ np.linalg.matrix_power(a_mat, delay) if predicted else -gain
+    for i in range(delay if predicted else 0):
+        loop[2, 2 + i] = -gain @ np.linalg.matrix_power(a_mat, i) @ b_vec
+    for k in range(3, size):
+        loop[k, k - 1] = 1.0
+    return loop
+
+
+@pytest.mark.parametrize("predicted", [True, False])
+@pytest.mark.parametrize("delay", [0, 1, 2, 3])
+def test_the_design_s_polynomial_and_root_test_are_the_loop_matrix_s(delay, predicted):
+    """The characteristic polynomial written out (fixed order) has the loop matrix's eigenvalues as
+    its roots, and the Schur-Cohn test says "within the radius" exactly when the largest eigenvalue
+    is, wherever the two are more than 1e-9 apart (the design decides by the test: its bits do not
+    follow the BLAS kernel, LAPACK's eigenvalues' do)."""
+    rng = np.random.default_rng(delay)
+    decided = 0
+    for weight in np.exp(rng.uniform(np.log(1e-8), np.log(1e-3), 25)):
+        gain = joint_lqr(T, 300.0, 0.01, float(weight))[1]
+        plant_gain = float(rng.uniform(0.3, 1.0)) if predicted else 1.0
+        coefficients = loop_polynomial(T, gain, delay, plant_gain, predicted)
+        eigenvalues = np.linalg.eigvals(_state_space_loop(gain, delay, plant_gain, predicted))
+        np.testing.assert_allclose(np.sort(np.abs(np.roots(coefficients))), np.sort(np.abs(eigenvalues)), atol=1e-6)
+        radius = float(np.max(np.abs(eigenvalues)))
+        for limit in (0.9, 0.95, 1.0):
+            if abs(radius - limit) > 1e-9:
+                assert roots_within(coefficients, limit) == (radius < limit)
+                decided += 1
+    assert decided >= 70
 
 
 def test_on_the_model_the_prediction_removes_the_delay():

@@ -20,13 +20,21 @@ spectral radius of at most :data:`ROBUST_RADIUS` for every g in ``[g_j / kappa, 
 joint's dry-to-wet inertia ratio of :func:`wet_inertia_ratio`: stable for a plant up to kappa
 times heavier than the dry arm plus its own Morison added mass. At d = 0 every weight meets it
 (nothing changes: the ideal loop and the paper mode are as before).
+
+The design decides "within the radius" by the Schur-Cohn test on the loop's characteristic
+polynomial written out (:func:`loop_polynomial`, :func:`roots_within`), in scalar fixed-order
+arithmetic. Until 2026-12-05 it compared LAPACK's eigenvalues of the loop matrix, whose last bits
+follow the CPU's BLAS kernel: the weights' last bits then did too (OpenBLAS SkylakeX against
+Haswell), and the real loop's GP-IDMPC run moved by 0.7 % in E_p.
 """
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
-from hydroarm.control.linear import double_integrator, joint_lqr
+from hydroarm.control.linear import joint_lqr
 from hydroarm.model.arm.description import Arm
 from hydroarm.model.water.morison import Water, added_mass_matrix
 
@@ -43,30 +51,78 @@ GAIN_SAMPLES = 12
 """Plant gains g checked, evenly spaced over ``[g_low, 1]`` (the radius is smooth in g)."""
 
 
+def loop_polynomial(period: float, gain: np.ndarray, delay: int, plant_gain: float, predicted: bool) -> list[float]:
+    """The characteristic polynomial (monic, highest power first, degree ``delay + 2``) of one
+    joint's loop on the sampled double integrator, the plant realising ``plant_gain`` = g times the
+    move of ``delay`` = d periods ago: ``predicted`` (:func:`told_delay_radius`'s loop) the LQR gain
+    K (2,) on the state predicted d steps on the model under the d moves in flight, else
+    (:func:`delayed_radius`'s) on the state itself. Written out from the loop's transfer function::
+
+        p(z) = z^d (z - 1)^2 + (z - 1)^2 sum_i h_i z^(d-1-i) + g [(c . B)(z - 1) + c_0 T B_1]
+
+    with ``c = K A^d`` and ``h_i = K A^i B`` (i < d) when predicted, ``c = K`` and no h otherwise
+    (A = [[1, T], [0, 1]], B = [T^2/2, T]). Scalar arithmetic in a fixed order: the same bits on any
+    machine (the design's decisions follow from it, :func:`_smallest_weight`)."""
+    t, k0, k1 = float(period), float(gain[0]), float(gain[1])
+    b0, b1 = 0.5 * t * t, t
+    rising = [0.0] * (delay + 3)  # rising[p]: the coefficient of z^p
+    rising[delay + 2], rising[delay + 1], rising[delay] = 1.0, -2.0, 1.0
+    c0, c1 = (k0, k0 * (delay * t) + k1) if predicted else (k0, k1)
+    for i in range(delay if predicted else 0):
+        h = k0 * (b0 + (i * t) * b1) + k1 * b1  # K A^i B
+        rising[delay + 1 - i] += h
+        rising[delay - i] -= 2.0 * h
+        rising[delay - 1 - i] += h
+    dot = c0 * b0 + c1 * b1
+    rising[1] += plant_gain * dot
+    rising[0] += plant_gain * (c0 * t * b1 - dot)
+    return rising[::-1]
+
+
+def _radius(coefficients: list[float]) -> float:
+    return float(np.max(np.abs(np.roots(coefficients))))
+
+
+def roots_within(coefficients: list[float], limit: float) -> bool:
+    """Whether every root of the polynomial (highest power first, nonzero leading coefficient) lies
+    strictly within ``limit`` of 0: the Schur-Cohn test (Jury's table) of p(limit w) on the unit
+    circle, in scalar fixed-order arithmetic. It agrees with the roots' largest modulus (LAPACK's
+    eigenvalues of the companion matrix, whose last bits follow the CPU's BLAS kernel) but where
+    that modulus is the limit to within its rounding (tests/test_told_delay.py)."""
+    scaled, scale = [], 1.0
+    for coefficient in coefficients:
+        scaled.append(coefficient * scale)
+        scale /= limit
+    while len(scaled) > 1:
+        reflection = scaled[-1] / scaled[0]
+        if not abs(reflection) < 1.0:
+            return False
+        n = len(scaled) - 1
+        scaled = [scaled[j] - reflection * scaled[n - j] for j in range(n)]
+    return True
+
+
 def told_delay_radius(period: float, gain: np.ndarray, delay: int, plant_gain: float) -> float:
     """The spectral radius (-) of one joint's loop (module docstring): the LQR gain K (2,)
     (``gain``) acting on the state predicted ``delay`` periods ahead on the model, the plant
-    realising ``plant_gain`` times the commanded acceleration, T = ``period`` (s)."""
-    a_mat, b_vec = double_integrator(period)
-    if delay == 0:
-        return float(np.max(np.abs(np.linalg.eigvals(a_mat - plant_gain * np.outer(b_vec, gain)))))
-    size = 2 + delay  # [x_k, u_{k-1}, ..., u_{k-d}]
-    loop = np.zeros((size, size))
-    loop[:2, :2] = a_mat
-    loop[:2, 1 + delay] = plant_gain * b_vec  # the move of d steps ago acts now
-    loop[2, :2] = -gain @ np.linalg.matrix_power(a_mat, delay)
-    for i in range(delay):  # u_{k-1-i} (state index 2 + i) predicted forward i steps
-        loop[2, 2 + i] = -gain @ np.linalg.matrix_power(a_mat, i) @ b_vec
-    for k in range(3, size):
-        loop[k, k - 1] = 1.0
-    return float(np.max(np.abs(np.linalg.eigvals(loop))))
+    realising ``plant_gain`` times the commanded acceleration, T = ``period`` (s). The largest root
+    of :func:`loop_polynomial` (for reports and tests; the design decides by :func:`roots_within`)."""
+    return _radius(loop_polynomial(period, gain, delay, plant_gain, predicted=True))
 
 
 def worst_told_delay_radius(period: float, gain: np.ndarray, delay: int, gain_low: float) -> float:
     """The largest :func:`told_delay_radius` (-) over :data:`GAIN_SAMPLES` plant gains in
     ``[gain_low, 1]``."""
+    return max(told_delay_radius(period, gain, delay, float(g)) for g in np.linspace(gain_low, 1.0, GAIN_SAMPLES))
+
+
+def _told_delay_holds(period: float, gain: np.ndarray, delay: int, gain_low: float) -> bool:
+    """Whether the loop keeps every root within :data:`ROBUST_RADIUS` on all
+    :data:`GAIN_SAMPLES` plant gains of :func:`worst_told_delay_radius` (fixed order)."""
     gains = np.linspace(gain_low, 1.0, GAIN_SAMPLES)
-    return max(told_delay_radius(period, gain, delay, float(g)) for g in gains)
+    return all(
+        roots_within(loop_polynomial(period, gain, delay, float(g), predicted=True), ROBUST_RADIUS) for g in gains
+    )
 
 
 def wet_inertia_ratio(arm: Arm) -> np.ndarray:
@@ -104,19 +160,9 @@ not told of (:func:`delay_margin_weight`)."""
 
 def delayed_radius(period: float, gain: np.ndarray, extra: int) -> float:
     """The spectral radius (-) of one joint's loop ``u_k = -K x_k`` on the sampled double integrator
-    when the move acts ``extra`` periods late (a delay nothing predicts across); ``gain`` K (2,)."""
-    a_mat, b_vec = double_integrator(period)
-    size = 2 + extra
-    loop = np.zeros((size, size))
-    loop[:2, :2] = a_mat
-    if extra == 0:
-        loop[:2, :2] -= np.outer(b_vec, gain)
-    else:
-        loop[:2, 1 + extra] = b_vec  # the oldest move acts now
-        loop[2, :2] = -gain
-        for k in range(3, size):
-            loop[k, k - 1] = 1.0
-    return float(np.max(np.abs(np.linalg.eigvals(loop))))
+    when the move acts ``extra`` periods late (a delay nothing predicts across); ``gain`` K (2,).
+    The largest root of :func:`loop_polynomial` (for reports and tests)."""
+    return _radius(loop_polynomial(period, gain, extra, 1.0, predicted=False))
 
 
 def delay_margin_weight(period: float, q_position: float, q_velocity: float, margin: int) -> float:
@@ -129,27 +175,29 @@ def delay_margin_weight(period: float, q_position: float, q_velocity: float, mar
     weights (q_position 300, q_velocity 0.01, T = 10 ms) and a margin of one period it is 5.6e-5
     (the default wrist's 1e-6 has 1.33)."""
 
-    def radius(weight: float) -> float:
-        return delayed_radius(period, joint_lqr(period, q_position, q_velocity, weight)[1], margin)
+    def holds(weight: float) -> bool:
+        gain = joint_lqr(period, q_position, q_velocity, weight)[1]
+        return roots_within(loop_polynomial(period, gain, margin, 1.0, predicted=False), MARGIN_RADIUS)
 
-    return _smallest_weight(radius, MARGIN_RADIUS, 1e-9, f"idmpc.delay_margin = {margin}")
+    return _smallest_weight(holds, 1e-9, f"idmpc.delay_margin = {margin}")
 
 
-def _smallest_weight(radius, limit: float, low: float, what: str) -> float:
-    """The smallest weight >= ``low`` whose ``radius(weight)`` is at most ``limit``: a grid of 20
-    per decade, then 60 bisections (the radius first falls as the weight grows, then rises)."""
-    if radius(low) <= limit:
+def _smallest_weight(holds, low: float, what: str) -> float:
+    """The smallest weight >= ``low`` for which ``holds(weight)`` (its loop's roots within the
+    radius asked for): a grid of 20 per decade, then 60 bisections (the radius first falls as the
+    weight grows, then rises)."""
+    if holds(low):
         return low
     for _ in range(400):
         high = low * 10.0**0.05
-        if radius(high) <= limit:
+        if holds(high):
             break
         low = high
     else:
         raise ValueError(f"{what}: no acceleration weight up to {high:.3g} meets it")
     for _ in range(60):
-        middle = float(np.sqrt(low * high))
-        low, high = (middle, high) if radius(middle) > limit else (low, middle)
+        middle = math.sqrt(low * high)
+        low, high = (low, middle) if holds(middle) else (middle, high)
     return high
 
 
@@ -164,7 +212,7 @@ def told_delay_weight(
     if delay == 0:
         return weight
 
-    def radius(r: float) -> float:
-        return worst_told_delay_radius(period, joint_lqr(period, q_position, q_velocity, r)[1], delay, gain_low)
+    def holds(r: float) -> bool:
+        return _told_delay_holds(period, joint_lqr(period, q_position, q_velocity, r)[1], delay, gain_low)
 
-    return _smallest_weight(radius, ROBUST_RADIUS, weight, f"idmpc.loop_delay = {delay}")
+    return _smallest_weight(holds, weight, f"idmpc.loop_delay = {delay}")
