@@ -67,6 +67,20 @@ def test_the_table_has_every_key_its_default_and_its_range():
     assert rows["water.drag"].allowed == "true or false"
 
 
+def test_every_default_shown_is_the_one_a_run_gets():
+    """Each row's default is the value at its key in ``ExperimentConfig()``, including sections whose
+    parent gives them other defaults than their model's own (shown wrong before 2026-12-05:
+    ``water_model.remainder.kind`` "none" for PI-IDMPC's TDE, ``vehicle.gp.window`` 10 for 60)."""
+    config = ExperimentConfig().model_dump(mode="json")
+    for row in settings_table():
+        value = config
+        for part in row.key.split("."):
+            value = value[part]
+        assert row.default == value, row.key
+    rows = {row.key: row.default for row in settings_table()}
+    assert rows["water_model.remainder.kind"] == "tde" and rows["vehicle.gp.window"] == 60
+
+
 def test_cli_settings_of_one_controller_shows_only_the_sections_it_reads():
     result = RUNNER.invoke(app, ["settings", "--controller", "gp-mpc", "--json"])
     assert result.exit_code == 0, result.output

@@ -154,17 +154,27 @@ def _json(value: Any) -> Any:
     return value
 
 
-def settings_table(model: type[pydantic.BaseModel] = ExperimentConfig, prefix: str = "") -> list[SettingRow]:
-    """One row per dotted key of ``model`` and its sections (sections themselves are not rows)."""
+def settings_table(
+    model: type[pydantic.BaseModel] = ExperimentConfig, prefix: str = "", defaults: pydantic.BaseModel | None = None
+) -> list[SettingRow]:
+    """One row per dotted key of ``model`` and its sections (sections themselves are not rows).
+    ``defaults``: the instance whose values are the defaults (a section's default is the one its
+    parent gives it, which may differ from the section model's own field defaults: PI-IDMPC's
+    ``water_model.remainder`` is a TDE where :class:`ObserverConfig` alone has none); None: the
+    field defaults."""
     rows: list[SettingRow] = []
     section = prefix.removesuffix(".")
     for name, field in model.model_fields.items():
+        if defaults is not None:
+            value = getattr(defaults, name)
+        else:
+            value = field.get_default(call_default_factory=True) if not field.is_required() else None
         inner = _model_of(field.annotation)
         if inner is not None:
-            rows += settings_table(inner, f"{prefix}{name}.")
+            rows += settings_table(inner, f"{prefix}{name}.", value if isinstance(value, inner) else None)
             continue
         kind, allowed = _describe(field.annotation, list(field.metadata))
-        default = _json(field.get_default(call_default_factory=True)) if not field.is_required() else "(required)"
+        default = _json(value) if defaults is not None or not field.is_required() else "(required)"
         rows.append(SettingRow(prefix + name, default, kind, allowed, field.description or "", section))
     return rows
 
