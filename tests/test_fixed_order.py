@@ -198,17 +198,18 @@ def test_the_filters_algebra_refuses_a_measurement_it_was_not_written_for():
         kalman_correction(np.eye(2), np.array([[0.0, 1.0]]), np.eye(1))
 
 
-@pytest.mark.parametrize("seed", range(3))
-def test_spd_solve_is_the_cholesky_solve(seed):
-    rng = np.random.default_rng(seed)
-    root = rng.normal(size=(5, 5))
-    mass = root @ root.T + 0.1 * np.eye(5)
-    b = rng.normal(size=5)
-    np.testing.assert_array_equal(fixed_order.spd_solve(mass, b), fixed_order.cholesky_solve(mass, b)[0])
-    np.testing.assert_allclose(fixed_order.spd_solve(mass, b), scipy.linalg.solve(mass, b, assume_a="pos"), rtol=1e-10)
-    singular = np.zeros((2, 2))
-    with pytest.raises(np.linalg.LinAlgError):  # no factor: LAPACK's answer (here: its error)
-        fixed_order.spd_solve(singular, np.ones(2))
+def test_spd_solve_is_the_cholesky_solve_and_falls_back_to_lapack():
+    """On the fixtures of :func:`test_cholesky_solve_against_scipy`:
+    the same bits as the Cholesky solve, scipy's values; with no factor, LAPACK's answer (here: its error)."""
+    for seed in range(3):
+        rng = np.random.default_rng(seed)
+        a = rng.normal(size=(6, 6))
+        spd, b = a @ a.T + 0.1 * np.eye(6), rng.normal(size=6)
+        np.testing.assert_array_equal(fixed_order.spd_solve(spd, b), fixed_order.cholesky_solve(spd, b)[0])
+        expected = scipy.linalg.solve(spd, b, assume_a="pos")
+        np.testing.assert_allclose(fixed_order.spd_solve(spd, b), expected, rtol=1e-10)
+    with pytest.raises(np.linalg.LinAlgError):
+        fixed_order.spd_solve(np.zeros((2, 2)), np.ones(2))
 
 
 CPUINFO = Path("/proc/cpuinfo")
