@@ -34,6 +34,8 @@ from hydroarm_bench.stats import STEP_BARS_MS, meets_bars, stats_ms
 NAME = "PI-IDMPC"
 SOLVERS = ("structured", "daqp")
 DURATION_S = 10.0
+QUICK_DURATION_S = 2.0
+"""The runs' length in quick mode (CI: the report's shape, not its statistics): 200 steps a run."""
 ARMS = {
     "ur5": "ur5",
     "alpha5": "alpha5",
@@ -124,10 +126,11 @@ def bench_planner_step(quick: bool) -> dict:
     """The flagship candidate's step statistics per planner solver (module docstring)."""
     runs = 1 if quick else 11  # 11 x 999 observed steps: >= 10^4; quick (CI): shape only
     warm = _one_run("structured", 0, 0.3)[0]
-    out = {"controller": NAME, "runs": runs, "duration_s": DURATION_S, "warmup_first_step_ms": 1e3 * float(warm[0])}
+    duration = QUICK_DURATION_S if quick else DURATION_S
+    out = {"controller": NAME, "runs": runs, "duration_s": duration, "warmup_first_step_ms": 1e3 * float(warm[0])}
     for solver in SOLVERS:
         _one_run(solver, 0, 0.3)  # this solver's own caches
-        results = [_one_run(solver, seed) for seed in range(runs)]
+        results = [_one_run(solver, seed, duration) for seed in range(runs)]
         total = np.concatenate([r[0] for r in results])
         replanned = np.concatenate([r[1] for r in results])
         phases = {key: np.concatenate([r[2][key] for r in results]) for key in results[0][2]}
@@ -189,12 +192,13 @@ def bench_planner_beside(quick: bool) -> dict:
     cases = {"paper": {}, "paper, UR5 limits": {"torque_limit": [150.0, 150.0, 150.0, 28.0, 28.0, 28.0]}}
     if quick:
         cases.pop("paper, UR5 limits")
-    out: dict = {"latency_periods": LATENCY, "runs": runs, "duration_s": DURATION_S, "cases": {}}
+    duration = QUICK_DURATION_S if quick else DURATION_S
+    out: dict = {"latency_periods": LATENCY, "runs": runs, "duration_s": duration, "cases": {}}
     for case, overrides in cases.items():
         out["cases"][case] = {}
         for label, planner in BESIDE_ROWS.items():
             settings = {"pi_idmpc.plan_latency": LATENCY, "pi_idmpc.plan_worker": "process", **overrides, **planner}
-            out["cases"][case][label] = _beside_row(settings, runs, not quick)
+            out["cases"][case][label] = _beside_row(settings, runs, not quick, duration)
     return out
 
 
@@ -202,12 +206,12 @@ PACED_RUNS = 3
 """10 s runs per ``beside`` row in full mode: paced, each takes 10 s of wall time."""
 
 
-def _beside_row(settings: dict, runs: int, paced: bool = True) -> dict:
-    """One row of :func:`bench_planner_beside`: ``runs`` 10 s runs after a 0.3 s warm-up run,
+def _beside_row(settings: dict, runs: int, paced: bool = True, duration: float = DURATION_S) -> dict:
+    """One row of :func:`bench_planner_beside`: ``runs`` runs of ``duration`` s after a 0.3 s warm-up run,
     paced at the control period or not (:class:`~hydroarm_bench.loop.TimedController`)."""
     step, cpu, wait, plan, plan_cpu = [], [], [], [], []
     for seed in range(-1, runs):  # -1: the warm-up run
-        experiment = paper_experiment(NAME, 0.3 if seed < 0 else DURATION_S, settings)
+        experiment = paper_experiment(NAME, 0.3 if seed < 0 else duration, settings)
         timed = TimedController(experiment.controller, paced=paced and seed >= 0)
         experiment.controller = timed
         traj = experiment.run(max(seed, 0))
@@ -281,7 +285,7 @@ def bench_plan_solver(quick: bool) -> dict:
     from hydroarm.control.idmpc_limits import HorizonQP
     from hydroarm.control.plan_qp import joint_factors
 
-    planner, problems = record_plan_problems()
+    planner, problems = record_plan_problems(QUICK_DURATION_S if quick else DURATION_S)
     repeat = 1 if quick else 5
     factors = {"structured": joint_factors(planner.hessian, planner.n), "daqp": None}
     planner.fallbacks = 0
