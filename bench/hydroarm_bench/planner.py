@@ -36,6 +36,13 @@ SOLVERS = ("structured", "daqp")
 DURATION_S = 10.0
 QUICK_DURATION_S = 2.0
 """The runs' length in quick mode (CI: the report's shape, not its statistics): 200 steps a run."""
+
+
+def _run_length(quick: bool) -> float:
+    """Each timed run's length (s): :data:`QUICK_DURATION_S` in quick mode, else :data:`DURATION_S`."""
+    return QUICK_DURATION_S if quick else DURATION_S
+
+
 ARMS = {
     "ur5": "ur5",
     "alpha5": "alpha5",
@@ -126,7 +133,7 @@ def bench_planner_step(quick: bool) -> dict:
     """The flagship candidate's step statistics per planner solver (module docstring)."""
     runs = 1 if quick else 11  # 11 x 999 observed steps: >= 10^4; quick (CI): shape only
     warm = _one_run("structured", 0, 0.3)[0]
-    duration = QUICK_DURATION_S if quick else DURATION_S
+    duration = _run_length(quick)
     out = {"controller": NAME, "runs": runs, "duration_s": duration, "warmup_first_step_ms": 1e3 * float(warm[0])}
     for solver in SOLVERS:
         _one_run(solver, 0, 0.3)  # this solver's own caches
@@ -192,7 +199,7 @@ def bench_planner_beside(quick: bool) -> dict:
     cases = {"paper": {}, "paper, UR5 limits": {"torque_limit": [150.0, 150.0, 150.0, 28.0, 28.0, 28.0]}}
     if quick:
         cases.pop("paper, UR5 limits")
-    duration = QUICK_DURATION_S if quick else DURATION_S
+    duration = _run_length(quick)
     out: dict = {"latency_periods": LATENCY, "runs": runs, "duration_s": duration, "cases": {}}
     for case, overrides in cases.items():
         out["cases"][case] = {}
@@ -285,7 +292,7 @@ def bench_plan_solver(quick: bool) -> dict:
     from hydroarm.control.idmpc_limits import HorizonQP
     from hydroarm.control.plan_qp import joint_factors
 
-    planner, problems = record_plan_problems(QUICK_DURATION_S if quick else DURATION_S)
+    planner, problems = record_plan_problems(_run_length(quick))
     repeat = 1 if quick else 5
     factors = {"structured": joint_factors(planner.hessian, planner.n), "daqp": None}
     planner.fallbacks = 0

@@ -22,13 +22,13 @@ The two entries a caller may call alone, :func:`rigid_terms` and :func:`evaluate
 functions of their own, cached once (what they call is inlined into them by numba,
 ``inline="always"``, as the hot per-body and per-node helpers must be). Inlined too, as they were,
 each direct call compiled its own copy of the whole evaluation. Measured on the paper arm with
-empty caches (2-core Xeon, 2026-12-05): :func:`step_kernel` compiles in 59 s instead of 93 s,
-after which the direct calls load from the cache instead of compiling for 42 s and 71 s; the
-states of a control period are the same to the bit. A call per RK4 stage is about 40 calls a
-control period; the period's time did not move beyond this machine's noise (fastest of 5
-alternating runs, CPU time: paper arm 0.26 ms before, 0.29 ms after; Alpha 5 0.35 and 0.30 ms).
-Un-inlining the tree passes as well was tried and not kept: they are called per body, and the
-paper arm's period then took about 30 % longer.
+empty caches (2-core Xeon, 2026-12-05, other runs on its second core): :func:`step_kernel`
+compiles in 59 s instead of 93 s, after which the direct calls load from the cache instead of
+compiling for 42 s and 71 s; the states of a control period are the same to the bit. A call
+per RK4 stage is about 40 calls a control period; the period's time did not move beyond this
+machine's noise (fastest of 5 alternating runs, CPU time: paper arm 0.26 ms before, 0.29 ms
+after; Alpha 5 0.35 and 0.30 ms). Un-inlining the tree passes as well was tried and not kept:
+they are called per body, and the paper arm's period then took about 30 % longer.
 """
 
 from __future__ import annotations
