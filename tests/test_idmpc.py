@@ -13,6 +13,7 @@ from hypothesis import strategies as st
 import hydroarm
 from hydroarm.control.estimator import EstimatorConfig, JointKalmanFilter
 from hydroarm.control.filter_design import steady_state_covariance
+from hydroarm.control.gp import GPConfig
 from hydroarm.control.idmpc import IDMPCConfig, InverseDynamicsMPC, allocate, authority_weights, unconstrained_move
 from hydroarm.control.idmpc_limits import predicted_plan
 from hydroarm.model.task.references import SinusoidReference, paper_reference
@@ -381,6 +382,28 @@ def test_gp_sees_the_planned_acceleration_and_learns_the_added_mass_better():
     # (measured: 27 % over 1-3 s; 55 % over the 10 s run, docs/controllers.md)
     assert np.all(errors["state+acceleration"] < errors["state"]), errors
     assert errors["state+acceleration"][:3].sum() < 0.8 * errors["state"][:3].sum(), errors
+
+
+def test_the_gp_learns_the_residual_its_setting_names(paper_arm):
+    """``gp_residual``: the sample a step adds is the Euler residual of the measured step
+    (``NominalModel.tde_residual``) or the miss of the dry model's RK4 prediction
+    (``NominalModel.residual``), bit for bit, paired with the input the step was planned at; on a
+    fast-turning step the two differ by newtons, so the setting is not ignored."""
+    rng = np.random.default_rng(3)
+    y = np.concatenate([rng.uniform(-1, 1, 6), rng.uniform(-3, 3, 6)])
+    u = rng.uniform(-50.0, 50.0, 6)
+    y_next = y + np.concatenate([y[6:] * T, rng.uniform(-2, 2, 6)])
+    targets = {}
+    for target in ("euler", "rk4"):
+        controller = InverseDynamicsMPC(paper_arm, IDMPCConfig(gp_residual=target), gp_config=GPConfig())
+        controller.compute(0.3, y, paper_reference())
+        planned_input = controller._gp_input.copy()
+        controller.observe(0.3, y, u, y_next)
+        np.testing.assert_array_equal(controller.gp.window_inputs[-1], planned_input)
+        targets[target] = controller.gp.window_targets[-1]
+    np.testing.assert_array_equal(targets["euler"], controller.nominal.tde_residual(y, u, y_next, T))
+    np.testing.assert_array_equal(targets["rk4"], controller.nominal.residual(y, u, y_next, T)[0])
+    assert np.abs(targets["euler"] - targets["rk4"]).max() > 1.0, targets
 
 
 @pytest.mark.slow
