@@ -38,6 +38,8 @@ the residual's noise the learner assumes at 1.5 N m (the default 1)."""
 ROWS = {  # row -> (controller, overrides)
     "IDMPC": ("IDMPC", {}),
     "GP-IDMPC": ("GP-IDMPC", {}),
+    # not the default: the GP learns the torque map's own (Euler) residual (docs/controllers.md, "The GP's target")
+    "GP-IDMPC, Euler target": ("GP-IDMPC", {"idmpc.gp_residual": "euler"}),
     "IDMPC+TDE": ("IDMPC", {"observer.kind": "tde"}),
     "IDMPC+TDE-gated": ("IDMPC", {"observer.kind": "tde", "observer.gate": True}),
     "IDMPC+NDOB": ("IDMPC", {"observer.kind": "ndob"}),

@@ -360,3 +360,27 @@ def test_the_identification_figures_are_the_identification_studys():
     ]
     for phrase in phrases:
         assert phrase in text, phrase
+
+
+def test_the_gp_target_table_is_the_learning_studys():
+    """docs/controllers.md, "The GP's target": every cell (GP-IDMPC with either target and the best
+    observer, column by column, whole run and after 2 s, clean / noisy) is
+    docs/data/learning_study.json's, to the digits printed."""
+    study = json.loads((ROOT / "docs" / "data" / "learning_study.json").read_text())
+    text = _text("docs/controllers.md").replace("**", "")
+    observers = ("IDMPC+TDE", "IDMPC+TDE-gated", "IDMPC+NDOB", "IDMPC+NDOB-gated")
+    tables = ("clean", "noisy")
+
+    def mean(runs, key):
+        return float(np.mean([run[key] for run in runs]))
+
+    def best(rows, names, digits, key):
+        return " / ".join(
+            f"{min(mean(rows[name][t], key) for name in names):.{digits}g}".replace("e-0", "e-") for t in tables
+        )
+
+    for case, rows in study.items():
+        line = [case]
+        for names in (("GP-IDMPC",), ("GP-IDMPC, Euler target",), observers):
+            line += [best(rows, names, 5, "Ep_mean"), best(rows, names, 3, "Ep_mean_after_2s")]
+        assert "| " + " | ".join(line) + " |" in text, line
