@@ -143,7 +143,8 @@ def test_migrations_apply_in_order_and_only_after_the_records_schema():
         "loop_delay": "plant",
         "inertia_margin": 1.5,
         "friction_feedforward": "arm",
-    }  # 9 to 11 and 14 filled
+        "gp_residual": "rk4",
+    }  # 9 to 11, 14 and 16 filled
     assert migrate({}, 1)["estimator"] == {"measures": "plant", "delay": "plant", "repeated": "skip"}
 
 

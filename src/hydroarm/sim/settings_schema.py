@@ -115,6 +115,11 @@ MIGRATIONS: tuple[Migration, ...] = (
         "PI-IDMPC's plan cost bounded: an active-set iteration budget per plan and the prediction's RK4 steps",
         keys={"pi_idmpc.planner_budget": 0, "pi_idmpc.plan_prediction_steps": 10},
     ),
+    Migration(
+        16,
+        "GP-IDMPC's GP target chosen: its RK4 residual or the torque map's Euler one",
+        keys={"idmpc.gp_residual": "rk4"},
+    ),
 )
 """Every migration, in order: ``MIGRATIONS[k - 2]`` leads from schema k - 1 to k. The numbers
 before 11 were given after the fact (no record carried one), in the order the features came."""
