@@ -294,24 +294,28 @@ def test_the_start_up_learning_table_is_the_learning_studys():
         assert line in text.replace("**", ""), line
 
 
+LEARNING_OBSERVERS = ("IDMPC+TDE", "IDMPC+TDE-gated", "IDMPC+NDOB", "IDMPC+NDOB-gated")
+"""The learning study's observer rows (scripts/learning_study.py)."""
+
+
+def _study_mean(runs, key="Ep_mean"):
+    """The mean of ``key`` over a learning-study cell's runs."""
+    return float(np.mean([run[key] for run in runs]))
+
+
+def _pair(values, digits=5):
+    """Clean / noisy as the docs print them."""
+    return " / ".join(f"{v:.{digits}g}".replace("e-0", "e-") for v in values)
+
+
 def test_the_learning_table_is_the_learning_studys():
     """docs/controllers.md, "Learning against the classic observers": every number of its table
     (the best observer by clean whole-run E_p, GP-IDMPC, PI-IDMPC, PI-IDMPC and the best observer
     after 2 s, clean / noisy) is docs/data/learning_study.json's, to the digits printed."""
     study = json.loads((ROOT / "docs" / "data" / "learning_study.json").read_text())
     text = _text("docs/controllers.md").replace("**", "")
-    observers = {
-        "IDMPC+TDE": "TDE",
-        "IDMPC+TDE-gated": "TDE-gated",
-        "IDMPC+NDOB": "NDOB",
-        "IDMPC+NDOB-gated": "NDOB-gated",
-    }
-
-    def mean(runs, key="Ep_mean"):
-        return float(np.mean([run[key] for run in runs]))
-
-    def pair(values, digits=5):
-        return " / ".join(f"{v:.{digits}g}".replace("e-0", "e-") for v in values)
+    observers = dict(zip(LEARNING_OBSERVERS, ("TDE", "TDE-gated", "NDOB", "NDOB-gated"), strict=True))
+    mean, pair = _study_mean, _pair
 
     for case, rows in study.items():
         tables = ("clean", "noisy")
@@ -368,19 +372,12 @@ def test_the_gp_target_table_is_the_learning_studys():
     docs/data/learning_study.json's, to the digits printed."""
     study = json.loads((ROOT / "docs" / "data" / "learning_study.json").read_text())
     text = _text("docs/controllers.md").replace("**", "")
-    observers = ("IDMPC+TDE", "IDMPC+TDE-gated", "IDMPC+NDOB", "IDMPC+NDOB-gated")
-    tables = ("clean", "noisy")
-
-    def mean(runs, key):
-        return float(np.mean([run[key] for run in runs]))
 
     def best(rows, names, digits, key):
-        return " / ".join(
-            f"{min(mean(rows[name][t], key) for name in names):.{digits}g}".replace("e-0", "e-") for t in tables
-        )
+        return _pair([min(_study_mean(rows[name][t], key) for name in names) for t in ("clean", "noisy")], digits)
 
     for case, rows in study.items():
         line = [case]
-        for names in (("GP-IDMPC",), ("GP-IDMPC, Euler target",), observers):
+        for names in (("GP-IDMPC",), ("GP-IDMPC, Euler target",), LEARNING_OBSERVERS):
             line += [best(rows, names, 5, "Ep_mean"), best(rows, names, 3, "Ep_mean_after_2s")]
         assert "| " + " | ".join(line) + " |" in text, line

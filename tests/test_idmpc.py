@@ -397,7 +397,7 @@ def test_the_gp_learns_the_residual_its_setting_names(paper_arm):
     for target in ("euler", "rk4"):
         controller = InverseDynamicsMPC(paper_arm, IDMPCConfig(gp_residual=target), gp_config=GPConfig())
         controller.compute(0.3, y, paper_reference())
-        planned_input = controller._gp_input.copy()
+        planned_input = controller.gp_input(y, controller.planned_acceleration(0.3, y, paper_reference()))
         controller.observe(0.3, y, u, y_next)
         np.testing.assert_array_equal(controller.gp.window_inputs[-1], planned_input)
         targets[target] = controller.gp.window_targets[-1]

@@ -87,14 +87,11 @@ mass answers the acceleration, which the state alone does not tell. The outer pl
 depend on w_hat (only the torque rows do), so each step plans a_0 first, then asks the GP at (y,
 a_0), then maps to torques; the sample added pairs that input with the residual the step showed.
 
-The GP's target (``gp_residual``): the torque map holds tau over the period and asks
-``M(q) a = tau - h(q, v) + w_hat``, so the estimate that makes the period's mean acceleration the
-planned one is the Euler residual ``M(q) (v+ - v) / T + h(q, v) - tau`` (``"euler"``;
-:meth:`~hydroarm.model.dynamics.nominal.NominalModel.tde_residual`, the TDE's and PI-IDMPC's).
-``"rk4"`` (the default, with which GP-IDMPC's published numbers were run) is the miss of the dry
-model's RK4 prediction, GP-MPC's target (:meth:`~hydroarm.model.dynamics.nominal.NominalModel.residual`):
-it differs by how the dry acceleration turns within the period, which the torque map does not model
-(docs/controllers.md, "The GP's target").
+The GP's target (``gp_residual``): the torque map holds tau over the period, so the estimate giving
+the planned mean acceleration is the Euler residual ``M(q) (v+ - v) / T + h(q, v) - tau`` (``"euler"``,
+``NominalModel.tde_residual``: the TDE's and PI-IDMPC's). ``"rk4"`` (the default, GP-IDMPC's published
+numbers) is GP-MPC's target, the dry RK4 prediction's miss (``NominalModel.residual``), off by how the
+dry acceleration turns within the period (docs/controllers.md, "The GP's target").
 """
 
 from __future__ import annotations
@@ -179,8 +176,11 @@ class IDMPCConfig(FrozenModel):
     acceleration_scale: PositiveFloat = pydantic.Field(
         100.0, description="divisor of a_0 in the GP's inputs (rad/s^2 per input unit)"
     )
-    gp_residual: Literal["euler", "rk4"] = pydantic.Field("rk4", description="the GP's target: euler, the torque "
-        "map's residual M(q)(v+ - v)/T + h - u, or rk4, the dry RK4 prediction's miss (module docstring)")  # fmt: skip
+    gp_residual: Literal["euler", "rk4"] = pydantic.Field(
+        "rk4",
+        description="the GP's target: euler, the torque map's residual M(q)(v+ - v)/T + h - u, or rk4, "
+        "the dry RK4 prediction's miss (module docstring)",
+    )
 
     @pydantic.field_validator("loop_delay", mode="before")
     @classmethod
