@@ -144,7 +144,8 @@ def test_migrations_apply_in_order_and_only_after_the_records_schema():
         "inertia_margin": 1.5,
         "friction_feedforward": "arm",
         "gp_residual": "rk4",
-    }  # 9 to 11, 14 and 16 filled
+        "gp_feedforward_delayed": "none",
+    }  # 9 to 11, 14, 16 and 17 filled
     assert migrate({}, 1)["estimator"] == {"measures": "plant", "delay": "plant", "repeated": "skip"}
 
 

@@ -9,6 +9,7 @@ import pytest
 
 from hydroarm.control.delay_design import (
     ROBUST_RADIUS,
+    DelayedEstimate,
     delayed_observer_gain,
     loop_polynomial,
     roots_within,
@@ -169,3 +170,34 @@ def test_pi_idmpc_one_period_late_diverges_with_the_ideal_loop_s_bandwidth_and_n
         {"sensor.delay": 1, "idmpc.loop_delay": told, "pi_idmpc.planner_solver": "daqp"},
     )
     assert build_experiment(config, "PI-IDMPC").run(0).diverged == diverges
+
+
+@pytest.mark.parametrize("delay", [1, 2, 3])
+def test_the_delayed_estimate_is_the_designed_first_order_lag(delay):
+    """Fed a constant estimate w from zero, the feed-forward is w (1 - (1 - L*)^k) after k steps, L* the
+    delayed observer's gain; reset starts it from zero again."""
+    gain = delayed_observer_gain(delay)
+    fed = DelayedEstimate(delay)
+    w = np.array([2.0, -1.0, 0.5])
+    outs = [fed.feed(w).copy() for _ in range(6)]
+    for k, out in enumerate(outs, start=1):
+        np.testing.assert_allclose(out, w * (1.0 - (1.0 - gain) ** k), rtol=1e-14)
+    fed.reset()
+    np.testing.assert_allclose(fed.feed(w), gain * w, rtol=1e-15)
+
+
+def test_the_delayed_estimate_passes_through_without_a_delay():
+    """At d = 0 the estimate is fed forward as given, the same array (the ideal loop bit for bit)."""
+    fed = DelayedEstimate(0)
+    w = np.array([1.0, 3.0])
+    assert fed.feed(w) is w and fed.feed(2 * w)[1] == 6.0
+
+
+def test_the_delayed_estimate_set_to_none_feeds_nothing_behind_a_delay():
+    """``"none"``: zero behind any delay (``off``), the estimate itself without one; a mode not known
+    is refused."""
+    w = np.array([1.5, -2.0])
+    assert DelayedEstimate(1, "none").off and not np.any(DelayedEstimate(2, "none").feed(w))
+    assert not DelayedEstimate(0, "none").off and DelayedEstimate(0, "none").feed(w) is w
+    with pytest.raises(ValueError, match="mode"):
+        DelayedEstimate(1, "half")

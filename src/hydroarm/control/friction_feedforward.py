@@ -40,11 +40,10 @@ published friction is compensated for the published values and the learners see 
 from __future__ import annotations
 
 import time
-from collections import deque
 
 import numpy as np
 
-from hydroarm.control.interface import Controller, ControlOutput, Reference
+from hydroarm.control.interface import Controller, ControlOutput, Reference, StepLog
 from hydroarm.model.real_loop.friction import FrictionConfig, friction_torque
 
 
@@ -86,7 +85,7 @@ class FrictionFeedforward:
         self.friction = friction
         self._arrays = tuple(np.ascontiguousarray(a, dtype=float) for a in friction.arrays(n))
         self.n = n
-        self._sent: deque[tuple[float, np.ndarray]] = deque(maxlen=64)
+        self._sent = StepLog(self.control_period)
         self._on = np.zeros(n, dtype=bool)
         self._rate: tuple[np.ndarray, np.ndarray] | None = None
 
@@ -113,7 +112,7 @@ class FrictionFeedforward:
         error = np.abs(np.asarray(y[: self.n], dtype=float) - q_r)
         self._on = np.where(self._on, error <= GATE_OFF, error <= GATE_ON)
         feedforward = np.where(self._on, self.torque(v_r), 0.0)
-        self._sent.append((t, feedforward))
+        self._sent.record(t, feedforward)
         if self._rate is not None:
             self.controller.drive_limits(self._rate[0] - feedforward, self._rate[1])
         elapsed = time.perf_counter() - start
@@ -128,7 +127,7 @@ class FrictionFeedforward:
     def observe(self, t: float, y: np.ndarray, u: np.ndarray, y_next: np.ndarray) -> None:
         """The wrapped controller observes the transition under ``u`` less the feed-forward of the
         step that commanded it (time t: behind a loop delay the filter passes that step's time)."""
-        sent = min(self._sent, key=lambda item: abs(item[0] - t), default=None)
-        if sent is not None and abs(sent[0] - t) < 0.5 * self.control_period:
-            u = np.asarray(u, dtype=float) - sent[1]
+        sent = self._sent.at(t)
+        if sent is not None:
+            u = np.asarray(u, dtype=float) - sent
         self.controller.observe(t, y, u, y_next)

@@ -57,16 +57,10 @@ Inner loop: computed torque ``tau = M(q) a_0 + h(q, v) - w_hat`` (n,) (one CRBA,
 nonlinear-effects call), with w_hat (n,) the disturbance estimate (sign: ``M q'' + h = tau +
 w``) and zero without a GP.
 
-Torque limits (``limits``), :mod:`hydroarm.control.idmpc_limits`; nothing changes while the
-unconstrained torque fits. ``"qp"`` (default): the horizon's problem of all joints as one QP
-(DAQP) in the N n moves, with the torque rows ``|tau_k| <= tau_max`` at every step: first
-with M, h frozen at the current state (exact at k = 0), then ``sqp_iterations`` SQP steps
-with the inverse dynamics linearised along the plan, so the plan brakes before it must and
-knows how its own motion changes M(q) (a saturated base joint gets the inertia the others'
-motion leaves it); should DAQP fail, that step uses the allocation. ``"allocation"``: the
-joints whose torque fits keep their planned acceleration, the others take their clipped
-torque and the acceleration the dynamics then gives. ``"clip"``: each torque clipped alone
-(plain computed-torque saturation, for comparison).
+Torque limits (``limits``, :mod:`hydroarm.control.idmpc_limits`; nothing changes while the
+unconstrained torque fits): ``"qp"`` (default) the horizon's QP of all joints (DAQP) with the
+torque rows at every step, frozen then SQP-linearised along the plan; ``"allocation"`` the joints
+that fit keep their acceleration; ``"clip"`` each torque clipped alone (for comparison).
 
 The drives' rate limit (issue 32; the loop's ``actuator.rate_limit`` r, N m/s): told it with the
 drives' output before each command acts (:meth:`InverseDynamicsMPC.drive_limits`, called by the
@@ -92,6 +86,14 @@ the planned mean acceleration is the Euler residual ``M(q) (v+ - v) / T + h(q, v
 ``NominalModel.tde_residual``: the TDE's and PI-IDMPC's). ``"rk4"`` (the default, GP-IDMPC's published
 numbers) is GP-MPC's target, the dry RK4 prediction's miss (``NominalModel.residual``), off by how the
 dry acceleration turns within the period (docs/controllers.md, "The GP's target").
+
+Behind a told loop delay d the filter hands ``observe`` a transition d steps old, from its revised
+state: each sample takes the acceleration of the step that commanded it, found by its time
+(:class:`~hydroarm.control.interface.StepLog`). What the estimate then feeds forward
+(``gp_feedforward_delayed``, :class:`~hydroarm.control.delay_design.DelayedEstimate`): ``"none"``
+(default; the loop is IDMPC's, bit for bit) or ``"designed"``, at the delayed observer's bandwidth;
+at d = 0 all of it, as before. ``ControlOutput.disturbance_mean`` is the GP's estimate either way
+(docs/robustness.md, "GP-IDMPC behind a delay").
 """
 
 from __future__ import annotations
@@ -99,17 +101,29 @@ from __future__ import annotations
 import time
 from typing import Annotated, Literal
 
-import numba
 import numpy as np
 import pydantic
 
 from hydroarm.config import FrozenModel, per_joint
-from hydroarm.control.delay_design import INERTIA_MARGIN, delay_margin_weight, told_delay_weight, wet_inertia_ratio
+from hydroarm.control.delay_design import (
+    INERTIA_MARGIN,
+    DelayedEstimate,
+    delay_margin_weight,
+    told_delay_weight,
+    wet_inertia_ratio,
+)
 from hydroarm.control.drive_limits import learned_added_mass, linearised_disturbance, rate_horizon
 from hydroarm.control.gp import GPConfig, SlidingWindowGP
 from hydroarm.control.idmpc_limits import HorizonQP, allocate, held_torque  # noqa: F401 (allocate: public here too)
-from hydroarm.control.interface import DEFAULT_CONTROL_PERIOD, ControlOutput, Reference, require_period, sample_times
-from hydroarm.control.linear import joint_lqr, reference_defects
+from hydroarm.control.interface import (
+    DEFAULT_CONTROL_PERIOD,
+    ControlOutput,
+    Reference,
+    StepLog,
+    require_period,
+    sample_times,
+)
+from hydroarm.control.linear import joint_lqr, reference_defects, unconstrained_move  # noqa: F401 (public here too)
 from hydroarm.model.arm.description import Arm
 from hydroarm.model.dynamics.nominal import NominalModel
 
@@ -181,6 +195,11 @@ class IDMPCConfig(FrozenModel):
         description="the GP's target: euler, the torque map's residual M(q)(v+ - v)/T + h - u, or rk4, "
         "the dry RK4 prediction's miss (module docstring)",
     )
+    gp_feedforward_delayed: Literal["none", "designed"] = pydantic.Field(
+        "none",
+        description="behind a told loop delay, what the GP's estimate feeds forward: none (the GP learns, "
+        "the loop is IDMPC's) or designed (at the delayed observer's bandwidth; module docstring)",
+    )
 
     @pydantic.field_validator("loop_delay", mode="before")
     @classmethod
@@ -202,35 +221,6 @@ def authority_weights(inertia: np.ndarray, torque_limit: np.ndarray, r_accelerat
     kg m^2, the ``torque_limit`` (n,) N m and the unscaled ``r_acceleration`` (n,) s^4/rad^2."""
     inverse_authority = np.asarray(inertia, dtype=float) / np.asarray(torque_limit, dtype=float)  # s^2/rad
     return np.maximum(r_acceleration * (inverse_authority / inverse_authority.max()) ** 2, r_floor)
-
-
-@numba.njit(cache=True)
-def unconstrained_move(e0, c, p_mats, gains, gs, period):  # pragma: no cover - compiled
-    """The first move u_0 (n,) of every joint's unconstrained problem (module docstring).
-
-    ``e0`` (n, 2): errors [q - q_r, v - v_r]; ``c`` (N, n, 2): the reference defects;
-    ``p_mats`` (n, 2, 2), ``gains`` (n, 2), ``gs`` (n, 2) per joint."""
-    horizon = c.shape[0]
-    n = e0.shape[0]
-    out = np.empty(n)
-    for j in range(n):
-        k0, k1 = gains[j, 0], gains[j, 1]
-        # closed loop A - B K, with B = [T^2/2, T]
-        b0, b1 = 0.5 * period * period, period
-        a00, a01 = 1.0 - b0 * k0, period - b0 * k1
-        a10, a11 = -b1 * k0, 1.0 - b1 * k1
-        p00, p01, p11 = p_mats[j, 0, 0], p_mats[j, 0, 1], p_mats[j, 1, 1]
-        s0 = 0.0
-        s1 = 0.0
-        for k in range(horizon - 1, 0, -1):  # s_k = (A - BK)' (P c_k + s_{k+1})
-            r0 = p00 * c[k, j, 0] + p01 * c[k, j, 1] + s0
-            r1 = p01 * c[k, j, 0] + p11 * c[k, j, 1] + s1
-            s0 = a00 * r0 + a10 * r1
-            s1 = a01 * r0 + a11 * r1
-        r0 = p00 * c[0, j, 0] + p01 * c[0, j, 1] + s0
-        r1 = p01 * c[0, j, 0] + p11 * c[0, j, 1] + s1
-        out[j] = -(k0 * e0[j, 0] + k1 * e0[j, 1]) - (gs[j, 0] * r0 + gs[j, 1] * r1)
-    return out
 
 
 class InverseDynamicsMPC:
@@ -296,6 +286,8 @@ class InverseDynamicsMPC:
         self.n_gp_inputs = gp_input_size(cfg.gp_features, n)
         self.gp = SlidingWindowGP(self.n_gp_inputs, n, gp_config) if gp_config is not None else None
         self.estimator = self.gp  # interface.DisturbanceEstimator (None: no GP)
+        self._gp_samples = StepLog(self.control_period)  # each step's sample acceleration, by the step's time
+        self._gp_fed = DelayedEstimate(delay, cfg.gp_feedforward_delayed)  # what of it is fed forward
         # load the compiled code now, not in the first control steps (a throwaway GP: same config)
         unconstrained_move(np.zeros((n, 2)), np.zeros((1, n, 2)), self.P, self.K, self._g, self.control_period)
         if gp_config is not None:
@@ -318,6 +310,8 @@ class InverseDynamicsMPC:
         self.drive_rate: tuple[np.ndarray, np.ndarray] | None = None  # the drives' (output, r T) for the next command
         self._pending_events: list[str] = []
         self._gp_input: np.ndarray | None = None  # the GP input of the last compute
+        self._gp_samples.clear()
+        self._gp_fed.reset()
 
     def drive_limits(self, output: np.ndarray, step: np.ndarray) -> None:
         """Tell the drives' rate limit for the next command: ``output`` (n,) N m, the torque the
@@ -445,19 +439,22 @@ class InverseDynamicsMPC:
                 if not np.all(np.isfinite(mean)):
                     self._pending_events.append("gp_nonfinite_prediction")
                     mean = np.where(np.isfinite(mean), mean, 0.0)
+        fed = self._gp_fed.feed(mean) if self.gp is not None else mean  # behind a delay: what of it acts
         if feedforward_torque is not None:
-            mean = mean + feedforward_torque
+            mean, fed = mean + feedforward_torque, fed + feedforward_torque
         t_gp = time.perf_counter()
         added_mass = self._learned_added_mass() if self.gp is not None and self.drive_rate is not None else None
         if added_mass is None:
-            tau, realised, saturated = self.torque_map(y[:n], y[n:], acceleration, mean)
+            tau, realised, saturated = self.torque_map(y[:n], y[n:], acceleration, fed)
         else:  # the estimate linearised in the acceleration the drives leave (module docstring)
-            w_free = mean + added_mass * acceleration
+            w_free = fed + added_mass * acceleration
             if self.rate_qp is not None:  # the rate QP's rows take it linearised too
                 self.rate_qp.disturbance_model = linearised_disturbance(w_free, added_mass)
             tau, realised, saturated = self.torque_map(y[:n], y[n:], acceleration, w_free, np.diag(added_mass))
             if self.n_gp_inputs == 3 * n:  # the sample pairs the residual with the acceleration given
-                self._gp_input = self.gp_input(y, realised)
+                acceleration = realised
+        if self.gp is not None:
+            self._gp_samples.record(t, acceleration)
         self.saturated_steps += bool(saturated.any())
         end = time.perf_counter()
         events, self._pending_events = tuple(self._pending_events), []
@@ -473,8 +470,8 @@ class InverseDynamicsMPC:
 
     def _learned_added_mass(self) -> np.ndarray | None:
         """The GP's added mass (n,) kg m^2 at the last GP input (:func:`learned_added_mass`); None
-        without acceleration inputs or before the GP feeds forward."""
-        if self.n_gp_inputs != 3 * self.n or self.gp.n_samples < self.config.min_samples:
+        without acceleration inputs, before the GP feeds forward or while it feeds nothing (behind a delay)."""
+        if self.n_gp_inputs != 3 * self.n or self.gp.n_samples < self.config.min_samples or self._gp_fed.off:
             return None
         return learned_added_mass(self.gp, self._gp_input, self.n, self.config.acceleration_scale)
 
@@ -491,9 +488,8 @@ class InverseDynamicsMPC:
             return
         y = np.asarray(y, dtype=float)
         residual = self.gp_target(y, u, y_next)
-        gp_input = self._gp_input
-        if gp_input is None or not np.array_equal(gp_input[: 2 * self.n], y):  # no compute at y: plan-free input
-            gp_input = self.gp_input(y, np.zeros(self.n))
+        planned = self._gp_samples.at(t)  # behind a delay, y is the filter's revised state: found by time
+        gp_input = self.gp_input(y, planned if planned is not None else np.zeros(self.n))
         if not (np.all(np.isfinite(residual)) and np.all(np.isfinite(gp_input))):
             self._pending_events.append("gp_sample_rejected")
             return

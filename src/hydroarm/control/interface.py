@@ -9,6 +9,7 @@ the new sample (a no-op for the others).
 
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Protocol, runtime_checkable
@@ -101,6 +102,34 @@ DEFAULT_CONTROL_PERIOD = 0.01
 
 CONTROL_PERIOD_RANGE = (1e-4, 1.0)
 """The control periods (s) a controller and an experiment accept, inclusive."""
+
+
+class StepLog:
+    """What a controller sent at each of its recent steps, keyed by the step's time t (s): a
+    transition handed to ``observe`` behind a loop delay of d periods carries the time of the step
+    that commanded it (t_k - d T, :class:`~hydroarm.control.estimator.FilteredController`), so the
+    value sent then is found by that time, not by the state (which the filter has revised since)."""
+
+    def __init__(self, control_period: float, steps: int = 64):
+        self.control_period = float(control_period)
+        self._entries: deque[tuple[float, np.ndarray]] = deque(maxlen=steps)
+
+    def clear(self) -> None:
+        self._entries.clear()
+
+    def record(self, t: float, value: np.ndarray) -> None:
+        self._entries.append((float(t), np.array(value, dtype=float)))
+
+    def at(self, t: float) -> np.ndarray | None:
+        """The value recorded at the step within half a period of ``t``; None if none is (newest first:
+        steps are a period apart, so at most one is)."""
+        half = 0.5 * self.control_period
+        for recorded, value in reversed(self._entries):
+            if abs(recorded - t) < half:
+                return value
+            if recorded < t - half:
+                break
+        return None
 
 
 def require_period(control_period: float) -> float:

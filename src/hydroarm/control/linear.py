@@ -289,6 +289,36 @@ def reference_defects(q_r: np.ndarray, v_r: np.ndarray, a_r: np.ndarray, period:
     return c
 
 
+@numba.njit(cache=True)
+def unconstrained_move(e0, c, p_mats, gains, gs, period):  # pragma: no cover - compiled
+    """The first move u_0 (n,) of every joint's unconstrained horizon problem: the LQR law plus a
+    preview of the reference's defects (:mod:`hydroarm.control.idmpc`'s docstring).
+
+    ``e0`` (n, 2): errors [q - q_r, v - v_r]; ``c`` (N, n, 2): the reference defects;
+    ``p_mats`` (n, 2, 2), ``gains`` (n, 2), ``gs`` (n, 2) per joint."""
+    horizon = c.shape[0]
+    n = e0.shape[0]
+    out = np.empty(n)
+    for j in range(n):
+        k0, k1 = gains[j, 0], gains[j, 1]
+        # closed loop A - B K, with B = [T^2/2, T]
+        b0, b1 = 0.5 * period * period, period
+        a00, a01 = 1.0 - b0 * k0, period - b0 * k1
+        a10, a11 = -b1 * k0, 1.0 - b1 * k1
+        p00, p01, p11 = p_mats[j, 0, 0], p_mats[j, 0, 1], p_mats[j, 1, 1]
+        s0 = 0.0
+        s1 = 0.0
+        for k in range(horizon - 1, 0, -1):  # s_k = (A - BK)' (P c_k + s_{k+1})
+            r0 = p00 * c[k, j, 0] + p01 * c[k, j, 1] + s0
+            r1 = p01 * c[k, j, 0] + p11 * c[k, j, 1] + s1
+            s0 = a00 * r0 + a10 * r1
+            s1 = a01 * r0 + a11 * r1
+        r0 = p00 * c[0, j, 0] + p01 * c[0, j, 1] + s0
+        r1 = p01 * c[0, j, 0] + p11 * c[0, j, 1] + s1
+        out[j] = -(k0 * e0[j, 0] + k1 * e0[j, 1]) - (gs[j, 0] * r0 + gs[j, 1] * r1)
+    return out
+
+
 def kalman_correction(sigma: np.ndarray, measurement: np.ndarray, noise: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The Kalman gain ``L = Sigma C^T (C Sigma C^T + R)^-1`` (2, m) and the posterior covariance
     ``(I - L C) Sigma`` (2, 2, symmetric) of one joint's filter for the prior ``sigma`` (2, 2,

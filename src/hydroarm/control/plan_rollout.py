@@ -6,7 +6,7 @@ One step of the rollout from (q, v) (n,) each, given Pinocchio's CRBA (upper tri
 nonlinear effects at that state and the arm's joint Jacobian and its time variation (6, n):
 
 1. the IDMPC's unconstrained first acceleration ``a = a_r,0 + u_0(e0, c)``
-   (:func:`~hydroarm.control.idmpc.unconstrained_move`, the defects c of its own horizon);
+   (:func:`~hydroarm.control.linear.unconstrained_move`, the defects c of its own horizon);
 2. the water model's terms ``(M_A, f)`` (:func:`~hydroarm.model.water.strips.water_terms` with the
    model's coefficients), ``M = M_dry + M_A``, ``bias = h - f - w_rest``;
 3. the torque allocation of :func:`~hydroarm.control.idmpc_limits.allocate`
@@ -27,7 +27,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from hydroarm.control.idmpc import unconstrained_move
+from hydroarm.control.linear import unconstrained_move
 from hydroarm.model.water.strips import water_terms
 
 __all__ = ["allocate_fixed", "rollout_step", "water_along_plan"]

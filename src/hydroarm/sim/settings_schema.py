@@ -120,6 +120,11 @@ MIGRATIONS: tuple[Migration, ...] = (
         "GP-IDMPC's GP target chosen: its RK4 residual or the torque map's Euler one",
         keys={"idmpc.gp_residual": "rk4"},
     ),
+    Migration(
+        17,
+        "GP-IDMPC behind a told loop delay: what its GP's estimate feeds forward",
+        keys={"idmpc.gp_feedforward_delayed": "none"},
+    ),
 )
 """Every migration, in order: ``MIGRATIONS[k - 2]`` leads from schema k - 1 to k. The numbers
 before 11 were given after the fact (no record carried one), in the order the features came."""
