@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from hydroarm.control.friction_feedforward import GATE_OFF, GATE_ON, FrictionFeedforward, told_friction
-from hydroarm.control.interface import ControlOutput, controller_chain
+from hydroarm.control.interface import ControlOutput, StepLog, controller_chain
 from hydroarm.model.arm.loading import load_arm
 from hydroarm.model.arm.plant import UnderwaterPlant
 from hydroarm.model.real_loop.friction import PUBLISHED_COULOMB, FrictionConfig
@@ -134,3 +134,15 @@ def test_the_feedforward_holds_the_light_wrist_against_the_published_friction():
         errors[setting] = np.mean((traj.q_ref - traj.q)[late] ** 2, axis=0)
     assert errors["arm"][5] < 0.1 * errors[0][5]
     assert errors["arm"].mean() < 0.3 * errors[0].mean()
+
+
+def test_the_step_log_finds_a_step_by_its_time_within_half_a_period():
+    """``StepLog.at``: the value of the step within half a period of the time asked, the newest
+    steps kept (``steps``), None for a time no kept step is near."""
+    log = StepLog(0.01, steps=3)
+    for k in range(5):
+        log.record(k * 0.01, np.full(2, float(k)))
+    assert log.at(0.0399)[0] == 4.0 and log.at(0.0251)[0] == 3.0 and log.at(0.02)[0] == 2.0
+    assert log.at(0.01) is None and log.at(0.0451) is None and log.at(0.0149) is None
+    log.clear()
+    assert log.at(0.04) is None
