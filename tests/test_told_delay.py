@@ -177,7 +177,7 @@ def test_the_delayed_estimate_is_the_designed_first_order_lag(delay):
     """Fed a constant estimate w from zero, the feed-forward is w (1 - (1 - L*)^k) after k steps, L* the
     delayed observer's gain; reset starts it from zero again."""
     gain = delayed_observer_gain(delay)
-    fed = DelayedEstimate(delay)
+    fed = DelayedEstimate(delay, "designed")
     w = np.array([2.0, -1.0, 0.5])
     outs = [fed.feed(w).copy() for _ in range(6)]
     for k, out in enumerate(outs, start=1):
@@ -188,7 +188,7 @@ def test_the_delayed_estimate_is_the_designed_first_order_lag(delay):
 
 def test_the_delayed_estimate_passes_through_without_a_delay():
     """At d = 0 the estimate is fed forward as given, the same array (the ideal loop bit for bit)."""
-    fed = DelayedEstimate(0)
+    fed = DelayedEstimate(0, "designed")
     w = np.array([1.0, 3.0])
     assert fed.feed(w) is w and fed.feed(2 * w)[1] == 6.0
 

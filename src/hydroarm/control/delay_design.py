@@ -170,7 +170,7 @@ class DelayedEstimate:
     and no armature ``"designed"`` lowers E_p where the water is slow and leaves the band where it
     turns faster than the delayed estimate follows; hence ``"none"`` by default."""
 
-    def __init__(self, delay: int, mode: str = "designed"):
+    def __init__(self, delay: int, mode: str):
         if mode not in ("none", "designed"):
             raise ValueError(f"DelayedEstimate: mode = {mode!r}: give 'none' or 'designed'")
         self.delay = int(delay)
