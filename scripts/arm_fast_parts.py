@@ -32,7 +32,7 @@ from pathlib import Path
 import numba
 import numpy as np
 
-from hydroarm.model.arm.description import fast_kernels as kernels
+from hydroarm.model.arm import fast_kernels as kernels
 from hydroarm.model.dynamics.fixed_order import cholesky_solve_into
 from hydroarm.model.water.current import current_at
 from hydroarm.sim.experiment import build_experiment, with_overrides
