@@ -10,10 +10,13 @@ import numpy as np
 import pinocchio as pin
 import pydantic
 import pytest
+from numba.typed import List
 
 from hydroarm.model.arm.fast import BatchedArm, FastArmDynamics
+from hydroarm.model.arm.fast_kernels import batch_step_kernel
 from hydroarm.model.arm.loading import load_arm
 from hydroarm.model.arm.plant import PlantConfig, UnderwaterPlant
+from hydroarm.model.dynamics.integrator import inner_steps
 from hydroarm.model.real_loop.friction import FrictionConfig
 from hydroarm.model.water.morison import CurrentConfig, Water, added_mass_matrix
 from hydroarm.sim.experiment import ExperimentConfig, build_experiment, with_overrides
@@ -146,6 +149,14 @@ def test_batched_steps_equal_single_steps_bit_for_bit():
         assert np.array_equal(dist[c], single[1])
         assert np.array_equal(start[c], single[2])
     assert not np.array_equal(x_next[0], x_next[1])
+    # the kernel's runs of copies per thread, each stepping its own replica of the settings it
+    # meets (made again where ``which`` changes along a run): any split gives the same numbers
+    steps, h = inner_steps(0.01, 1e-3)
+    arms = List([s.compiled for s in settings])
+    for chunks in (1, 4, count):
+        split = batch_step_kernel(t, x, tau, steps, h, arms, which.astype(np.int64), chunks)
+        for got, want in zip(split, (x_next, dist, start), strict=True):
+            assert np.array_equal(got, want)
 
 
 def test_plant_keys_left_out_of_run_ids_at_their_defaults():

@@ -164,7 +164,8 @@ class BatchedArm:
             raise ValueError(f"BatchedArm.step: {count} states for {which.shape[0]} copies")
         times = np.broadcast_to(np.asarray(t, dtype=float), (count,)).copy()
         steps, h = inner_steps(dt, inner_step)
-        return batch_step_kernel(times, x, tau, steps, h, self._arms, which)
+        chunks = max(1, min(count, int(numba.get_num_threads())))
+        return batch_step_kernel(times, x, tau, steps, h, self._arms, which, chunks)
 
     @staticmethod
     def threads() -> int:

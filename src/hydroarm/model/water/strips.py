@@ -115,6 +115,23 @@ def _new_strips(chain, floating, cylinders, coefficients, quadrature, switches, 
     return s
 
 
+@numba.njit(cache=True)
+def replicate_strips(s):  # pragma: no cover - compiled
+    """A private copy of the compiled strips ``s``: the same fields, every array copied. Threads
+    that read one shared :class:`Strips` contend on its arrays' reference counts (every read of
+    an array field is an atomic increment of a count they all write); each reading its own copy,
+    they do not. Equal values, so the kernels' numbers are the same to the bit."""
+    return _new_strips(
+        (s.parents.copy(), s.placement_rotation.copy(), s.placement_translation.copy(), s.axes.copy(), s.idx_v.copy()),
+        (s.floating, s.root_rows.copy(), s.body_rotation.copy(), s.body_translation.copy()),
+        (s.joint_ids.copy(), s.start.copy(), s.axis.copy(), s.support.copy()),
+        (s.table.copy(), s.viscosity, s.curve_log_re.copy(), s.curve_cd.copy()),
+        (s.nodes.copy(), s.weights.copy()),
+        (s.drag, s.added_mass, s.buoyancy, s.axial, s.drag_model, s.added_mass_model),
+        (s.current_joint.copy(), s.current_world.copy()),
+    )
+
+
 class StripGeometry:
     """The arrays of the strip integrals of one (arm, water) pair, one row per cylinder, and the
     water's switches; :meth:`compile` packs them into a :class:`Strips`.
