@@ -354,3 +354,32 @@ def test_the_reynolds_drag_runs_on_the_vehicle_paths_alike():
             1.0 + np.abs(reference).max()
         )
         assert np.abs(constant.acceleration(0.3, q, v, tau, thrust) - reference).max() > 1e-6
+
+
+@pytest.mark.parametrize("points", [2, 3, 8])
+def test_kirchhoff_body_wrench_in_closed_form_is_the_gauss_sum(points):
+    """The body frame's closed-form Kirchhoff wrench (the compiled arm's and the vehicle's path)
+    is the Gauss sum the world frame takes, to round-off: its integrands are of degree <= 2 in s,
+    which two points or more integrate exactly; with one point (the midpoint rule) they differ."""
+    from hydroarm.model.water import effects
+
+    rng = np.random.default_rng(points)
+
+    def wrenches(count):
+        nodes, weights = np.polynomial.legendre.leggauss(count)
+        frame = effects.new_frame(6, True, 0.5 * (nodes + 1.0), 0.5 * weights, np.zeros(1), np.zeros(1))
+        axis = rng.normal(size=3)
+        frame[effects.E, :3] = axis / np.linalg.norm(axis)
+        for row in (effects.P0, effects.VEL0, effects.VELR, effects.OM):
+            frame[row, :3] = rng.normal(size=3)
+        frame[effects.CYL, effects.LENGTH] = length = 0.37
+        gauss, closed = np.zeros(6), np.zeros(6)
+        effects.kirchhoff_bias(frame, -1.7 * length, gauss)
+        effects._kirchhoff_wrench(1.7, length, frame, closed)
+        return gauss, closed
+
+    gauss, closed = wrenches(points)
+    assert np.allclose(closed, gauss, rtol=1e-13, atol=1e-13 * np.abs(gauss).max()), (closed, gauss)
+    assert np.abs(gauss).max() > 0.1
+    midpoint, exact = wrenches(1)
+    assert not np.allclose(midpoint, exact, rtol=1e-6)

@@ -275,7 +275,7 @@ def added_mass(strips, frame, mass, bias, force):  # pragma: no cover - compiled
     if frame[KIND, 0] > 0.0:
         _added_mass_wrench(m_a, length, frame, force)
         if kirchhoff:
-            kirchhoff_bias(frame, -m_a * length, force)
+            _kirchhoff_wrench(m_a, length, frame, force)
         return
     acceleration_bias(frame)
     coefficient = m_a * length
@@ -333,6 +333,46 @@ def _added_mass_wrench(m_a, length, frame, out):  # pragma: no cover - compiled
     out[3] += r1 * g2 - r2 * g1 + (e1 * h2 - e2 * h1)
     out[4] += r2 * g0 - r0 * g2 + (e2 * h0 - e0 * h2)
     out[5] += r0 * g1 - r1 * g0 + (e0 * h1 - e1 * h0)
+
+
+@numba.njit(cache=True, inline="always")
+def _kirchhoff_wrench(m_a, length, frame, out):  # pragma: no cover - compiled
+    """Body frame: add the body wrench of :func:`kirchhoff_bias`'s force (``-h_A``'s Kirchhoff
+    part) to ``out`` (6,) in closed form, as :func:`_added_mass_wrench` does Morison's. With
+    u(s) = u0 + s u_r, the turn ``e.(om x u)`` and the axial ``e.u`` are linear in s, the force
+    per length ``-m_a (turn e - axial (om x e))`` too, its moment about the body's origin and the
+    couple ``m_a axial (u x e)`` quadratic: their integrals over [0, L] are sums of the moments
+    ``int 1, s, s^2 ds`` = L, L^2/2, L^3/3 (the Gauss rule gives the same to round-off with two
+    points or more: the cylinder's drag points; with one it is the midpoint rule's approximation,
+    which the body frame replaces by the integral)."""
+    e0, e1, e2 = frame[E, 0], frame[E, 1], frame[E, 2]
+    om0, om1, om2 = frame[OM, 0], frame[OM, 1], frame[OM, 2]
+    a0, a1, a2 = frame[VEL0, 0], frame[VEL0, 1], frame[VEL0, 2]
+    b0, b1, b2 = frame[VELR, 0], frame[VELR, 1], frame[VELR, 2]
+    ex0, ex1, ex2 = om1 * e2 - om2 * e1, om2 * e0 - om0 * e2, om0 * e1 - om1 * e0  # om x e
+    # turn = e.(om x u) = u.(e x om) = -u.(om x e); axial = e.u (each at s = 0 and its rate)
+    turn0, turn1 = -(a0 * ex0 + a1 * ex1 + a2 * ex2), -(b0 * ex0 + b1 * ex1 + b2 * ex2)
+    axial0, axial1 = e0 * a0 + e1 * a1 + e2 * a2, e0 * b0 + e1 * b1 + e2 * b2
+    l1, l2, l3 = length, 0.5 * length * length, length * length * length / 3.0
+    turn_1, axial_1 = turn0 * l1 + turn1 * l2, axial0 * l1 + axial1 * l2  # int f ds
+    axial_s = axial0 * l2 + axial1 * l3  # int s axial ds
+    f0 = -m_a * (turn_1 * e0 - axial_1 * ex0)
+    f1 = -m_a * (turn_1 * e1 - axial_1 * ex1)
+    f2 = -m_a * (turn_1 * e2 - axial_1 * ex2)
+    # the force's moment: p(s) x f(s) with p = r + s e, f = F0 + s F1: r x int f + e x int s f,
+    # and e x int s f = m_a axial_s (e x (om x e)) (e x e = 0)
+    r0, r1, r2 = frame[P0, 0], frame[P0, 1], frame[P0, 2]
+    k0, k1, k2 = e1 * ex2 - e2 * ex1, e2 * ex0 - e0 * ex2, e0 * ex1 - e1 * ex0  # e x (om x e)
+    # the couple: m_a int axial(s) (u(s) x e) ds = m_a (axial_1 (u0 x e) + axial_s (u_r x e))
+    c0 = m_a * (axial_1 * (a1 * e2 - a2 * e1) + axial_s * (b1 * e2 - b2 * e1))
+    c1 = m_a * (axial_1 * (a2 * e0 - a0 * e2) + axial_s * (b2 * e0 - b0 * e2))
+    c2 = m_a * (axial_1 * (a0 * e1 - a1 * e0) + axial_s * (b0 * e1 - b1 * e0))
+    out[0] += f0
+    out[1] += f1
+    out[2] += f2
+    out[3] += r1 * f2 - r2 * f1 + m_a * axial_s * k0 + c0
+    out[4] += r2 * f0 - r0 * f2 + m_a * axial_s * k1 + c1
+    out[5] += r0 * f1 - r1 * f0 + m_a * axial_s * k2 + c2
 
 
 @numba.njit(cache=True, inline="always")
