@@ -89,9 +89,21 @@ def test_each_term_is_far_above_the_tolerance(term, axial_arm):
     assert _relative(dry, wet) > 1e-9
 
 
+def test_kirchhoffs_terms_are_far_above_the_tolerance(axial_arm):
+    """Kirchhoff's added mass against Morison's changes the numba kernel's state after one period
+    by far more than the 1e-12 tolerance, so the JAX test with it checks its terms."""
+    settings = {"friction.scale": 1.0, "plant.friction": 0.3}
+    morison = _plant(axial_arm, **settings)
+    kirchhoff = _plant(axial_arm, **settings, **{"water.added_mass_model": "kirchhoff"})
+    x, tau, times = _copies(morison, 3)
+    one = BatchedArm(morison.plant.fast).step(times, x, tau, PERIOD, morison.plant.inner_step)[0]
+    other = BatchedArm(kirchhoff.plant.fast).step(times, x, tau, PERIOD, kirchhoff.plant.inner_step)[0]
+    assert _relative(other, one) > 1e-9
+
+
 @pytest.mark.parametrize(
     "field, value, match",
-    [("switches", [1, 1, 1, 1, 1, 0], "reynolds"), ("switches", [1, 1, 1, 1, 0, 1], "kirchhoff"),
+    [("switches", [1, 1, 1, 1, 1, 0], "reynolds"), ("switches", [1, 1, 1, 1, 0, 2], "neither Morison"),
      ("floating", True, "floating")],
 )  # fmt: skip
 def test_what_it_does_not_model_is_refused(field, value, match):
@@ -101,9 +113,11 @@ def test_what_it_does_not_model_is_refused(field, value, match):
         check_constants(constants)
 
 
-def test_jax_period_equals_numba_with_every_term(tmp_path, axial_arm):
+@pytest.mark.parametrize("added_mass", ["morison", "kirchhoff"])
+def test_jax_period_equals_numba_with_every_term(tmp_path, axial_arm, added_mass):
     """``scripts/gpu_plant.py`` as on the GPU machine: ``--export`` here, every term on (water
-    strips, buoyancy, axial drag, added mass, the paper's current at a different phase per copy, the
+    strips, buoyancy, axial drag, added mass (Morison's and Kirchhoff's: one XLA compile each), the
+    paper's current at a different phase per copy, the
     joint friction model and the viscous friction), then ``--run`` with no hydroarm on the path (the
     JAX module loaded by file path), its timed row of 3 copies (the check's own count: the check and the
     row share one XLA compile; 8 copies compiled a second program, 34 s more on a 2-core CI machine),
@@ -115,11 +129,13 @@ def test_jax_period_equals_numba_with_every_term(tmp_path, axial_arm):
     data, out = tmp_path / "tiny.npz", tmp_path / "result.json"
     subprocess.run([sys.executable, str(SCRIPT), "--export", str(data), "--arm", axial_arm, "--drag-points", "2",
                     "--periods", "5", "--reference-copies", "3", "--set", "friction.scale=1",
-                    "--set", "plant.friction=0.3"], check=True, capture_output=True)  # fmt: skip
+                    "--set", "plant.friction=0.3", "--set", f"water.added_mass_model={added_mass}"],
+                   check=True, capture_output=True)  # fmt: skip
     assert data.stat().st_size < 2_000_000
     saved = np.load(data, allow_pickle=False)
     assert bool(saved["c_friction_on"]) and float(saved["c_uniform"]) == 0.3
     assert np.any(saved["c_current_joint"][0] != 0.0) and np.all(saved["c_switches"][:4] == 1)
+    assert int(saved["c_switches"][5]) == (added_mass == "kirchhoff")
     env = {"PATH": "/usr/bin:/bin", "HOME": str(tmp_path)}  # no PYTHONPATH: only the venv's jax and numpy
     # JAX's persistent compilation cache where one is set: the same program loads its compiled period
     # from there; a changed program misses it and compiles

@@ -3,7 +3,8 @@
 The same mathematics as the compiled CPU plant (:mod:`hydroarm.model.arm.fast_kernels`), operation
 for operation where the arithmetic is the same: the forward pass over the tree, the rigid body
 forces, the water of every wetted cylinder in its body's frame (constant-C_d Morison drag with
-its Gauss points vectorised, axial drag, Morison added mass's velocity term, buoyancy), the
+its Gauss points vectorised, axial drag, the added mass's velocity term, Morison's or
+Kirchhoff's, in closed form as the body frame takes them, buoyancy), the
 backward pass, the CRBA on the rigid + added inertias, an unrolled Cholesky solve of the n x n
 system (no vendor solve), the joint friction and the viscous friction, the paper's joint
 current and the uniform current, the disturbance ``M q'' + nle - tau`` and the RK4 bookkeeping of
@@ -18,8 +19,8 @@ This module imports only NumPy and JAX: it is loaded by file path on a machine w
 without hydroarm's other dependencies (``scripts/gpu_plant.py --run``). Its constants are the
 dict :func:`hydroarm.model.arm.fast_export.export_constants` makes from a
 :class:`~hydroarm.model.arm.fast.FastArmDynamics` (NumPy arrays, ``np.savez``-able).
-What the compiled plant models and this does not (the Reynolds drag, the Kirchhoff added mass, a
-floating base) is refused by :func:`check_constants`.
+What the compiled plant models and this does not (the Reynolds drag, a floating base) is refused
+by :func:`check_constants`.
 """
 
 from __future__ import annotations
@@ -46,8 +47,8 @@ def check_constants(constants: dict) -> None:
     drag, added_mass, buoyancy, axial, drag_model, added_mass_model = (int(s) for s in constants["switches"])
     if drag and drag_model != 0:
         raise ValueError("fast_jax: water.drag_model = 'reynolds' is not on the JAX path (only 'constant')")
-    if added_mass and added_mass_model != 0:
-        raise ValueError("fast_jax: water.added_mass_model = 'kirchhoff' is not on the JAX path (only 'morison')")
+    if added_mass_model not in (0, 1):
+        raise ValueError(f"fast_jax: added_mass_model {added_mass_model} is neither Morison (0) nor Kirchhoff (1)")
     if bool(constants["floating"]):
         raise ValueError("fast_jax: a floating base is not on the JAX path (the fixed-base arm only)")
     parents = np.asarray(constants["parents"])
@@ -77,6 +78,7 @@ class _Arm:
         self.weights = np.asarray(c["weights"], dtype=float)
         switches = [int(s) for s in c["switches"]]
         self.drag, self.added_mass, self.buoyancy, self.axial = (bool(s) for s in switches[:4])
+        self.kirchhoff = switches[5] == 1
         self.current_joint = np.asarray(c["current_joint"], dtype=float).reshape(3, -1)
         self.current_world = _f(c["current_world"])
         self.uniform = float(c["uniform"])
@@ -277,6 +279,31 @@ def _added_mass_wrench(m_a, length, p, e, om, vel0, velr, dl, da):
             r0 * g1 - r1 * g0 + (e0 * h1 - e1 * h0)]  # fmt: skip
 
 
+def _kirchhoff_wrench(m_a, length, p, e, om, vel0, velr):
+    """Kirchhoff's addition to the velocity term, closed form
+    (:func:`hydroarm.model.water.effects._kirchhoff_wrench`), 6 list."""
+    e0, e1, e2 = e
+    om0, om1, om2 = om
+    a0, a1, a2 = vel0
+    b0, b1, b2 = velr
+    ex0, ex1, ex2 = om1 * e2 - om2 * e1, om2 * e0 - om0 * e2, om0 * e1 - om1 * e0
+    turn0, turn1 = -(a0 * ex0 + a1 * ex1 + a2 * ex2), -(b0 * ex0 + b1 * ex1 + b2 * ex2)
+    axial0, axial1 = e0 * a0 + e1 * a1 + e2 * a2, e0 * b0 + e1 * b1 + e2 * b2
+    l1, l2, l3 = length, 0.5 * length * length, length * length * length / 3.0
+    turn_1, axial_1 = turn0 * l1 + turn1 * l2, axial0 * l1 + axial1 * l2
+    axial_s = axial0 * l2 + axial1 * l3
+    f0 = -m_a * (turn_1 * e0 - axial_1 * ex0)
+    f1 = -m_a * (turn_1 * e1 - axial_1 * ex1)
+    f2 = -m_a * (turn_1 * e2 - axial_1 * ex2)
+    r0, r1, r2 = p
+    k0, k1, k2 = e1 * ex2 - e2 * ex1, e2 * ex0 - e0 * ex2, e0 * ex1 - e1 * ex0
+    c0 = m_a * (axial_1 * (a1 * e2 - a2 * e1) + axial_s * (b1 * e2 - b2 * e1))
+    c1 = m_a * (axial_1 * (a2 * e0 - a0 * e2) + axial_s * (b2 * e0 - b0 * e2))
+    c2 = m_a * (axial_1 * (a0 * e1 - a1 * e0) + axial_s * (b0 * e1 - b1 * e0))
+    return [f0, f1, f2, r1 * f2 - r2 * f1 + m_a * axial_s * k0 + c0, r2 * f0 - r0 * f2 + m_a * axial_s * k1 + c1,
+            r0 * f1 - r1 * f0 + m_a * axial_s * k2 + c2]  # fmt: skip
+
+
 def _add_wrench(out, r, f):
     return [out[0] + f[0], out[1] + f[1], out[2] + f[2], out[3] + (r[1] * f[2] - r[2] * f[1]),
             out[4] + (r[2] * f[0] - r[0] * f[2]), out[5] + (r[0] * f[1] - r[1] * f[0])]  # fmt: skip
@@ -311,6 +338,9 @@ def _cylinder(arm: _Arm, k, w, vel, acc, rot_world, flow_world, jnp):
     if arm.added_mass and table[MASS] > 0.0:
         wrench = _added_mass_wrench(table[MASS], table[LENGTH], p, e, om, vel0, velr, dl, da)
         w = [w[a] + wrench[a] for a in range(6)]
+        if arm.kirchhoff:
+            wrench = _kirchhoff_wrench(table[MASS], table[LENGTH], p, e, om, vel0, velr)
+            w = [w[a] + wrench[a] for a in range(6)]
     if arm.buoyancy:
         s, lift = 0.5 * table[LENGTH], table[BUOYANCY]
         w = _add_wrench(w, [p[i] + s * e[i] for i in range(3)], [lift * up[0], lift * up[1], lift * up[2]])
