@@ -25,6 +25,9 @@ CEILING_LINES = 800
 that has parts worth naming), and splitting it along that boundary is the way down."""
 
 LONG_MODULES: dict[str, str] = {
+    "model/arm/fast_jax.py": "the GPU path's control period as one file: scripts/gpu_plant.py --run loads it "
+    "by file path on a machine with only JAX and NumPy, so its kernels (tree, water, CRBA, solve, RK4) "
+    "cannot import one another from sibling modules",
     "envs/vector.py": "the multi-process vector env as one Gymnasium VectorEnv: its lanes' commands, "
     "errors, a dead worker, Ctrl-C and closing (the workers' side is envs/vector_lanes.py)",
     "sim/experiment.py": "one experiment as validated data and its one builder: ExperimentConfig (every "

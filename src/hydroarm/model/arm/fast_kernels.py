@@ -14,9 +14,10 @@ with a Cholesky solve, the joint friction and the Reynolds drag joining tau as
 :func:`hydroarm.model.arm.plant.rk4_stage_kernel` does, and its RK4 bookkeeping
 (:func:`hydroarm.model.dynamics.integrator.rk4_disturbance_stage`).
 
-Everything allocates its scratch per call (a few small arrays per control period) so that
-copies stepped in parallel (:func:`batch_step_kernel`, ``numba.prange``) share nothing but the
-read-only constants. Spatial vectors are (linear, angular), Pinocchio's order.
+Everything allocates its scratch per call (a few small arrays per control period), and each
+thread of :func:`batch_step_kernel` (``numba.prange``) steps its copies with its own replica of
+the constants (:func:`replicate`), so that copies stepped in parallel share nothing, not even a
+reference count. Spatial vectors are (linear, angular), Pinocchio's order.
 
 The two entries a caller may call alone, :func:`rigid_terms` and :func:`evaluate`, are compiled
 functions of their own, cached once (what they call is inlined into them by numba,
@@ -385,7 +386,7 @@ def batch_step_kernel(t, x, tau, steps, h, arms, which, chunks):  # pragma: no c
     """:func:`step_kernel` for N copies at once, across the cores: ``x`` (N, 2n), ``tau`` (N, n),
     copy c stepped with ``arms[which[c]]`` (a typed list of :class:`FastArm`: one shared, or one
     per water or mass setting). Returns ``(x_next (N, 2n), disturbance (N, n), start (N, n))``;
-    each copy's numbers are :func:`step_kernel`'s bit for bit (nothing is shared but constants).
+    each copy's numbers are :func:`step_kernel`'s bit for bit.
 
     The copies are split into ``chunks`` contiguous runs (one per thread), and each run steps
     with its own :func:`replicate` of the setting it meets (made again when ``which`` changes
