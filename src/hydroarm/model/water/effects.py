@@ -385,7 +385,8 @@ def kirchhoff_bias(frame, coefficient, out):  # pragma: no cover - compiled
     ``-m_a (e (e.(om x u)) - (e.u) (om x e))``, and a couple ``m_a (e.u) (u x e)`` per length
     (docs/model.md). So ``h_A`` gains ``int [J_p^T m_a (e (e.(om x u)) - (e.u)(om x e))
     - J_w^T m_a (e.u)(u x e)] ds`` (polynomials of degree <= 2 in s: exact with 2 Gauss points).
-    ``coefficient`` = m_a L (its negative adds ``-h_A``, the force, as the body frame does)."""
+    ``coefficient`` = m_a L (its negative adds ``-h_A``, the force). The body frame takes the same
+    integrals in closed form (:func:`_kirchhoff_wrench`); this Gauss sum is the world frame's."""
     e0, e1, e2 = frame[E, 0], frame[E, 1], frame[E, 2]
     om0, om1, om2 = frame[OM, 0], frame[OM, 1], frame[OM, 2]
     ex0, ex1, ex2 = om1 * e2 - om2 * e1, om2 * e0 - om0 * e2, om0 * e1 - om1 * e0  # om x e
